@@ -1,0 +1,335 @@
+//! The voxel medium: index field(s) with gradient, attenuation, albedo,
+//! Henyey-Greenstein g, emission and the boundary indicator; and the two
+//! ways to sample an index field, from voxels or exactly from the scene.
+//!
+//! # Gradient
+//! The gradient is stored per cell as the central difference of the
+//! Gaussian-smoothed index (the paper's choice) and sampled trilinearly, like
+//! n itself. The trilinear interpolant's own derivative would be piecewise
+//! constant across a cell and jump at every cell face, bending rays unevenly
+//! and breaking RK4's order; the interpolated stored gradient is continuous.
+//! See docs/ARCHITECTURE.md.
+//!
+//! # Units
+//! Lengths are world units (the scene's). `extinction` is sigma_t per world
+//! unit, so a path of length d keeps `exp(-sigma_t d)`. The gradient is per
+//! world unit. The boundary indicator is per world unit and integrates to
+//! one across an interface (eq 2's Dirac delta).
+
+use crate::error::Result;
+use crate::geometry::GridGeometry;
+use crate::ray::IndexField;
+use crate::scene::Scene;
+use crate::smooth;
+use crate::voxelize::{self, Raster};
+use glam::{DVec3, Vec4};
+use ndarray::{s, Array3, Array4, Axis};
+use rayon::prelude::*;
+
+/// A scene voxelized onto its grid.
+#[derive(Clone, Debug)]
+pub struct Medium {
+    /// Resolution and bounds.
+    pub geometry: GridGeometry,
+    /// Smoothing sigma applied to n, in voxels.
+    pub smoothing: f64,
+    /// One array per index channel (1, or 3 = R, G, B with dispersion), of
+    /// shape `(nx, ny, nz, 4)`: smoothed n and its gradient (per world unit).
+    pub index: Vec<Array4<f32>>,
+    /// RGB extinction sigma_t per world unit, `(nx, ny, nz, 3)`.
+    pub extinction: Array4<f32>,
+    /// RGB single-scattering albedo, `(nx, ny, nz, 3)`.
+    pub albedo: Array4<f32>,
+    /// Henyey-Greenstein asymmetry, `(nx, ny, nz)`.
+    pub g: Array3<f32>,
+    /// RGB emission, `(nx, ny, nz, 3)`.
+    pub emission: Array4<f32>,
+    /// Discrete Dirac delta of the material boundaries (per world unit).
+    pub boundary: Array3<f32>,
+}
+
+/// Memory needed for a medium, in bytes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MemoryEstimate {
+    /// Kept once built.
+    pub resident: u128,
+    /// Highest use while building.
+    pub peak: u128,
+}
+
+/// Bytes the operating system reports available (`MemAvailable`), if known.
+pub fn available_memory() -> Option<u128> {
+    let info = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = info.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u128 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+/// Human-readable byte count.
+pub fn format_bytes(b: u128) -> String {
+    let units = ["B", "KiB", "MiB", "GiB", "TiB", "PiB", "EiB"];
+    let mut v = b as f64;
+    let mut u = 0;
+    while v >= 1024.0 && u + 1 < units.len() {
+        v /= 1024.0;
+        u += 1;
+    }
+    if u == 0 {
+        format!("{b} B")
+    } else {
+        format!("{v:.1} {}", units[u])
+    }
+}
+
+/// Halo of cells voxelized around the grid so smoothing and the central
+/// difference at the edge see real scene values rather than a clamp.
+fn halo(sigma: f64) -> usize {
+    smooth::kernel_radius(sigma) + 1
+}
+
+impl Medium {
+    /// Memory the medium of `scene` takes, resident and while building.
+    pub fn memory_estimate(scene: &Scene) -> MemoryEstimate {
+        let c = scene.channels() as u128;
+        let d = scene.grid.geometry.dims.map(|x| x as u128);
+        let p = 2 * halo(scene.grid.smoothing) as u128;
+        let voxels = d[0] * d[1] * d[2];
+        let padded = (d[0] + p) * (d[1] + p) * (d[2] + p);
+        let resident = voxels * (16 * c + 4 * (3 + 3 + 1 + 3 + 1));
+        let raster = padded * 4 * voxelize::stride(c as usize, scene.objects.len()) as u128;
+        // The raster, plus one padded scalar field being smoothed.
+        MemoryEstimate {
+            resident,
+            peak: resident + raster + padded * 4,
+        }
+    }
+
+    /// Voxelize `scene`: supersampled rasterization, Gaussian smoothing of n,
+    /// central-difference gradient, boundary indicator. Refuses, before
+    /// allocating, a grid that would not fit in available memory.
+    pub fn build(scene: &Scene) -> Result<Medium> {
+        let est = Self::memory_estimate(scene);
+        let avail = available_memory().unwrap_or(u128::MAX);
+        if est.peak > avail {
+            return Err(scene.error_at(
+                "grid.resolution",
+                format!(
+                    "{:?} voxels need {} to build ({} resident) but only {} of memory is available; lower the resolution",
+                    scene.grid.geometry.dims,
+                    format_bytes(est.peak),
+                    format_bytes(est.resident),
+                    format_bytes(avail)
+                ),
+            ));
+        }
+        let geom = &scene.grid.geometry;
+        let sigma = scene.grid.smoothing;
+        let pad = halo(sigma);
+        let spacing = geom.spacing();
+        let padded_dims = geom.dims.map(|d| d + 2 * pad);
+        let padded = GridGeometry::new(
+            padded_dims,
+            geom.min - spacing * pad as f64,
+            geom.max + spacing * pad as f64,
+        );
+        let raster = voxelize::rasterize(scene, &padded);
+        let [nx, ny, nz] = geom.dims;
+        let h = spacing.to_array();
+
+        let extract = |offset: usize| -> Array3<f32> {
+            let st = raster.stride;
+            Array3::from_shape_fn(padded_dims, |(i, j, k)| {
+                raster.data[((i * padded_dims[1] + j) * padded_dims[2] + k) * st + offset]
+            })
+        };
+        let crop = |a: &Array3<f32>| -> Array3<f32> {
+            a.slice(s![pad..pad + nx, pad..pad + ny, pad..pad + nz]).to_owned()
+        };
+        let crop3 = |base: usize| -> Array4<f32> {
+            let st = raster.stride;
+            Array4::from_shape_fn((nx, ny, nz, 3), |(i, j, k, a)| {
+                let idx = ((i + pad) * padded_dims[1] + j + pad) * padded_dims[2] + k + pad;
+                raster.data[idx * st + base + a]
+            })
+        };
+
+        // Index fields: smooth, then n and central-difference gradient.
+        let mut index = Vec::with_capacity(raster.channels);
+        for c in 0..raster.channels {
+            let mut n = extract(c);
+            smooth::gaussian(&mut n, sigma);
+            let nv = n.view();
+            let mut out = Array4::<f32>::zeros((nx, ny, nz, 4));
+            out.axis_iter_mut(Axis(0))
+                .into_par_iter()
+                .enumerate()
+                .for_each(|(i, mut plane)| {
+                    for j in 0..ny {
+                        for k in 0..nz {
+                            let (pi, pj, pk) = (i + pad, j + pad, k + pad);
+                            let g = smooth::central_gradient(&nv, pi, pj, pk, h);
+                            plane[[j, k, 0]] = nv[[pi, pj, pk]];
+                            plane[[j, k, 1]] = g[0] as f32;
+                            plane[[j, k, 2]] = g[1] as f32;
+                            plane[[j, k, 3]] = g[2] as f32;
+                        }
+                    }
+                });
+            index.push(out);
+        }
+
+        // Boundary indicator: half the summed gradient magnitudes of every
+        // material's smoothed coverage. Across an interface between two
+        // materials each coverage goes 0 -> 1 or 1 -> 0, so the sum
+        // integrates to exactly one along the normal (eq 2's delta).
+        let mut boundary = Array3::<f32>::zeros((nx, ny, nz));
+        for m in 0..=scene.objects.len() {
+            let mut cov = extract(raster.at(Raster::COV) + m);
+            if cov.iter().all(|&x| x == cov[[0, 0, 0]]) {
+                continue;
+            }
+            smooth::gaussian(&mut cov, sigma);
+            let cv = cov.view();
+            boundary.indexed_iter_mut().for_each(|((i, j, k), b)| {
+                let g = smooth::central_gradient(&cv, i + pad, j + pad, k + pad, h);
+                *b += 0.5 * (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt() as f32;
+            });
+        }
+
+        let g = crop(&extract(raster.at(Raster::G)));
+        let medium = Medium {
+            geometry: geom.clone(),
+            smoothing: sigma,
+            index,
+            extinction: crop3(raster.at(Raster::EXT)),
+            albedo: crop3(raster.at(Raster::ALB)),
+            g,
+            emission: crop3(raster.at(Raster::EMI)),
+            boundary,
+        };
+        medium.check_index(scene)?;
+        Ok(medium)
+    }
+
+    /// Every index sample must be finite and positive.
+    fn check_index(&self, scene: &Scene) -> Result<()> {
+        for (c, a) in self.index.iter().enumerate() {
+            if let Some(((i, j, k, _), v)) = a
+                .slice(s![.., .., .., 0])
+                .indexed_iter()
+                .map(|((i, j, k), v)| ((i, j, k, 0), *v))
+                .find(|(_, v)| !(v.is_finite() && *v > 0.0))
+            {
+                return Err(scene.error_at(
+                    "object",
+                    format!("voxelized index of channel {c} is {v} at voxel ({i}, {j}, {k}); it must be finite and > 0"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Number of index channels (1, or 3 with dispersion).
+    pub fn channels(&self) -> usize {
+        self.index.len()
+    }
+
+    /// Smallest and largest index over all channels.
+    pub fn index_range(&self) -> (f32, f32) {
+        self.index
+            .iter()
+            .flat_map(|a| a.slice(s![.., .., .., 0]).into_iter().copied().collect::<Vec<_>>())
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)))
+    }
+
+    /// The index field of `channel` for ray tracing (trilinear sampling).
+    pub fn field(&self, channel: usize) -> VoxelField<'_> {
+        let a = &self.index[channel];
+        let [nx, ny, nz] = self.geometry.dims;
+        VoxelField {
+            data: a.as_slice().expect("index arrays are contiguous"),
+            dims: [nx, ny, nz],
+            strides: [ny * nz * 4, nz * 4, 4],
+            min: self.geometry.min,
+            inv_spacing: 1.0 / self.geometry.spacing(),
+        }
+    }
+}
+
+/// Trilinear sampling of one voxelized index channel and its stored gradient.
+#[derive(Clone, Copy, Debug)]
+pub struct VoxelField<'a> {
+    data: &'a [f32],
+    dims: [usize; 3],
+    strides: [usize; 3],
+    min: DVec3,
+    inv_spacing: DVec3,
+}
+
+impl VoxelField<'_> {
+    #[inline(always)]
+    fn corner(&self, idx: usize) -> Vec4 {
+        Vec4::from_slice(&self.data[idx..idx + 4])
+    }
+}
+
+impl IndexField for VoxelField<'_> {
+    #[inline]
+    fn sample(&self, p: DVec3) -> (f64, DVec3) {
+        // Cell-centre convention: centres at integer voxel coordinates.
+        let u = (p - self.min) * self.inv_spacing - 0.5;
+        let mut base = 0;
+        let mut off = [0usize; 3];
+        let mut f = [0f32; 3];
+        for a in 0..3 {
+            let hi = (self.dims[a] - 1) as f64;
+            let ua = u[a].clamp(0.0, hi);
+            let i0 = (ua.floor() as usize).min(self.dims[a].saturating_sub(2));
+            f[a] = (ua - i0 as f64) as f32;
+            base += i0 * self.strides[a];
+            off[a] = if self.dims[a] > 1 { self.strides[a] } else { 0 };
+        }
+        let [ox, oy, oz] = off;
+        let c000 = self.corner(base);
+        let c001 = self.corner(base + oz);
+        let c010 = self.corner(base + oy);
+        let c011 = self.corner(base + oy + oz);
+        let c100 = self.corner(base + ox);
+        let c101 = self.corner(base + ox + oz);
+        let c110 = self.corner(base + ox + oy);
+        let c111 = self.corner(base + ox + oy + oz);
+        let c00 = c000.lerp(c001, f[2]);
+        let c01 = c010.lerp(c011, f[2]);
+        let c10 = c100.lerp(c101, f[2]);
+        let c11 = c110.lerp(c111, f[2]);
+        let c0 = c00.lerp(c01, f[1]);
+        let c1 = c10.lerp(c11, f[1]);
+        let v = c0.lerp(c1, f[0]);
+        (v.x as f64, DVec3::new(v.y as f64, v.z as f64, v.w as f64))
+    }
+}
+
+/// Exact sampling of the scene's analytic index (no voxels, no smoothing):
+/// the owning object's profile and its gradient. Object surfaces are true
+/// discontinuities here and contribute no gradient, so this is meant for
+/// smooth profiles (Luneburg, linear), to tell integrator error apart from
+/// discretization error.
+#[derive(Clone, Copy, Debug)]
+pub struct AnalyticField<'a> {
+    scene: &'a Scene,
+    channel: usize,
+}
+
+impl<'a> AnalyticField<'a> {
+    /// The exact field of `scene` for colour `channel` (0..3).
+    pub fn new(scene: &'a Scene, channel: usize) -> Self {
+        Self { scene, channel }
+    }
+}
+
+impl IndexField for AnalyticField<'_> {
+    #[inline]
+    fn sample(&self, p: DVec3) -> (f64, DVec3) {
+        self.scene.material_at(p).index.sample(p, self.channel)
+    }
+}

@@ -1,0 +1,123 @@
+//! Grid geometry: resolution, world-space bounds and the world <-> voxel maps.
+//!
+//! # Cell-centre convention
+//! The grid covers the axis-aligned box `[min, max]` with `dims[a]` cells along
+//! axis `a`, each `spacing[a] = (max[a] - min[a]) / dims[a]` wide. Sample
+//! `(i, j, k)` is the value at the **centre** of its cell,
+//! `min + (i + 0.5, j + 0.5, k + 0.5) * spacing`. The continuous voxel
+//! coordinate of a world point is therefore `u = (x - min) / spacing - 0.5`,
+//! so that cell centres sit on whole numbers and trilinear interpolation
+//! between centres is the natural reconstruction. Within half a cell of the
+//! bounds the nearest centre value is held (clamped), not extrapolated.
+
+use glam::DVec3;
+
+/// Geometry of a regular voxel grid (see the module docs for the convention).
+#[derive(Clone, Debug, PartialEq)]
+pub struct GridGeometry {
+    /// Number of cells along x, y, z.
+    pub dims: [usize; 3],
+    /// World-space lower corner of the covered box.
+    pub min: DVec3,
+    /// World-space upper corner of the covered box.
+    pub max: DVec3,
+}
+
+impl GridGeometry {
+    /// A grid of `dims` cells covering `[min, max]`.
+    pub fn new(dims: [usize; 3], min: DVec3, max: DVec3) -> Self {
+        Self { dims, min, max }
+    }
+
+    /// Cell size along each axis, in world units.
+    pub fn spacing(&self) -> DVec3 {
+        (self.max - self.min)
+            / DVec3::new(
+                self.dims[0] as f64,
+                self.dims[1] as f64,
+                self.dims[2] as f64,
+            )
+    }
+
+    /// The smallest cell edge: the length a step "in voxels" is measured in.
+    pub fn voxel_size(&self) -> f64 {
+        self.spacing().min_element()
+    }
+
+    /// Total number of cells.
+    pub fn voxel_count(&self) -> usize {
+        self.dims[0] * self.dims[1] * self.dims[2]
+    }
+
+    /// World position of the centre of cell `(i, j, k)`.
+    pub fn voxel_center(&self, i: usize, j: usize, k: usize) -> DVec3 {
+        self.min + (DVec3::new(i as f64, j as f64, k as f64) + 0.5) * self.spacing()
+    }
+
+    /// Continuous voxel coordinate of a world point (cell centres are integers).
+    pub fn world_to_voxel(&self, p: DVec3) -> DVec3 {
+        (p - self.min) / self.spacing() - 0.5
+    }
+
+    /// World point of a continuous voxel coordinate (inverse of [`Self::world_to_voxel`]).
+    pub fn voxel_to_world(&self, u: DVec3) -> DVec3 {
+        self.min + (u + 0.5) * self.spacing()
+    }
+
+    /// Whether `p` lies inside the closed bounds.
+    pub fn contains(&self, p: DVec3) -> bool {
+        p.cmpge(self.min).all() && p.cmple(self.max).all()
+    }
+
+    /// Length of the bounds' diagonal.
+    pub fn diagonal(&self) -> f64 {
+        (self.max - self.min).length()
+    }
+
+    /// Parametric interval `[t0, t1]` over which the line `o + t d` lies inside
+    /// the bounds (slab test), or `None` if it misses them.
+    pub fn clip_line(&self, o: DVec3, d: DVec3) -> Option<(f64, f64)> {
+        let mut t0 = f64::NEG_INFINITY;
+        let mut t1 = f64::INFINITY;
+        for a in 0..3 {
+            if d[a] == 0.0 {
+                if o[a] < self.min[a] || o[a] > self.max[a] {
+                    return None;
+                }
+            } else {
+                let inv = 1.0 / d[a];
+                let (mut ta, mut tb) = ((self.min[a] - o[a]) * inv, (self.max[a] - o[a]) * inv);
+                if ta > tb {
+                    std::mem::swap(&mut ta, &mut tb);
+                }
+                t0 = t0.max(ta);
+                t1 = t1.min(tb);
+            }
+        }
+        (t0 <= t1).then_some((t0, t1))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn centre_convention_round_trips() {
+        let g = GridGeometry::new([4, 8, 2], DVec3::splat(-1.0), DVec3::new(1.0, 3.0, 0.0));
+        assert_eq!(g.spacing(), DVec3::new(0.5, 0.5, 0.5));
+        let c = g.voxel_center(0, 0, 0);
+        assert_eq!(c, DVec3::new(-0.75, -0.75, -0.75));
+        assert_eq!(g.world_to_voxel(c), DVec3::ZERO);
+        let p = DVec3::new(0.3, 1.7, -0.2);
+        assert!((g.voxel_to_world(g.world_to_voxel(p)) - p).length() < 1e-12);
+    }
+
+    #[test]
+    fn clip_line_enters_and_exits() {
+        let g = GridGeometry::new([2, 2, 2], DVec3::ZERO, DVec3::ONE);
+        let (t0, t1) = g.clip_line(DVec3::new(-1.0, 0.5, 0.5), DVec3::X).unwrap();
+        assert_eq!((t0, t1), (1.0, 2.0));
+        assert!(g.clip_line(DVec3::new(-1.0, 2.0, 0.5), DVec3::X).is_none());
+    }
+}

@@ -1,0 +1,30 @@
+//! # eikon-grid
+//!
+//! The refractive medium on a voxel grid and the ray equation of geometric
+//! optics (Ihrke et al. 2007, sections 3-4 and the Appendix).
+//!
+//! * [`scene`]: TOML scene files (grid, ambient medium, objects, lights).
+//! * [`shape`] and [`object`]: solids with materials and priorities; overlaps
+//!   are resolved as in Schmidt & Budge's nested dielectrics.
+//! * [`voxelize`](crate::field::Medium::build) and [`field`]: supersampled
+//!   rasterization, Gaussian smoothing, gradient, boundary indicator, and
+//!   trilinear or exact analytic sampling.
+//! * [`ray`]: eqs 9-10 and 14-15 with Euler, RK4 and Dormand-Prince.
+
+pub mod error;
+pub mod field;
+pub mod geometry;
+pub mod object;
+pub mod ray;
+pub mod scene;
+pub mod shape;
+mod smooth;
+mod voxelize;
+
+pub use error::{Error, Location, Result};
+pub use field::{AnalyticField, Medium, MemoryEstimate, VoxelField};
+pub use geometry::GridGeometry;
+pub use object::{IndexProfile, Material, Object};
+pub use ray::{trace, Form, IndexField, Method, RayEnd, RayState, Status, TraceOptions};
+pub use scene::{Light, Receiver, Scene};
+pub use shape::Shape;

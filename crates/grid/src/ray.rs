@@ -1,0 +1,462 @@
+//! The ray equation of geometric optics, `d/ds (n dx/ds) = grad n` (eq 8),
+//! in the two first-order forms of Ihrke et al. 2007:
+//!
+//! * **equal distance** (eqs 9-10): `dx/ds = v / n`, `dv/ds = grad n`, where
+//!   `s` is arc length, so every step covers the same distance. Used for eye
+//!   rays.
+//! * **equal time** (eqs 14-15): `dx/dt = v / n^2`, `dv/dt = grad n / n`,
+//!   where `dt = n ds` is optical path, so all particles launched together
+//!   stay on one wavefront. Used for light.
+//!
+//! In both, `v = grad S` is the gradient of the eikonal, of length `n`.
+//! The state also carries the optical path length `L = int n ds`
+//! (`dL/ds = |v|`, `dL/dt = |v| / n`), integrated by the same scheme.
+//!
+//! Integrators: forward Euler (eqs 11-12 and their equal-time analogue),
+//! classical RK4, and adaptive Dormand-Prince 5(4). Total internal
+//! reflection needs no special case: the ray turns inside the smoothed
+//! interface because `v` keeps integrating `grad n`.
+
+use crate::geometry::GridGeometry;
+use glam::DVec3;
+
+/// A refractive-index field that can be sampled anywhere.
+pub trait IndexField: Sync {
+    /// Index `n` and its gradient (per world unit) at world point `p`.
+    fn sample(&self, p: DVec3) -> (f64, DVec3);
+}
+
+/// Which parameterization of the ray equation to integrate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Form {
+    /// Eqs 9-10: the step is a fixed distance (world units).
+    EqualDistance,
+    /// Eqs 14-15: the step is a fixed optical path (world units times n).
+    EqualTime,
+}
+
+/// Numerical integration scheme.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// Forward Euler, first order (eqs 11-12).
+    Euler,
+    /// Classical Runge-Kutta, fourth order.
+    Rk4,
+    /// Dormand-Prince 5(4) with step-size control; the fixed step becomes
+    /// the largest step it may take.
+    DormandPrince,
+}
+
+/// Position, eikonal gradient `v` (|v| = n) and optical path so far.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RayState {
+    /// World position.
+    pub x: DVec3,
+    /// `v = n dx/ds`.
+    pub v: DVec3,
+    /// Optical path length integrated so far.
+    pub opl: f64,
+}
+
+impl RayState {
+    /// A ray at `x` heading along unit `dir` in a medium of index `n`.
+    pub fn new(x: DVec3, dir: DVec3, n: f64) -> Self {
+        Self {
+            x,
+            v: dir * n,
+            opl: 0.0,
+        }
+    }
+
+    /// Unit direction of travel.
+    pub fn direction(&self) -> DVec3 {
+        self.v.normalize()
+    }
+}
+
+/// Derivative of the state, the right-hand side of eqs 9-10 or 14-15.
+#[derive(Clone, Copy)]
+struct Deriv {
+    x: DVec3,
+    v: DVec3,
+    opl: f64,
+}
+
+#[inline(always)]
+fn deriv<F: IndexField + ?Sized>(f: &F, form: Form, x: DVec3, v: DVec3) -> Deriv {
+    let (n, g) = f.sample(x);
+    match form {
+        // eq 9, eq 10; dL/ds = n |dx/ds| = |v|
+        Form::EqualDistance => Deriv {
+            x: v / n,
+            v: g,
+            opl: v.length(),
+        },
+        // eq 14, eq 15; dL/dt = n |dx/dt| = |v| / n
+        Form::EqualTime => {
+            let inv = 1.0 / n;
+            Deriv {
+                x: v * (inv * inv),
+                v: g * inv,
+                opl: v.length() * inv,
+            }
+        }
+    }
+}
+
+#[inline(always)]
+fn apply(s: &RayState, d: &Deriv, h: f64) -> RayState {
+    RayState {
+        x: s.x + d.x * h,
+        v: s.v + d.v * h,
+        opl: s.opl + d.opl * h,
+    }
+}
+
+/// One forward-Euler step of size `h` (eqs 11-12 in the equal-distance form).
+#[inline]
+pub fn step_euler<F: IndexField + ?Sized>(f: &F, form: Form, s: &mut RayState, h: f64) {
+    let k = deriv(f, form, s.x, s.v);
+    *s = apply(s, &k, h);
+}
+
+/// One classical RK4 step of size `h`.
+#[inline]
+pub fn step_rk4<F: IndexField + ?Sized>(f: &F, form: Form, s: &mut RayState, h: f64) {
+    let k1 = deriv(f, form, s.x, s.v);
+    let s2 = apply(s, &k1, 0.5 * h);
+    let k2 = deriv(f, form, s2.x, s2.v);
+    let s3 = apply(s, &k2, 0.5 * h);
+    let k3 = deriv(f, form, s3.x, s3.v);
+    let s4 = apply(s, &k3, h);
+    let k4 = deriv(f, form, s4.x, s4.v);
+    let w = h / 6.0;
+    s.x += (k1.x + (k2.x + k3.x) * 2.0 + k4.x) * w;
+    s.v += (k1.v + (k2.v + k3.v) * 2.0 + k4.v) * w;
+    s.opl += (k1.opl + 2.0 * (k2.opl + k3.opl) + k4.opl) * w;
+}
+
+/// Result of one attempted adaptive step.
+#[derive(Clone, Copy, Debug)]
+pub struct AdaptiveStep {
+    /// Whether the step was taken (the state was advanced by `h_done`).
+    pub accepted: bool,
+    /// Size of the step taken (0 when rejected).
+    pub h_done: f64,
+    /// Suggested size for the next attempt.
+    pub h_next: f64,
+}
+
+// Dormand-Prince 5(4) tableau.
+const DP_A: [[f64; 6]; 6] = [
+    [1.0 / 5.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+    [3.0 / 40.0, 9.0 / 40.0, 0.0, 0.0, 0.0, 0.0],
+    [44.0 / 45.0, -56.0 / 15.0, 32.0 / 9.0, 0.0, 0.0, 0.0],
+    [
+        19372.0 / 6561.0,
+        -25360.0 / 2187.0,
+        64448.0 / 6561.0,
+        -212.0 / 729.0,
+        0.0,
+        0.0,
+    ],
+    [
+        9017.0 / 3168.0,
+        -355.0 / 33.0,
+        46732.0 / 5247.0,
+        49.0 / 176.0,
+        -5103.0 / 18656.0,
+        0.0,
+    ],
+    [
+        35.0 / 384.0,
+        0.0,
+        500.0 / 1113.0,
+        125.0 / 192.0,
+        -2187.0 / 6784.0,
+        11.0 / 84.0,
+    ],
+];
+// Fifth-order weights minus embedded fourth-order weights.
+const DP_E: [f64; 7] = [
+    71.0 / 57600.0,
+    0.0,
+    -71.0 / 16695.0,
+    71.0 / 1920.0,
+    -17253.0 / 339200.0,
+    22.0 / 525.0,
+    -1.0 / 40.0,
+];
+
+/// One Dormand-Prince 5(4) attempt of size `h`. The local error estimate is
+/// held below `tol_x` in position (world units) and `tol_v` in `v` (index
+/// units); `h_max` caps the step.
+pub fn step_dopri<F: IndexField + ?Sized>(
+    f: &F,
+    form: Form,
+    s: &mut RayState,
+    h: f64,
+    tol_x: f64,
+    tol_v: f64,
+    h_max: f64,
+) -> AdaptiveStep {
+    let mut k = [Deriv {
+        x: DVec3::ZERO,
+        v: DVec3::ZERO,
+        opl: 0.0,
+    }; 7];
+    k[0] = deriv(f, form, s.x, s.v);
+    let mut y = *s;
+    for (stage, a) in DP_A.iter().enumerate() {
+        let mut t = *s;
+        for (j, &aj) in a.iter().enumerate().take(stage + 1) {
+            if aj != 0.0 {
+                t = apply(&t, &k[j], aj * h);
+            }
+        }
+        k[stage + 1] = deriv(f, form, t.x, t.v);
+        y = t;
+    }
+    // The last stage point is the fifth-order solution (FSAL property).
+    let mut ex = DVec3::ZERO;
+    let mut ev = DVec3::ZERO;
+    for (kj, &e) in k.iter().zip(DP_E.iter()) {
+        ex += kj.x * (e * h);
+        ev += kj.v * (e * h);
+    }
+    let err = (ex.length() / tol_x).max(ev.length() / tol_v);
+    let grow = if err == 0.0 {
+        5.0
+    } else {
+        (0.9 * err.powf(-0.2)).clamp(0.2, 5.0)
+    };
+    let h_next = (h * grow).min(h_max);
+    // Steps far below the cap are accepted regardless so a ray can never
+    // stall; the tolerance is then unreachable in double precision anyway.
+    if err <= 1.0 || h <= h_max * 1e-9 {
+        *s = y;
+        AdaptiveStep {
+            accepted: true,
+            h_done: h,
+            h_next,
+        }
+    } else {
+        AdaptiveStep {
+            accepted: false,
+            h_done: 0.0,
+            h_next,
+        }
+    }
+}
+
+/// How a traced ray ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Status {
+    /// Left the volume bounds; position and direction are the exit.
+    Exited,
+    /// Took `max_steps` steps without leaving (trapped, or the guard is too low).
+    MaxSteps,
+    /// Started outside and never meets the bounds.
+    Missed,
+    /// The state became non-finite (a field with n <= 0, or a bad step).
+    Diverged,
+}
+
+impl Status {
+    /// Lower-case name used in CLI output.
+    pub fn name(self) -> &'static str {
+        match self {
+            Status::Exited => "exited",
+            Status::MaxSteps => "max-steps",
+            Status::Missed => "missed",
+            Status::Diverged => "diverged",
+        }
+    }
+}
+
+/// Settings for [`trace`].
+#[derive(Clone, Copy, Debug)]
+pub struct TraceOptions {
+    /// Parameterization.
+    pub form: Form,
+    /// Integrator.
+    pub method: Method,
+    /// Step in world units (distance for equal distance, optical path for
+    /// equal time); the largest step for Dormand-Prince.
+    pub step: f64,
+    /// Dormand-Prince local error target: position in world units (the
+    /// direction error target is `tolerance / step` in index units).
+    pub tolerance: f64,
+    /// Guard: give up after this many accepted steps.
+    pub max_steps: usize,
+    /// Keep every accepted position in [`RayEnd::path`].
+    pub record_path: bool,
+}
+
+/// How a ray ended, where, and how it got there.
+#[derive(Clone, Debug)]
+pub struct RayEnd {
+    /// Why the trace stopped.
+    pub status: Status,
+    /// Where the ray entered the bounds (its origin when it started inside).
+    pub entry: DVec3,
+    /// Exit point on the bounds, or the last position for other statuses.
+    pub position: DVec3,
+    /// Unit direction at `position`.
+    pub direction: DVec3,
+    /// Optical path length `int n ds` from `entry` to `position`.
+    pub optical_path: f64,
+    /// Number of accepted steps (a final partial step counts as one).
+    pub steps: usize,
+    /// Rejected Dormand-Prince attempts.
+    pub rejected: usize,
+    /// Accepted positions from `entry` to `position`, if recorded.
+    pub path: Vec<DVec3>,
+}
+
+/// March a ray from `origin` along `dir` through `field` until it leaves the
+/// bounds of `grid` (or a guard stops it). A ray starting outside first
+/// travels straight to the bounds.
+pub fn trace<F: IndexField + ?Sized>(
+    field: &F,
+    grid: &GridGeometry,
+    origin: DVec3,
+    dir: DVec3,
+    opts: &TraceOptions,
+) -> RayEnd {
+    let d = dir.normalize_or_zero();
+    let mut end = RayEnd {
+        status: Status::Missed,
+        entry: origin,
+        position: origin,
+        direction: d,
+        optical_path: 0.0,
+        steps: 0,
+        rejected: 0,
+        path: Vec::new(),
+    };
+    if d == DVec3::ZERO || !origin.is_finite() || !d.is_finite() {
+        end.status = Status::Diverged;
+        return end;
+    }
+    let start = if grid.contains(origin) {
+        origin
+    } else {
+        match grid.clip_line(origin, d) {
+            Some((t0, t1)) if t1 >= 0.0 && t0 >= 0.0 => origin + d * t0,
+            _ => return end,
+        }
+    };
+    end.entry = start;
+    let mut s = RayState::new(start, d, field.sample(start).0);
+    if opts.record_path {
+        end.path.push(start);
+    }
+    let tol_x = opts.tolerance;
+    let tol_v = opts.tolerance / opts.step;
+    let mut h = opts.step;
+    while end.steps < opts.max_steps {
+        let prev = s;
+        match opts.method {
+            Method::Euler => step_euler(field, opts.form, &mut s, h),
+            Method::Rk4 => step_rk4(field, opts.form, &mut s, h),
+            Method::DormandPrince => {
+                let r = step_dopri(field, opts.form, &mut s, h, tol_x, tol_v, opts.step);
+                h = r.h_next;
+                if !r.accepted {
+                    end.rejected += 1;
+                    if !h.is_finite() {
+                        break;
+                    }
+                    continue;
+                }
+            }
+        }
+        end.steps += 1;
+        if !(s.x.is_finite() && s.v.is_finite() && s.opl.is_finite()) {
+            end.status = Status::Diverged;
+            end.position = prev.x;
+            end.direction = prev.v.normalize_or_zero();
+            end.optical_path = prev.opl;
+            return end;
+        }
+        if !grid.contains(s.x) {
+            // The step crossed the bounds: cut it where the chord leaves.
+            let chord = s.x - prev.x;
+            let t = grid
+                .clip_line(prev.x, chord)
+                .map_or(1.0, |(_, t1)| t1.clamp(0.0, 1.0));
+            end.status = Status::Exited;
+            end.position = prev.x + chord * t;
+            end.direction = prev.v.lerp(s.v, t).normalize();
+            end.optical_path = prev.opl + (s.opl - prev.opl) * t;
+            if opts.record_path {
+                end.path.push(end.position);
+            }
+            return end;
+        }
+        if opts.record_path {
+            end.path.push(s.x);
+        }
+    }
+    end.status = if end.steps >= opts.max_steps {
+        Status::MaxSteps
+    } else {
+        Status::Diverged
+    };
+    end.position = s.x;
+    end.direction = s.v.normalize_or_zero();
+    end.optical_path = s.opl;
+    end
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    struct Uniform(f64);
+    impl IndexField for Uniform {
+        fn sample(&self, _: DVec3) -> (f64, DVec3) {
+            (self.0, DVec3::ZERO)
+        }
+    }
+
+    fn opts(method: Method) -> TraceOptions {
+        TraceOptions {
+            form: Form::EqualDistance,
+            method,
+            step: 0.01,
+            tolerance: 1e-9,
+            max_steps: 100_000,
+            record_path: true,
+        }
+    }
+
+    #[test]
+    fn missed_and_guarded_rays_are_reported() {
+        let g = GridGeometry::new([8, 8, 8], DVec3::ZERO, DVec3::ONE);
+        let r = trace(&Uniform(1.0), &g, DVec3::new(-1.0, 2.0, 0.5), DVec3::X, &opts(Method::Rk4));
+        assert_eq!(r.status, Status::Missed);
+        let mut o = opts(Method::Euler);
+        o.max_steps = 10;
+        let r = trace(&Uniform(1.0), &g, DVec3::splat(0.5), DVec3::X, &o);
+        assert_eq!(r.status, Status::MaxSteps);
+        assert_eq!(r.steps, 10);
+        assert!((r.position.x - 0.6).abs() < 1e-12);
+    }
+
+    #[test]
+    fn exit_point_and_optical_path_in_uniform_glass() {
+        let g = GridGeometry::new([8, 8, 8], DVec3::ZERO, DVec3::ONE);
+        for m in [Method::Euler, Method::Rk4, Method::DormandPrince] {
+            for form in [Form::EqualDistance, Form::EqualTime] {
+                let mut o = opts(m);
+                o.form = form;
+                let r = trace(&Uniform(1.5), &g, DVec3::new(-0.5, 0.5, 0.5), DVec3::X, &o);
+                assert_eq!(r.status, Status::Exited);
+                assert!((r.position - DVec3::new(1.0, 0.5, 0.5)).length() < 1e-12);
+                assert!((r.optical_path - 1.5).abs() < 1e-12, "{m:?} {form:?} {}", r.optical_path);
+            }
+        }
+    }
+}

@@ -1,0 +1,1026 @@
+//! Scene files: TOML read through serde, unknown fields rejected, every
+//! value checked, and every error located by file, line, column and field.
+//!
+//! The format is documented field by field in `docs/SCENES.md`.
+
+use crate::error::{Error, Location, Result};
+use crate::geometry::GridGeometry;
+use crate::object::{IndexProfile, Material, Object};
+use crate::shape::{rotation_from_degrees, Shape};
+use glam::{DVec2, DVec3};
+use serde::de::{self, Deserializer, MapAccess, SeqAccess, Visitor};
+use serde::Deserialize;
+use std::fmt;
+use std::path::Path;
+
+// ---------------------------------------------------------------------------
+// Raw file format (serde).
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawScene {
+    grid: RawGrid,
+    #[serde(default)]
+    ambient: RawAmbient,
+    #[serde(default, rename = "object")]
+    objects: Vec<RawObject>,
+    #[serde(default, rename = "light")]
+    lights: Vec<RawLight>,
+    #[serde(default)]
+    receiver: Option<RawReceiver>,
+}
+
+#[derive(Deserialize)]
+#[serde(untagged, expecting = "a whole number of voxels or [nx, ny, nz]")]
+enum RawResolution {
+    Longest(u64),
+    PerAxis([u64; 3]),
+}
+
+fn default_smoothing() -> f64 {
+    0.75
+}
+fn default_supersample() -> u32 {
+    4
+}
+fn default_one() -> f64 {
+    1.0
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawGrid {
+    resolution: RawResolution,
+    min: [f64; 3],
+    max: [f64; 3],
+    #[serde(default = "default_smoothing")]
+    smoothing: f64,
+    #[serde(default = "default_supersample")]
+    supersample: u32,
+    #[serde(default)]
+    dispersion: bool,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawAmbient {
+    #[serde(default = "RawIndex::one")]
+    index: RawIndex,
+    #[serde(default)]
+    extinction: [f64; 3],
+    #[serde(default)]
+    albedo: [f64; 3],
+    #[serde(default)]
+    g: f64,
+    #[serde(default)]
+    emission: [f64; 3],
+}
+
+impl Default for RawAmbient {
+    fn default() -> Self {
+        Self {
+            index: RawIndex::one(),
+            extinction: [0.0; 3],
+            albedo: [0.0; 3],
+            g: 0.0,
+            emission: [0.0; 3],
+        }
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawObject {
+    #[serde(default)]
+    name: Option<String>,
+    shape: RawShape,
+    index: RawIndex,
+    #[serde(default)]
+    extinction: [f64; 3],
+    #[serde(default)]
+    albedo: [f64; 3],
+    #[serde(default)]
+    g: f64,
+    #[serde(default)]
+    emission: [f64; 3],
+    #[serde(default)]
+    priority: i64,
+}
+
+#[derive(Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+enum RawShape {
+    Sphere {
+        center: [f64; 3],
+        radius: f64,
+    },
+    Box {
+        center: [f64; 3],
+        size: [f64; 3],
+        #[serde(default)]
+        rotation: [f64; 3],
+    },
+    RoundedBox {
+        center: [f64; 3],
+        size: [f64; 3],
+        radius: f64,
+        #[serde(default)]
+        rotation: [f64; 3],
+    },
+    Cylinder {
+        center: [f64; 3],
+        radius: f64,
+        height: f64,
+        #[serde(default)]
+        rotation: [f64; 3],
+    },
+    Revolution {
+        base: [f64; 3],
+        profile: Vec<[f64; 2]>,
+        #[serde(default)]
+        rotation: [f64; 3],
+    },
+    Torus {
+        center: [f64; 3],
+        major_radius: f64,
+        minor_radius: f64,
+        #[serde(default)]
+        rotation: [f64; 3],
+    },
+    Superquadric {
+        center: [f64; 3],
+        radii: [f64; 3],
+        exponents: [f64; 2],
+        #[serde(default)]
+        rotation: [f64; 3],
+    },
+    HalfSpace {
+        point: [f64; 3],
+        normal: [f64; 3],
+    },
+}
+
+/// `index = 1.5`, `index = [1.51, 1.52, 1.53]` or `index = { type = ... }`.
+enum RawIndex {
+    Scalar(f64),
+    Rgb([f64; 3]),
+    Profile(RawProfile),
+}
+
+impl RawIndex {
+    fn one() -> Self {
+        RawIndex::Scalar(1.0)
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+enum RawProfile {
+    Luneburg {
+        #[serde(default = "default_one")]
+        outer: f64,
+    },
+    Linear {
+        n0: f64,
+        gradient: [f64; 3],
+        #[serde(default)]
+        origin: [f64; 3],
+    },
+}
+
+impl<'de> Deserialize<'de> for RawIndex {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = RawIndex;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str(
+                    "a number, an [r, g, b] array, or a table with type = \"luneburg\" or \"linear\"",
+                )
+            }
+            fn visit_f64<E: de::Error>(self, v: f64) -> std::result::Result<RawIndex, E> {
+                Ok(RawIndex::Scalar(v))
+            }
+            fn visit_i64<E: de::Error>(self, v: i64) -> std::result::Result<RawIndex, E> {
+                Ok(RawIndex::Scalar(v as f64))
+            }
+            fn visit_u64<E: de::Error>(self, v: u64) -> std::result::Result<RawIndex, E> {
+                Ok(RawIndex::Scalar(v as f64))
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, s: A) -> std::result::Result<RawIndex, A::Error> {
+                Deserialize::deserialize(de::value::SeqAccessDeserializer::new(s)).map(RawIndex::Rgb)
+            }
+            fn visit_map<A: MapAccess<'de>>(self, m: A) -> std::result::Result<RawIndex, A::Error> {
+                Deserialize::deserialize(de::value::MapAccessDeserializer::new(m))
+                    .map(RawIndex::Profile)
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+enum RawLight {
+    Directional {
+        direction: [f64; 3],
+        power: [f64; 3],
+    },
+    Point {
+        position: [f64; 3],
+        power: [f64; 3],
+    },
+    Spot {
+        position: [f64; 3],
+        direction: [f64; 3],
+        angle: f64,
+        #[serde(default)]
+        falloff: f64,
+        power: [f64; 3],
+    },
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawReceiver {
+    point: [f64; 3],
+    normal: [f64; 3],
+    albedo: [f64; 3],
+}
+
+// ---------------------------------------------------------------------------
+// Validated scene.
+
+/// Grid settings of a scene.
+#[derive(Clone, Debug)]
+pub struct GridSettings {
+    /// Resolution and bounds.
+    pub geometry: GridGeometry,
+    /// Gaussian smoothing of n before the gradient, sigma in voxels (0 = none).
+    pub smoothing: f64,
+    /// Sub-samples per axis in voxels a surface crosses (anti-aliasing).
+    pub supersample: usize,
+    /// Three index fields (R, G, B) instead of one.
+    pub dispersion: bool,
+}
+
+/// A light source. Power is RGB: irradiance (W/m^2) across the beam for a
+/// directional light, radiant power (W) into the full sphere for a point
+/// light, and the power a point light of that size would have for a spot.
+#[derive(Clone, Debug)]
+pub enum Light {
+    /// A plane wave travelling along `direction`.
+    Directional {
+        /// Unit direction of travel.
+        direction: DVec3,
+        /// RGB irradiance on a plane normal to the beam, W/m^2.
+        power: DVec3,
+    },
+    /// A spherical wave from `position`.
+    Point {
+        /// Where the light is.
+        position: DVec3,
+        /// RGB radiant power, W.
+        power: DVec3,
+    },
+    /// A point light restricted to a cone.
+    Spot {
+        /// Where the light is.
+        position: DVec3,
+        /// Unit cone axis.
+        direction: DVec3,
+        /// Cone half-angle, degrees.
+        angle: f64,
+        /// Width of the soft edge inside the cone, degrees.
+        falloff: f64,
+        /// RGB power of the unrestricted point light, W.
+        power: DVec3,
+    },
+}
+
+/// A diffuse receiver plane (the table a caustic falls on).
+#[derive(Clone, Debug)]
+pub struct Receiver {
+    /// A point on the plane.
+    pub point: DVec3,
+    /// Unit normal, facing the lit side.
+    pub normal: DVec3,
+    /// RGB diffuse reflectance.
+    pub albedo: DVec3,
+}
+
+/// A validated scene: grid, ambient medium, objects, lights, receiver.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// Where it came from: a file path, or `<scene>`.
+    pub origin: String,
+    text: String,
+    /// Grid settings.
+    pub grid: GridSettings,
+    /// The medium filling everything no object covers.
+    pub ambient: Material,
+    /// The objects, in file order.
+    pub objects: Vec<Object>,
+    /// Object indices ordered highest priority first (later first on ties).
+    precedence: Vec<usize>,
+    /// Light sources.
+    pub lights: Vec<Light>,
+    /// Optional diffuse receiver plane.
+    pub receiver: Option<Receiver>,
+}
+
+/// One step of a field path.
+#[derive(Clone, Copy, Debug)]
+enum Seg<'a> {
+    Key(&'a str),
+    Index(usize),
+}
+
+fn path_string(path: &[Seg]) -> String {
+    let mut s = String::new();
+    for seg in path {
+        match seg {
+            Seg::Key(k) => {
+                if !s.is_empty() {
+                    s.push('.');
+                }
+                s.push_str(k);
+            }
+            Seg::Index(i) => s.push_str(&format!("[{i}]")),
+        }
+    }
+    s
+}
+
+fn line_column(text: &str, offset: usize) -> (usize, usize) {
+    let offset = offset.min(text.len());
+    let before = &text[..offset];
+    let line = before.matches('\n').count() + 1;
+    let col = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+    (line, col)
+}
+
+/// Byte offset of the deepest part of `path` that exists in the document.
+fn locate(text: &str, path: &[Seg]) -> Option<usize> {
+    let doc = toml_edit::ImDocument::parse(text).ok()?;
+    let mut item = doc.as_item();
+    let mut best = None;
+    for seg in path {
+        let next = match seg {
+            Seg::Key(k) => {
+                // Prefer the key's own position: that is where a reader looks.
+                let key_span = match item {
+                    toml_edit::Item::Table(t) => t.key(k).and_then(|k| k.span()),
+                    toml_edit::Item::Value(toml_edit::Value::InlineTable(t)) => {
+                        t.key(k).and_then(|k| k.span())
+                    }
+                    _ => None,
+                };
+                let next = item.get(*k);
+                if let Some(s) = key_span.or_else(|| next.and_then(|n| n.span())) {
+                    best = Some(s.start);
+                }
+                next
+            }
+            Seg::Index(i) => {
+                let next = item.get(*i);
+                if let Some(s) = next.and_then(|n| n.span()) {
+                    best = Some(s.start);
+                }
+                next
+            }
+        };
+        match next {
+            Some(n) => item = n,
+            None => break,
+        }
+    }
+    best
+}
+
+/// Builds located errors while a scene is checked.
+struct Checker<'a> {
+    origin: &'a str,
+    text: &'a str,
+}
+
+impl Checker<'_> {
+    fn err(&self, path: &[Seg], message: impl Into<String>) -> Error {
+        Error::Invalid {
+            at: Location {
+                file: self.origin.to_string(),
+                line_column: locate(self.text, path).map(|o| line_column(self.text, o)),
+                field: path_string(path),
+            },
+            message: message.into(),
+        }
+    }
+
+    fn finite(&self, path: &[Seg], v: &[f64]) -> Result<()> {
+        if v.iter().all(|x| x.is_finite()) {
+            Ok(())
+        } else {
+            Err(self.err(path, "must be a finite number (not NaN or infinity)"))
+        }
+    }
+
+    fn vec3(&self, path: &[Seg], v: [f64; 3]) -> Result<DVec3> {
+        self.finite(path, &v)?;
+        Ok(DVec3::from_array(v))
+    }
+
+    fn positive(&self, path: &[Seg], v: f64) -> Result<f64> {
+        self.finite(path, &[v])?;
+        if v > 0.0 {
+            Ok(v)
+        } else {
+            Err(self.err(path, format!("must be > 0, got {v}")))
+        }
+    }
+
+    fn unit(&self, path: &[Seg], v: [f64; 3]) -> Result<DVec3> {
+        let d = self.vec3(path, v)?;
+        if d.length() > 0.0 {
+            Ok(d.normalize())
+        } else {
+            Err(self.err(path, "must be a non-zero vector"))
+        }
+    }
+
+    fn rgb_in(&self, path: &[Seg], v: [f64; 3], lo: f64, hi: f64) -> Result<DVec3> {
+        let d = self.vec3(path, v)?;
+        if v.iter().all(|x| (lo..=hi).contains(x)) {
+            Ok(d)
+        } else {
+            Err(self.err(
+                path,
+                format!("each component must lie in [{lo}, {hi}], got {v:?}"),
+            ))
+        }
+    }
+
+    fn index_value(&self, path: &[Seg], n: f64) -> Result<f64> {
+        self.finite(path, &[n])?;
+        if n > 0.0 {
+            Ok(n)
+        } else {
+            Err(self.err(
+                path,
+                format!("refractive index must be > 0, got {n}"),
+            ))
+        }
+    }
+}
+
+impl Scene {
+    /// Read and check a scene file.
+    pub fn load(path: &Path) -> Result<Scene> {
+        let text = std::fs::read_to_string(path).map_err(|source| Error::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Scene::parse(&text, &path.display().to_string())
+    }
+
+    /// Parse and check scene text; `origin` names it in errors.
+    pub fn parse(text: &str, origin: &str) -> Result<Scene> {
+        let c = Checker { origin, text };
+        let de = toml::Deserializer::new(text);
+        let raw: RawScene = serde_path_to_error::deserialize(de).map_err(|e| {
+            let field = e.path().to_string();
+            let inner = e.into_inner();
+            Error::Invalid {
+                at: Location {
+                    file: origin.to_string(),
+                    line_column: inner.span().map(|s| line_column(text, s.start)),
+                    field: if field == "." { String::new() } else { field },
+                },
+                message: inner.message().trim().replace('\n', ": "),
+            }
+        })?;
+        Scene::check(raw, &c)
+    }
+
+    fn check(raw: RawScene, c: &Checker) -> Result<Scene> {
+        use Seg::{Index as I, Key as K};
+        // Grid.
+        let g = &raw.grid;
+        let min = c.vec3(&[K("grid"), K("min")], g.min)?;
+        let max = c.vec3(&[K("grid"), K("max")], g.max)?;
+        if !(max.cmpgt(min).all()) {
+            return Err(c.err(
+                &[K("grid"), K("max")],
+                format!("must exceed grid.min on every axis ({max} vs {min})"),
+            ));
+        }
+        let extent = max - min;
+        let res = &[K("grid"), K("resolution")];
+        let dims = match g.resolution {
+            RawResolution::Longest(n) => {
+                if n == 0 {
+                    return Err(c.err(res, "must be at least 1"));
+                }
+                let h = extent.max_element() / n as f64;
+                let d = (extent / h).round().max(DVec3::ONE);
+                [d.x as u64, d.y as u64, d.z as u64]
+            }
+            RawResolution::PerAxis(d) => {
+                if d.contains(&0) {
+                    return Err(c.err(res, "every axis needs at least 1 voxel"));
+                }
+                d
+            }
+        };
+        let dims = dims.map(|d| usize::try_from(d).unwrap_or(usize::MAX));
+        if dims
+            .iter()
+            .try_fold(1usize, |a, &d| a.checked_mul(d))
+            .is_none()
+        {
+            return Err(c.err(res, format!("{dims:?} voxels cannot even be counted")));
+        }
+        let smoothing = g.smoothing;
+        c.finite(&[K("grid"), K("smoothing")], &[smoothing])?;
+        if !(0.0..=8.0).contains(&smoothing) {
+            return Err(c.err(
+                &[K("grid"), K("smoothing")],
+                format!("sigma in voxels must lie in [0, 8], got {smoothing}"),
+            ));
+        }
+        if !(1..=16).contains(&g.supersample) {
+            return Err(c.err(
+                &[K("grid"), K("supersample")],
+                format!("must lie in 1..=16 sub-samples per axis, got {}", g.supersample),
+            ));
+        }
+        let grid = GridSettings {
+            geometry: GridGeometry::new(dims, min, max),
+            smoothing,
+            supersample: g.supersample as usize,
+            dispersion: g.dispersion,
+        };
+
+        // Materials.
+        let material = |base: &[Seg],
+                        index: &RawIndex,
+                        shape: Option<&Shape>,
+                        ext: [f64; 3],
+                        albedo: [f64; 3],
+                        gg: f64,
+                        emission: [f64; 3]|
+         -> Result<Material> {
+            let p = |k| [base, &[K(k)]].concat();
+            let ip = p("index");
+            let index = match index {
+                RawIndex::Scalar(n) => IndexProfile::Constant([c.index_value(&ip, *n)?; 3]),
+                RawIndex::Rgb(n) => {
+                    if !grid.dispersion {
+                        return Err(c.err(
+                            &ip,
+                            "an [r, g, b] index needs grid.dispersion = true",
+                        ));
+                    }
+                    for &v in n {
+                        c.index_value(&ip, v)?;
+                    }
+                    IndexProfile::Constant(*n)
+                }
+                RawIndex::Profile(RawProfile::Luneburg { outer }) => {
+                    let outer = c.index_value(&[&ip[..], &[K("outer")]].concat(), *outer)?;
+                    match shape {
+                        Some(Shape::Sphere { center, radius }) => IndexProfile::Luneburg {
+                            center: *center,
+                            radius: *radius,
+                            outer,
+                        },
+                        _ => {
+                            return Err(c.err(
+                                &ip,
+                                "a Luneburg profile needs a sphere shape (it takes the sphere's centre and radius)",
+                            ))
+                        }
+                    }
+                }
+                RawIndex::Profile(RawProfile::Linear {
+                    n0,
+                    gradient,
+                    origin,
+                }) => {
+                    let n0 = c.index_value(&[&ip[..], &[K("n0")]].concat(), *n0)?;
+                    let gradient = c.vec3(&[&ip[..], &[K("gradient")]].concat(), *gradient)?;
+                    let origin = c.vec3(&[&ip[..], &[K("origin")]].concat(), *origin)?;
+                    let prof = IndexProfile::Linear {
+                        n0,
+                        gradient,
+                        origin,
+                    };
+                    // n must stay positive wherever the object meets the grid
+                    // (with room for the smoothing halo): check the corners of
+                    // that box, where a linear function takes its extremes.
+                    let halo = grid.geometry.spacing() * (4.0 * smoothing + 2.0);
+                    let (mut lo, mut hi) = (min - halo, max + halo);
+                    if let Some((a, b)) = shape.and_then(Shape::aabb) {
+                        lo = lo.max(a);
+                        hi = hi.min(b);
+                    }
+                    for corner in 0..8 {
+                        let q = DVec3::new(
+                            if corner & 1 == 0 { lo.x } else { hi.x },
+                            if corner & 2 == 0 { lo.y } else { hi.y },
+                            if corner & 4 == 0 { lo.z } else { hi.z },
+                        );
+                        let n = prof.value(q, 0);
+                        if !(n > 0.0) && lo.cmple(hi).all() {
+                            return Err(c.err(
+                                &ip,
+                                format!("the linear index reaches {n:.4} <= 0 at {q} inside the grid"),
+                            ));
+                        }
+                    }
+                    prof
+                }
+            };
+            let extinction = c.vec3(&p("extinction"), ext)?;
+            if extinction.min_element() < 0.0 {
+                return Err(c.err(&p("extinction"), "extinction must be >= 0 (1 / world unit)"));
+            }
+            let albedo = c.rgb_in(&p("albedo"), albedo, 0.0, 1.0)?;
+            c.finite(&p("g"), &[gg])?;
+            if !(gg > -1.0 && gg < 1.0) {
+                return Err(c.err(&p("g"), format!("Henyey-Greenstein g must lie in (-1, 1), got {gg}")));
+            }
+            let emission = c.vec3(&p("emission"), emission)?;
+            if emission.min_element() < 0.0 {
+                return Err(c.err(&p("emission"), "emission must be >= 0"));
+            }
+            Ok(Material {
+                index,
+                extinction,
+                albedo,
+                g: gg,
+                emission,
+            })
+        };
+
+        let a = &raw.ambient;
+        if let RawIndex::Profile(_) = a.index {
+            return Err(c.err(
+                &[K("ambient"), K("index")],
+                "the ambient index must be a number (or [r, g, b] with dispersion)",
+            ));
+        }
+        let ambient = material(
+            &[K("ambient")],
+            &a.index,
+            None,
+            a.extinction,
+            a.albedo,
+            a.g,
+            a.emission,
+        )?;
+
+        let mut objects = Vec::with_capacity(raw.objects.len());
+        for (i, o) in raw.objects.iter().enumerate() {
+            let base = [K("object"), I(i)];
+            let sp = [K("object"), I(i), K("shape")];
+            let shape = check_shape(c, &sp, &o.shape)?;
+            let mat = material(
+                &base,
+                &o.index,
+                Some(&shape),
+                o.extinction,
+                o.albedo,
+                o.g,
+                o.emission,
+            )?;
+            objects.push(Object {
+                name: o.name.clone().unwrap_or_else(|| format!("object{i}")),
+                shape,
+                material: mat,
+                priority: o.priority,
+            });
+        }
+
+        let mut lights = Vec::with_capacity(raw.lights.len());
+        for (i, l) in raw.lights.iter().enumerate() {
+            let p = |k| [K("light"), I(i), K(k)];
+            let power = |v| -> Result<DVec3> {
+                let v = c.vec3(&p("power"), v)?;
+                if v.min_element() < 0.0 {
+                    return Err(c.err(&p("power"), "power must be >= 0"));
+                }
+                Ok(v)
+            };
+            lights.push(match l {
+                RawLight::Directional {
+                    direction,
+                    power: pw,
+                } => Light::Directional {
+                    direction: c.unit(&p("direction"), *direction)?,
+                    power: power(*pw)?,
+                },
+                RawLight::Point { position, power: pw } => Light::Point {
+                    position: c.vec3(&p("position"), *position)?,
+                    power: power(*pw)?,
+                },
+                RawLight::Spot {
+                    position,
+                    direction,
+                    angle,
+                    falloff,
+                    power: pw,
+                } => {
+                    c.finite(&p("angle"), &[*angle])?;
+                    if !(*angle > 0.0 && *angle <= 90.0) {
+                        return Err(c.err(&p("angle"), "cone half-angle must lie in (0, 90] degrees"));
+                    }
+                    c.finite(&p("falloff"), &[*falloff])?;
+                    if !(0.0..=*angle).contains(falloff) {
+                        return Err(c.err(&p("falloff"), "falloff must lie in [0, angle] degrees"));
+                    }
+                    Light::Spot {
+                        position: c.vec3(&p("position"), *position)?,
+                        direction: c.unit(&p("direction"), *direction)?,
+                        angle: *angle,
+                        falloff: *falloff,
+                        power: power(*pw)?,
+                    }
+                }
+            });
+        }
+
+        let receiver = match &raw.receiver {
+            None => None,
+            Some(r) => Some(Receiver {
+                point: c.vec3(&[K("receiver"), K("point")], r.point)?,
+                normal: c.unit(&[K("receiver"), K("normal")], r.normal)?,
+                albedo: c.rgb_in(&[K("receiver"), K("albedo")], r.albedo, 0.0, 1.0)?,
+            }),
+        };
+
+        // Highest priority first; among equals the later object first.
+        let mut precedence: Vec<usize> = (0..objects.len()).rev().collect();
+        precedence.sort_by_key(|&i| std::cmp::Reverse(objects[i].priority));
+
+        Ok(Scene {
+            origin: c.origin.to_string(),
+            text: c.text.to_string(),
+            grid,
+            ambient,
+            objects,
+            precedence,
+            lights,
+            receiver,
+        })
+    }
+
+    /// An error located at a dotted field path of this scene (for problems
+    /// found after loading, such as a grid too large for memory).
+    pub fn error_at(&self, field: &str, message: impl Into<String>) -> Error {
+        let segs = parse_path(field);
+        let c = Checker {
+            origin: &self.origin,
+            text: &self.text,
+        };
+        c.err(&segs, message)
+    }
+
+    /// Index of the object that owns point `p` (highest priority containing
+    /// it), or `None` for the ambient medium.
+    #[inline]
+    pub fn owner(&self, p: DVec3) -> Option<usize> {
+        self.precedence
+            .iter()
+            .copied()
+            .find(|&i| self.objects[i].shape.contains(p))
+    }
+
+    /// The material at `p` after priority resolution.
+    #[inline]
+    pub fn material_at(&self, p: DVec3) -> &Material {
+        match self.owner(p) {
+            Some(i) => &self.objects[i].material,
+            None => &self.ambient,
+        }
+    }
+
+    /// Object indices, highest priority first.
+    pub fn precedence(&self) -> &[usize] {
+        &self.precedence
+    }
+
+    /// Number of index fields: 3 with dispersion, else 1.
+    pub fn channels(&self) -> usize {
+        if self.grid.dispersion {
+            3
+        } else {
+            1
+        }
+    }
+}
+
+fn parse_path(field: &str) -> Vec<Seg<'_>> {
+    let mut out = Vec::new();
+    for part in field.split('.') {
+        let (key, rest) = part.split_once('[').unwrap_or((part, ""));
+        if !key.is_empty() {
+            out.push(Seg::Key(key));
+        }
+        for idx in rest.split('[') {
+            if let Ok(i) = idx.trim_end_matches(']').parse() {
+                out.push(Seg::Index(i));
+            }
+        }
+    }
+    out
+}
+
+fn check_shape(c: &Checker, sp: &[Seg], s: &RawShape) -> Result<Shape> {
+    let f = |k: &'static str| [sp, &[Seg::Key(k)]].concat();
+    let rot = |r: [f64; 3]| -> Result<glam::DMat3> {
+        c.finite(&f("rotation"), &r)?;
+        Ok(rotation_from_degrees(r))
+    };
+    let size = |v: [f64; 3]| -> Result<DVec3> {
+        let v = c.vec3(&f("size"), v)?;
+        if v.min_element() > 0.0 {
+            Ok(v)
+        } else {
+            Err(c.err(&f("size"), "every edge length must be > 0"))
+        }
+    };
+    Ok(match s {
+        RawShape::Sphere { center, radius } => Shape::Sphere {
+            center: c.vec3(&f("center"), *center)?,
+            radius: c.positive(&f("radius"), *radius)?,
+        },
+        RawShape::Box {
+            center,
+            size: sz,
+            rotation,
+        } => Shape::Box {
+            center: c.vec3(&f("center"), *center)?,
+            half: size(*sz)? * 0.5,
+            radius: 0.0,
+            rot: rot(*rotation)?,
+        },
+        RawShape::RoundedBox {
+            center,
+            size: sz,
+            radius,
+            rotation,
+        } => {
+            let half = size(*sz)? * 0.5;
+            let r = c.positive(&f("radius"), *radius)?;
+            if r > half.min_element() {
+                return Err(c.err(&f("radius"), "rounding radius exceeds half the smallest edge"));
+            }
+            Shape::Box {
+                center: c.vec3(&f("center"), *center)?,
+                half,
+                radius: r,
+                rot: rot(*rotation)?,
+            }
+        }
+        RawShape::Cylinder {
+            center,
+            radius,
+            height,
+            rotation,
+        } => Shape::Cylinder {
+            center: c.vec3(&f("center"), *center)?,
+            radius: c.positive(&f("radius"), *radius)?,
+            half_height: 0.5 * c.positive(&f("height"), *height)?,
+            rot: rot(*rotation)?,
+        },
+        RawShape::Revolution {
+            base,
+            profile,
+            rotation,
+        } => {
+            if profile.len() < 3 {
+                return Err(c.err(&f("profile"), "a profile needs at least 3 [radius, height] points"));
+            }
+            let mut pts = Vec::with_capacity(profile.len());
+            let mut area2 = 0.0;
+            for (i, q) in profile.iter().enumerate() {
+                let at = [sp, &[Seg::Key("profile"), Seg::Index(i)]].concat();
+                c.finite(&at, q)?;
+                if q[0] < 0.0 {
+                    return Err(c.err(&at, "profile radius must be >= 0"));
+                }
+                pts.push(DVec2::new(q[0], q[1]));
+            }
+            for i in 0..pts.len() {
+                area2 += pts[i].perp_dot(pts[(i + 1) % pts.len()]);
+            }
+            if area2.abs() < 1e-12 {
+                return Err(c.err(&f("profile"), "the profile polygon encloses no area"));
+            }
+            Shape::Revolution {
+                base: c.vec3(&f("base"), *base)?,
+                profile: pts,
+                rot: rot(*rotation)?,
+            }
+        }
+        RawShape::Torus {
+            center,
+            major_radius,
+            minor_radius,
+            rotation,
+        } => Shape::Torus {
+            center: c.vec3(&f("center"), *center)?,
+            major: c.positive(&f("major_radius"), *major_radius)?,
+            minor: c.positive(&f("minor_radius"), *minor_radius)?,
+            rot: rot(*rotation)?,
+        },
+        RawShape::Superquadric {
+            center,
+            radii,
+            exponents,
+            rotation,
+        } => {
+            let r = c.vec3(&f("radii"), *radii)?;
+            if r.min_element() <= 0.0 {
+                return Err(c.err(&f("radii"), "every radius must be > 0"));
+            }
+            c.finite(&f("exponents"), exponents)?;
+            if !exponents.iter().all(|e| (0.05..=4.0).contains(e)) {
+                return Err(c.err(&f("exponents"), "exponents must lie in [0.05, 4]"));
+            }
+            Shape::Superquadric {
+                center: c.vec3(&f("center"), *center)?,
+                radii: r,
+                e1: exponents[0],
+                e2: exponents[1],
+                rot: rot(*rotation)?,
+            }
+        }
+        RawShape::HalfSpace { point, normal } => Shape::HalfSpace {
+            point: c.vec3(&f("point"), *point)?,
+            normal: c.unit(&f("normal"), *normal)?,
+        },
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GLASS_OF_WATER: &str = r#"
+[grid]
+resolution = 32
+min = [-1, -1, -1]
+max = [1, 1, 1]
+
+[[object]]
+name = "water"
+shape = { type = "cylinder", center = [0, 0, 0], radius = 0.6, height = 1.0 }
+index = 1.33
+priority = 1
+
+[[object]]
+name = "glass"
+shape = { type = "revolution", base = [0, -0.6, 0], profile = [[0, 0], [0.65, 0], [0.65, 1.2], [0.55, 1.2], [0.55, 0.1], [0, 0.1]] }
+index = 1.5
+priority = 2
+"#;
+
+    #[test]
+    fn priority_resolves_overlap() {
+        let s = Scene::parse(GLASS_OF_WATER, "t.toml").unwrap();
+        // r = 0.58 lies in the water cylinder and in the glass wall.
+        let p = DVec3::new(0.58, 0.0, 0.0);
+        assert!(s.objects[0].shape.contains(p) && s.objects[1].shape.contains(p));
+        assert_eq!(s.material_at(p).index.value(p, 0), 1.5);
+        assert_eq!(s.material_at(DVec3::new(0.3, 0.0, 0.0)).index.value(p, 0), 1.33);
+        assert_eq!(s.material_at(DVec3::new(0.9, 0.0, 0.0)).index.value(p, 0), 1.0);
+    }
+
+    fn err(text: &str) -> String {
+        Scene::parse(text, "bad.toml").unwrap_err().to_string()
+    }
+
+    #[test]
+    fn errors_name_line_column_and_field() {
+        let e = err("[grid]\nresolution = 8\nmin = [0,0,0]\nmax = [1,1,1]\ncolour = 3\n");
+        assert!(e.starts_with("bad.toml:5:1: grid"), "{e}");
+        assert!(e.contains("unknown field `colour`"), "{e}");
+
+        let e = err(&GLASS_OF_WATER.replace("index = 1.33", "index = -1.33"));
+        assert!(e.contains("object[0].index"), "{e}");
+        assert!(e.contains("must be > 0"), "{e}");
+        let line = GLASS_OF_WATER
+            .lines()
+            .position(|l| l.starts_with("index = 1.33"))
+            .unwrap()
+            + 1;
+        assert!(e.starts_with(&format!("bad.toml:{line}:1: ")), "{e}");
+
+        let e = err(&GLASS_OF_WATER.replace("radius = 0.6,", "radius = nan,"));
+        assert!(e.contains("object[0].shape.radius"), "{e}");
+
+        let e = err("[grid]\nresolution = 8\nmin = [0,0,0]\nmax = [1,1,1\n");
+        assert!(e.starts_with("bad.toml:5:1: invalid array: expected `]`"), "{e}");
+    }
+}
