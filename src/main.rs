@@ -1,1 +1,43 @@
-fn main(){}
+//! `eikon`: light transport in refractive volumes, from the command line.
+
+mod info;
+mod output;
+mod slice;
+mod trace;
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+/// Light transport in refractive volumes (Eikonal Rendering, Ihrke et al. 2007).
+#[derive(Parser)]
+#[command(name = "eikon", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Describe a scene: resolution, memory, index range, objects, lights.
+    Info(info::Args),
+    /// Trace one ray through a scene's index field with the ray equation.
+    Trace(trace::Args),
+    /// Write a false-colour PNG slice of a field, to see what was built.
+    Slice(slice::Args),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Info(a) => info::run(a),
+        Command::Trace(a) => trace::run(a),
+        Command::Slice(a) => slice::run(a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -244,15 +244,10 @@ impl Medium {
 
     /// The index field of `channel` for ray tracing (trilinear sampling).
     pub fn field(&self, channel: usize) -> VoxelField<'_> {
-        let a = &self.index[channel];
-        let [nx, ny, nz] = self.geometry.dims;
-        VoxelField {
-            data: a.as_slice().expect("index arrays are contiguous"),
-            dims: [nx, ny, nz],
-            strides: [ny * nz * 4, nz * 4, 4],
-            min: self.geometry.min,
-            inv_spacing: 1.0 / self.geometry.spacing(),
-        }
+        let data = self.index[channel]
+            .as_slice()
+            .expect("index arrays are contiguous");
+        VoxelField::new(data, &self.geometry)
     }
 }
 
@@ -260,51 +255,58 @@ impl Medium {
 #[derive(Clone, Copy, Debug)]
 pub struct VoxelField<'a> {
     data: &'a [f32],
-    dims: [usize; 3],
-    strides: [usize; 3],
     min: DVec3,
     inv_spacing: DVec3,
+    /// Largest continuous voxel coordinate per axis (`dims - 1`).
+    hi: DVec3,
+    /// Largest lower-corner cell per axis (`dims - 2`, or 0 for one cell).
+    max_cell: [usize; 3],
+    /// Float strides per axis; 0 along an axis with a single cell.
+    strides: [usize; 3],
 }
 
-impl VoxelField<'_> {
-    #[inline(always)]
-    fn corner(&self, idx: usize) -> Vec4 {
-        Vec4::from_slice(&self.data[idx..idx + 4])
+impl<'a> VoxelField<'a> {
+    fn new(data: &'a [f32], geometry: &GridGeometry) -> Self {
+        let [nx, ny, nz] = geometry.dims;
+        let dims = geometry.dims;
+        let full = [ny * nz * 4, nz * 4, 4];
+        assert_eq!(data.len(), nx * ny * nz * 4);
+        Self {
+            data,
+            min: geometry.min,
+            inv_spacing: 1.0 / geometry.spacing(),
+            hi: DVec3::new(nx as f64, ny as f64, nz as f64) - 1.0,
+            max_cell: dims.map(|d| d.saturating_sub(2)),
+            strides: [0, 1, 2].map(|a| if dims[a] > 1 { full[a] } else { 0 }),
+        }
     }
 }
 
 impl IndexField for VoxelField<'_> {
-    #[inline]
+    #[inline(always)]
     fn sample(&self, p: DVec3) -> (f64, DVec3) {
         // Cell-centre convention: centres at integer voxel coordinates.
-        let u = (p - self.min) * self.inv_spacing - 0.5;
-        let mut base = 0;
-        let mut off = [0usize; 3];
-        let mut f = [0f32; 3];
-        for a in 0..3 {
-            let hi = (self.dims[a] - 1) as f64;
-            let ua = u[a].clamp(0.0, hi);
-            let i0 = (ua.floor() as usize).min(self.dims[a].saturating_sub(2));
-            f[a] = (ua - i0 as f64) as f32;
-            base += i0 * self.strides[a];
-            off[a] = if self.dims[a] > 1 { self.strides[a] } else { 0 };
-        }
-        let [ox, oy, oz] = off;
-        let c000 = self.corner(base);
-        let c001 = self.corner(base + oz);
-        let c010 = self.corner(base + oy);
-        let c011 = self.corner(base + oy + oz);
-        let c100 = self.corner(base + ox);
-        let c101 = self.corner(base + ox + oz);
-        let c110 = self.corner(base + ox + oy);
-        let c111 = self.corner(base + ox + oy + oz);
-        let c00 = c000.lerp(c001, f[2]);
-        let c01 = c010.lerp(c011, f[2]);
-        let c10 = c100.lerp(c101, f[2]);
-        let c11 = c110.lerp(c111, f[2]);
-        let c0 = c00.lerp(c01, f[1]);
-        let c1 = c10.lerp(c11, f[1]);
-        let v = c0.lerp(c1, f[0]);
+        // Clamping holds the edge value in the outer half cell; a NaN
+        // position clamps to NaN and truncates to cell 0, never out of range.
+        let u = ((p - self.min) * self.inv_spacing - 0.5).clamp(DVec3::ZERO, self.hi);
+        // u >= 0, so truncation is floor (and avoids a libm call on targets
+        // without SSE4.1).
+        let i = (u.x as usize).min(self.max_cell[0]);
+        let j = (u.y as usize).min(self.max_cell[1]);
+        let k = (u.z as usize).min(self.max_cell[2]);
+        let fx = (u.x - i as f64) as f32;
+        let fy = (u.y - j as f64) as f32;
+        let fz = (u.z - k as f64) as f32;
+        let [ox, oy, oz] = self.strides;
+        let base = i * ox + j * oy + k * oz;
+        // One bounds check for all eight corners: the farthest is last.
+        let cell = &self.data[base..base + ox + oy + oz + 4];
+        let at = |o: usize| Vec4::from_slice(&cell[o..o + 4]);
+        let c00 = at(0).lerp(at(oz), fz);
+        let c01 = at(oy).lerp(at(oy + oz), fz);
+        let c10 = at(ox).lerp(at(ox + oz), fz);
+        let c11 = at(ox + oy).lerp(at(ox + oy + oz), fz);
+        let v = c00.lerp(c01, fy).lerp(c10.lerp(c11, fy), fx);
         (v.x as f64, DVec3::new(v.y as f64, v.z as f64, v.w as f64))
     }
 }

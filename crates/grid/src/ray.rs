@@ -10,7 +10,8 @@
 //!
 //! In both, `v = grad S` is the gradient of the eikonal, of length `n`.
 //! The state also carries the optical path length `L = int n ds`
-//! (`dL/ds = |v|`, `dL/dt = |v| / n`), integrated by the same scheme.
+//! (`dL/ds = n`; in the equal-time form `dL/dt = 1`), integrated by the
+//! same scheme.
 //!
 //! Integrators: forward Euler (eqs 11-12 and their equal-time analogue),
 //! classical RK4, and adaptive Dormand-Prince 5(4). Total internal
@@ -85,22 +86,20 @@ struct Deriv {
 #[inline(always)]
 fn deriv<F: IndexField + ?Sized>(f: &F, form: Form, x: DVec3, v: DVec3) -> Deriv {
     let (n, g) = f.sample(x);
+    let inv = 1.0 / n;
     match form {
-        // eq 9, eq 10; dL/ds = n |dx/ds| = |v|
+        // eq 9, eq 10; dL/ds = n by definition of optical path.
         Form::EqualDistance => Deriv {
-            x: v / n,
+            x: v * inv,
             v: g,
-            opl: v.length(),
+            opl: n,
         },
-        // eq 14, eq 15; dL/dt = n |dx/dt| = |v| / n
-        Form::EqualTime => {
-            let inv = 1.0 / n;
-            Deriv {
-                x: v * (inv * inv),
-                v: g * inv,
-                opl: v.length() * inv,
-            }
-        }
+        // eq 14, eq 15; t is optical path itself (Appendix, eq 24: ds/dt = 1/n).
+        Form::EqualTime => Deriv {
+            x: v * (inv * inv),
+            v: g * inv,
+            opl: 1.0,
+        },
     }
 }
 
@@ -314,6 +313,128 @@ pub struct RayEnd {
     pub path: Vec<DVec3>,
 }
 
+/// One ray being marched: its state and the record of how it is going.
+struct March {
+    s: RayState,
+    h: f64,
+    end: RayEnd,
+}
+
+impl March {
+    /// Set a ray up at the bounds; `Err` carries a ray that ended before its
+    /// first step (it missed the bounds, or its input was not finite).
+    fn start<F: IndexField + ?Sized>(
+        field: &F,
+        grid: &GridGeometry,
+        origin: DVec3,
+        dir: DVec3,
+        opts: &TraceOptions,
+    ) -> Result<March, RayEnd> {
+        let d = dir.normalize_or_zero();
+        let mut end = RayEnd {
+            status: Status::Missed,
+            entry: origin,
+            position: origin,
+            direction: d,
+            optical_path: 0.0,
+            steps: 0,
+            rejected: 0,
+            path: Vec::new(),
+        };
+        if d == DVec3::ZERO || !origin.is_finite() || !d.is_finite() {
+            end.status = Status::Diverged;
+            return Err(end);
+        }
+        let start = if grid.contains(origin) {
+            origin
+        } else {
+            match grid.clip_line(origin, d) {
+                Some((t0, t1)) if t1 >= 0.0 && t0 >= 0.0 => origin + d * t0,
+                _ => return Err(end),
+            }
+        };
+        end.entry = start;
+        if opts.record_path {
+            end.path.push(start);
+        }
+        Ok(March {
+            s: RayState::new(start, d, field.sample(start).0),
+            h: opts.step,
+            end,
+        })
+    }
+
+    /// Take one step; true once the ray has ended (then `end` is complete).
+    #[inline(always)]
+    fn advance<F: IndexField + ?Sized>(
+        &mut self,
+        field: &F,
+        grid: &GridGeometry,
+        opts: &TraceOptions,
+    ) -> bool {
+        let end = &mut self.end;
+        if end.steps >= opts.max_steps {
+            end.status = Status::MaxSteps;
+            end.position = self.s.x;
+            end.direction = self.s.direction();
+            end.optical_path = self.s.opl;
+            return true;
+        }
+        let prev = self.s;
+        let s = &mut self.s;
+        match opts.method {
+            Method::Euler => step_euler(field, opts.form, s, self.h),
+            Method::Rk4 => step_rk4(field, opts.form, s, self.h),
+            Method::DormandPrince => {
+                let tol_v = opts.tolerance / opts.step;
+                let r = step_dopri(field, opts.form, s, self.h, opts.tolerance, tol_v, opts.step);
+                self.h = r.h_next;
+                if !r.accepted {
+                    end.rejected += 1;
+                    if self.h.is_finite() {
+                        return false;
+                    }
+                    // A non-finite suggested step means the state blew up.
+                    end.status = Status::Diverged;
+                    end.position = prev.x;
+                    end.direction = prev.v.normalize_or_zero();
+                    end.optical_path = prev.opl;
+                    return true;
+                }
+            }
+        }
+        end.steps += 1;
+        // A non-finite position fails the containment test too, so the
+        // finiteness check costs nothing on the common path.
+        if grid.contains(s.x) {
+            if opts.record_path {
+                end.path.push(s.x);
+            }
+            return false;
+        }
+        if !(s.x.is_finite() && s.v.is_finite() && s.opl.is_finite()) {
+            end.status = Status::Diverged;
+            end.position = prev.x;
+            end.direction = prev.v.normalize_or_zero();
+            end.optical_path = prev.opl;
+            return true;
+        }
+        // The step crossed the bounds: cut it where the chord leaves.
+        let chord = s.x - prev.x;
+        let t = grid
+            .clip_line(prev.x, chord)
+            .map_or(1.0, |(_, t1)| t1.clamp(0.0, 1.0));
+        end.status = Status::Exited;
+        end.position = prev.x + chord * t;
+        end.direction = prev.v.lerp(s.v, t).normalize();
+        end.optical_path = prev.opl + (s.opl - prev.opl) * t;
+        if opts.record_path {
+            end.path.push(end.position);
+        }
+        true
+    }
+}
+
 /// March a ray from `origin` along `dir` through `field` until it leaves the
 /// bounds of `grid` (or a guard stops it). A ray starting outside first
 /// travels straight to the bounds.
@@ -324,90 +445,70 @@ pub fn trace<F: IndexField + ?Sized>(
     dir: DVec3,
     opts: &TraceOptions,
 ) -> RayEnd {
-    let d = dir.normalize_or_zero();
-    let mut end = RayEnd {
-        status: Status::Missed,
-        entry: origin,
-        position: origin,
-        direction: d,
-        optical_path: 0.0,
-        steps: 0,
-        rejected: 0,
-        path: Vec::new(),
-    };
-    if d == DVec3::ZERO || !origin.is_finite() || !d.is_finite() {
-        end.status = Status::Diverged;
-        return end;
-    }
-    let start = if grid.contains(origin) {
-        origin
-    } else {
-        match grid.clip_line(origin, d) {
-            Some((t0, t1)) if t1 >= 0.0 && t0 >= 0.0 => origin + d * t0,
-            _ => return end,
+    match March::start(field, grid, origin, dir, opts) {
+        Err(end) => end,
+        Ok(mut m) => {
+            while !m.advance(field, grid, opts) {}
+            m.end
         }
-    };
-    end.entry = start;
-    let mut s = RayState::new(start, d, field.sample(start).0);
-    if opts.record_path {
-        end.path.push(start);
     }
-    let tol_x = opts.tolerance;
-    let tol_v = opts.tolerance / opts.step;
-    let mut h = opts.step;
-    while end.steps < opts.max_steps {
-        let prev = s;
-        match opts.method {
-            Method::Euler => step_euler(field, opts.form, &mut s, h),
-            Method::Rk4 => step_rk4(field, opts.form, &mut s, h),
-            Method::DormandPrince => {
-                let r = step_dopri(field, opts.form, &mut s, h, tol_x, tol_v, opts.step);
-                h = r.h_next;
-                if !r.accepted {
-                    end.rejected += 1;
-                    if !h.is_finite() {
-                        break;
-                    }
-                    continue;
+}
+
+/// Rays marched together by [`trace_many`].
+const LANES: usize = 8;
+
+/// Trace many rays `(origin, direction)`; results are in input order and
+/// identical to calling [`trace`] on each. One ray's steps form a chain of
+/// dependent operations (sample, then step, then sample again), so a lone
+/// ray leaves the processor waiting on latency; marching `LANES` independent
+/// rays round-robin lets their chains overlap.
+pub fn trace_many<F: IndexField + ?Sized>(
+    field: &F,
+    grid: &GridGeometry,
+    rays: &[(DVec3, DVec3)],
+    opts: &TraceOptions,
+) -> Vec<RayEnd> {
+    let mut out: Vec<Option<RayEnd>> = vec![None; rays.len()];
+    let mut lanes: [Option<(usize, March)>; LANES] = std::array::from_fn(|_| None);
+    let mut next = 0;
+    let mut refill = |lane: &mut Option<(usize, March)>, out: &mut [Option<RayEnd>]| {
+        *lane = None;
+        while next < rays.len() {
+            let i = next;
+            next += 1;
+            match March::start(field, grid, rays[i].0, rays[i].1, opts) {
+                Ok(m) => {
+                    *lane = Some((i, m));
+                    return;
                 }
+                Err(end) => out[i] = Some(end),
             }
         }
-        end.steps += 1;
-        if !(s.x.is_finite() && s.v.is_finite() && s.opl.is_finite()) {
-            end.status = Status::Diverged;
-            end.position = prev.x;
-            end.direction = prev.v.normalize_or_zero();
-            end.optical_path = prev.opl;
-            return end;
-        }
-        if !grid.contains(s.x) {
-            // The step crossed the bounds: cut it where the chord leaves.
-            let chord = s.x - prev.x;
-            let t = grid
-                .clip_line(prev.x, chord)
-                .map_or(1.0, |(_, t1)| t1.clamp(0.0, 1.0));
-            end.status = Status::Exited;
-            end.position = prev.x + chord * t;
-            end.direction = prev.v.lerp(s.v, t).normalize();
-            end.optical_path = prev.opl + (s.opl - prev.opl) * t;
-            if opts.record_path {
-                end.path.push(end.position);
+    };
+    for lane in lanes.iter_mut() {
+        refill(lane, &mut out);
+    }
+    loop {
+        let mut busy = false;
+        for lane in lanes.iter_mut() {
+            let finished = match lane {
+                Some((_, m)) => m.advance(field, grid, opts),
+                None => continue,
+            };
+            busy = true;
+            if finished {
+                let (i, m) = lane.take().expect("lane is busy");
+                out[i] = Some(m.end);
+                refill(lane, &mut out);
             }
-            return end;
         }
-        if opts.record_path {
-            end.path.push(s.x);
+        if !busy {
+            break;
         }
     }
-    end.status = if end.steps >= opts.max_steps {
-        Status::MaxSteps
-    } else {
-        Status::Diverged
-    };
-    end.position = s.x;
-    end.direction = s.v.normalize_or_zero();
-    end.optical_path = s.opl;
-    end
+    out.into_iter()
+        .map(|e| e.expect("every ray ends"))
+        .collect()
 }
 
 #[cfg(test)]
@@ -443,6 +544,43 @@ mod tests {
         assert_eq!(r.status, Status::MaxSteps);
         assert_eq!(r.steps, 10);
         assert!((r.position.x - 0.6).abs() < 1e-12);
+    }
+
+    /// A smooth lens-like field for comparing batch and single traces.
+    struct Bump;
+    impl IndexField for Bump {
+        fn sample(&self, p: DVec3) -> (f64, DVec3) {
+            let q = p - DVec3::splat(0.5);
+            let e = (-8.0 * q.length_squared()).exp();
+            (1.0 + 0.4 * e, q * (-16.0 * 0.4 * e))
+        }
+    }
+
+    #[test]
+    fn trace_many_matches_trace_bit_for_bit() {
+        let g = GridGeometry::new([8, 8, 8], DVec3::ZERO, DVec3::ONE);
+        let rays: Vec<(DVec3, DVec3)> = (0..37)
+            .map(|i| {
+                let y = i as f64 / 36.0;
+                // Some rays miss, some start inside, all others cross the bump.
+                let o = if i % 9 == 0 { DVec3::new(-1.0, 5.0, 0.5) } else { DVec3::new(-0.2, y, 0.45) };
+                (o, DVec3::new(1.0, 0.1 * (y - 0.5), 0.05))
+            })
+            .collect();
+        for m in [Method::Euler, Method::Rk4, Method::DormandPrince] {
+            let mut o = opts(m);
+            o.tolerance = 1e-6;
+            o.max_steps = if m == Method::Euler { 50 } else { 100_000 };
+            let batch = trace_many(&Bump, &g, &rays, &o);
+            for (r, b) in rays.iter().zip(&batch) {
+                let single = trace(&Bump, &g, r.0, r.1, &o);
+                assert_eq!(single.status, b.status);
+                assert_eq!(single.position, b.position);
+                assert_eq!(single.path, b.path);
+                assert_eq!(single.steps, b.steps);
+            }
+            assert!(batch.iter().any(|e| e.status == Status::Missed));
+        }
     }
 
     #[test]

@@ -1,0 +1,104 @@
+//! Shared CLI plumbing: argument parsing, atomic writes, colour maps.
+
+use anyhow::{Context, Result};
+use glam::DVec3;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// Parse `x,y,z` into a vector (clap value parser).
+pub fn parse_vec3(s: &str) -> std::result::Result<DVec3, String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    if parts.len() != 3 {
+        return Err(format!("expected three comma-separated numbers x,y,z, got `{s}`"));
+    }
+    let mut v = [0.0; 3];
+    for (slot, p) in v.iter_mut().zip(&parts) {
+        *slot = p
+            .parse::<f64>()
+            .map_err(|_| format!("`{p}` is not a number (in `{s}`)"))?;
+        if !slot.is_finite() {
+            return Err(format!("`{p}` is not finite (in `{s}`)"));
+        }
+    }
+    Ok(DVec3::from_array(v))
+}
+
+/// Write a file atomically: the bytes go to a temporary file beside `path`,
+/// which is renamed into place only once complete, so a failure never
+/// leaves a half-written output.
+pub fn write_atomic(path: &Path, write: impl FnOnce(&mut dyn Write) -> Result<()>) -> Result<()> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let name = path
+        .file_name()
+        .with_context(|| format!("{}: not a file path", path.display()))?;
+    let tmp = dir.join(format!(".{}.{}.tmp", name.to_string_lossy(), std::process::id()));
+    let result = (|| -> Result<()> {
+        let file = std::fs::File::create(&tmp)
+            .with_context(|| format!("{}: cannot create output", path.display()))?;
+        let mut w = std::io::BufWriter::new(file);
+        write(&mut w)?;
+        let file = w
+            .into_inner()
+            .map_err(|e| e.into_error())
+            .with_context(|| format!("{}: write failed", path.display()))?;
+        file.sync_all()
+            .with_context(|| format!("{}: write failed", path.display()))?;
+        std::fs::rename(&tmp, path).with_context(|| format!("{}: cannot move output into place", path.display()))
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+/// Viridis colour map at `t` in [0, 1] (piecewise-linear through 9 stops of
+/// the matplotlib table).
+pub fn viridis(t: f64) -> [u8; 3] {
+    const STOPS: [[f64; 3]; 9] = [
+        [68.0, 1.0, 84.0],
+        [71.0, 44.0, 122.0],
+        [59.0, 81.0, 139.0],
+        [44.0, 113.0, 142.0],
+        [33.0, 144.0, 141.0],
+        [39.0, 173.0, 129.0],
+        [92.0, 200.0, 99.0],
+        [170.0, 220.0, 50.0],
+        [253.0, 231.0, 37.0],
+    ];
+    let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 };
+    let x = t * (STOPS.len() - 1) as f64;
+    let i = (x.floor() as usize).min(STOPS.len() - 2);
+    let f = x - i as f64;
+    let mut out = [0u8; 3];
+    for (c, o) in out.iter_mut().enumerate() {
+        *o = (STOPS[i][c] * (1.0 - f) + STOPS[i + 1][c] * f).round() as u8;
+    }
+    out
+}
+
+/// Format a vector for people.
+pub fn fmt_vec(v: DVec3) -> String {
+    format!("({:.6}, {:.6}, {:.6})", v.x, v.y, v.z)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn vec3_parsing_rejects_bad_input() {
+        assert_eq!(parse_vec3("1, -2,3.5").unwrap(), DVec3::new(1.0, -2.0, 3.5));
+        assert!(parse_vec3("1,2").is_err());
+        assert!(parse_vec3("1,2,x").is_err());
+        assert!(parse_vec3("1,2,nan").is_err());
+    }
+
+    #[test]
+    fn viridis_ends() {
+        assert_eq!(viridis(0.0), [68, 1, 84]);
+        assert_eq!(viridis(1.0), [253, 231, 37]);
+    }
+}

@@ -1,0 +1,234 @@
+//! End-to-end tests of the `eikon` binary: good scenes work, bad input gets
+//! a clear located error, a non-zero exit, no panic and no partial output.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn eikon(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_eikon"))
+        .args(args)
+        .output()
+        .expect("run eikon")
+}
+
+fn config(name: &str) -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("configs")
+        .join(name)
+        .display()
+        .to_string()
+}
+
+const SMALL: &str = r#"
+[grid]
+resolution = 16
+min = [-1, -1, -1]
+max = [1, 1, 1]
+
+[[object]]
+name = "ball"
+shape = { type = "sphere", center = [0, 0, 0], radius = 0.5 }
+index = 1.5
+"#;
+
+fn write_scene(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// Run with bad input: must fail with exit code 1, print `error:` with every
+/// expected fragment, and never panic.
+fn expect_error(args: &[&str], fragments: &[&str]) -> String {
+    let out = eikon(args);
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert_eq!(out.status.code(), Some(1), "args {args:?}\nstderr: {err}");
+    assert!(!err.contains("panicked"), "panic: {err}");
+    assert!(err.starts_with("error: "), "{err}");
+    for f in fragments {
+        assert!(err.contains(f), "missing `{f}` in: {err}");
+    }
+    err
+}
+
+#[test]
+fn every_config_loads_and_builds() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs");
+    let mut n = 0;
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_some_and(|x| x == "toml") {
+            let out = eikon(&["info", "--json", p.to_str().unwrap()]);
+            assert!(out.status.success(), "{}: {}", p.display(), String::from_utf8_lossy(&out.stderr));
+            let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+            let lo = v["index_range"][0].as_f64().unwrap();
+            assert!(lo >= 1.0 - 1e-6, "{}: index below ambient: {lo}", p.display());
+            n += 1;
+        }
+    }
+    assert!(n >= 4, "expected the four required scenes, found {n}");
+}
+
+#[test]
+fn trace_reports_exit_through_luneburg_focus() {
+    // A ray at impact parameter R/2 leaves the lens at the focus (0, 0, R)
+    // and then travels straight to the bounds.
+    let out = eikon(&[
+        "trace",
+        &config("luneburg.toml"),
+        "--origin",
+        "0.4,0,-1.5",
+        "--dir",
+        "0,0,1",
+        "--json",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["status"], "exited");
+    let p: Vec<f64> = (0..3).map(|i| v["exit"][i].as_f64().unwrap()).collect();
+    let d: Vec<f64> = (0..3).map(|i| v["direction"][i].as_f64().unwrap()).collect();
+    assert!((p[2] - 1.0).abs() < 1e-9);
+    // Back along the exit line to z = R = 0.8: within a quarter voxel of x = 0.
+    let t = (p[2] - 0.8) / d[2];
+    let x_at_focus = p[0] - t * d[0];
+    assert!(x_at_focus.abs() < 0.25 * 2.0 / 128.0, "miss {x_at_focus}");
+    assert!(v["path"].as_array().unwrap().len() > 100);
+    assert!(v["optical_path"].as_f64().unwrap() > 2.0);
+}
+
+#[test]
+fn trace_reports_a_trapped_ray_instead_of_dropping_it() {
+    let out = eikon(&[
+        "trace",
+        &config("luneburg.toml"),
+        "--origin",
+        "0,0,0",
+        "--dir",
+        "1,0,0",
+        "--max-steps",
+        "5",
+        "--every",
+        "0",
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("status        max-steps"), "{text}");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--max-steps"));
+}
+
+#[test]
+fn slice_writes_a_png_of_the_grid() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_scene(dir.path(), "s.toml", SMALL);
+    let png = dir.path().join("n.png");
+    let out = eikon(&[
+        "slice",
+        scene.to_str().unwrap(),
+        "--axis",
+        "z",
+        "--at",
+        "0.5",
+        "-o",
+        png.to_str().unwrap(),
+        "--scale",
+        "2",
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let bytes = std::fs::read(&png).unwrap();
+    assert_eq!(&bytes[1..4], b"PNG");
+    // 16 x 16 voxels at scale 2: the IHDR width and height are 32.
+    assert_eq!(u32::from_be_bytes(bytes[16..20].try_into().unwrap()), 32);
+    assert_eq!(u32::from_be_bytes(bytes[20..24].try_into().unwrap()), 32);
+    // No temporary file is left behind.
+    let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+    assert_eq!(left.len(), 2);
+}
+
+#[test]
+fn missing_file_is_named() {
+    expect_error(
+        &["info", "/nonexistent/scene.toml"],
+        &["/nonexistent/scene.toml", "cannot read scene file"],
+    );
+}
+
+#[test]
+fn malformed_toml_names_line_and_column() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write_scene(dir.path(), "bad.toml", "[grid]\nresolution = = 16\n");
+    expect_error(&["info", p.to_str().unwrap()], &["bad.toml:2:14"]);
+}
+
+#[test]
+fn unknown_field_is_rejected_with_its_place() {
+    let dir = tempfile::tempdir().unwrap();
+    let text = SMALL.replace("index = 1.5", "index = 1.5\ncolor = \"red\"");
+    let p = write_scene(dir.path(), "unknown.toml", &text);
+    expect_error(
+        &["info", p.to_str().unwrap()],
+        &["unknown.toml:11:1", "object[0]", "unknown field `color`"],
+    );
+}
+
+#[test]
+fn non_positive_index_is_rejected() {
+    let dir = tempfile::tempdir().unwrap();
+    for (bad, what) in [("index = 0.0", "> 0"), ("index = -1.5", "> 0"), ("index = nan", "finite")] {
+        let p = write_scene(dir.path(), "n.toml", &SMALL.replace("index = 1.5", bad));
+        expect_error(
+            &["info", p.to_str().unwrap()],
+            &["n.toml:10:1", "object[0].index", what],
+        );
+    }
+    // A linear profile that dips below zero inside the grid.
+    let text = SMALL.replace(
+        "index = 1.5",
+        "index = { type = \"linear\", n0 = 1.0, gradient = [0, 3, 0] }",
+    );
+    let p = write_scene(dir.path(), "lin.toml", &text);
+    expect_error(&["info", p.to_str().unwrap()], &["object[0].index", "<= 0"]);
+}
+
+#[test]
+fn resolution_too_large_is_refused_before_allocating() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write_scene(dir.path(), "huge.toml", &SMALL.replace("resolution = 16", "resolution = 100000"));
+    let start = std::time::Instant::now();
+    expect_error(
+        &["info", p.to_str().unwrap()],
+        &["huge.toml:3:1", "grid.resolution", "memory is available"],
+    );
+    // Refused from the estimate alone: no time spent voxelizing.
+    assert!(start.elapsed().as_secs_f64() < 5.0);
+    let out = dir.path().join("never.png");
+    expect_error(
+        &["slice", p.to_str().unwrap(), "--axis", "x", "--at", "0.5", "-o", out.to_str().unwrap()],
+        &["grid.resolution"],
+    );
+    assert!(!out.exists(), "no output may be written on failure");
+}
+
+#[test]
+fn bad_arguments_are_refused() {
+    // clap's own usage errors exit with 2.
+    let out = eikon(&["trace", &config("luneburg.toml"), "--origin", "0,0", "--dir", "0,0,1"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("three comma-separated numbers"));
+    expect_error(
+        &["trace", &config("luneburg.toml"), "--origin", "0,0,0", "--dir", "0,0,0"],
+        &["--dir"],
+    );
+    expect_error(
+        &["trace", &config("luneburg.toml"), "--origin", "0,0,0", "--dir", "0,0,1", "--step", "-1"],
+        &["--step"],
+    );
+}
+
+#[test]
+fn every_command_has_help() {
+    for cmd in [vec!["--help"], vec!["info", "--help"], vec!["trace", "--help"], vec!["slice", "--help"]] {
+        let out = eikon(&cmd);
+        assert!(out.status.success());
+        assert!(String::from_utf8_lossy(&out.stdout).contains("Usage:"));
+    }
+}
