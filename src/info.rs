@@ -32,14 +32,22 @@ fn describe_index(p: &IndexProfile) -> String {
             n0,
             gradient,
             origin,
-        } => format!("linear n = {n0} + {} . (x - {})", fmt_vec(*gradient), fmt_vec(*origin)),
+        } => format!(
+            "linear n = {n0} + {} . (x - {})",
+            fmt_vec(*gradient),
+            fmt_vec(*origin)
+        ),
     }
 }
 
 fn describe_light(l: &Light) -> String {
     match l {
         Light::Directional { direction, power } => {
-            format!("directional along {}, {} W/m^2", fmt_vec(*direction), fmt_vec(*power))
+            format!(
+                "directional along {}, {} W/m^2",
+                fmt_vec(*direction),
+                fmt_vec(*power)
+            )
         }
         Light::Point { position, power } => {
             format!("point at {}, {} W", fmt_vec(*position), fmt_vec(*power))
@@ -121,13 +129,21 @@ pub fn run(args: Args) -> Result<()> {
         g.dims[2],
         g.voxel_count()
     );
-    println!("bounds       {} .. {} (world units)", fmt_vec(g.min), fmt_vec(g.max));
+    println!(
+        "bounds       {} .. {} (world units)",
+        fmt_vec(g.min),
+        fmt_vec(g.max)
+    );
     println!("voxel size   {}", fmt_vec(g.spacing()));
     println!(
         "smoothing    sigma {} voxels; supersampling {}^3; dispersion {}",
         scene.grid.smoothing,
         scene.grid.supersample,
-        if scene.grid.dispersion { "on (R, G, B index fields)" } else { "off" }
+        if scene.grid.dispersion {
+            "on (R, G, B index fields)"
+        } else {
+            "off"
+        }
     );
     println!(
         "memory       {} resident, {} peak while building",
@@ -139,7 +155,10 @@ pub fn run(args: Args) -> Result<()> {
         println!("boundary     peak indicator {bmax:.3} per world unit");
     }
     println!("ambient      {}", describe_index(&scene.ambient.index));
-    println!("objects      {} (highest priority first)", scene.objects.len());
+    println!(
+        "objects      {} (highest priority first)",
+        scene.objects.len()
+    );
     for &i in scene.precedence() {
         let o = &scene.objects[i];
         let m = &o.material;

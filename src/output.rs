@@ -9,7 +9,9 @@ use std::path::{Path, PathBuf};
 pub fn parse_vec3(s: &str) -> std::result::Result<DVec3, String> {
     let parts: Vec<&str> = s.split(',').map(str::trim).collect();
     if parts.len() != 3 {
-        return Err(format!("expected three comma-separated numbers x,y,z, got `{s}`"));
+        return Err(format!(
+            "expected three comma-separated numbers x,y,z, got `{s}`"
+        ));
     }
     let mut v = [0.0; 3];
     for (slot, p) in v.iter_mut().zip(&parts) {
@@ -34,7 +36,11 @@ pub fn write_atomic(path: &Path, write: impl FnOnce(&mut dyn Write) -> Result<()
     let name = path
         .file_name()
         .with_context(|| format!("{}: not a file path", path.display()))?;
-    let tmp = dir.join(format!(".{}.{}.tmp", name.to_string_lossy(), std::process::id()));
+    let tmp = dir.join(format!(
+        ".{}.{}.tmp",
+        name.to_string_lossy(),
+        std::process::id()
+    ));
     let result = (|| -> Result<()> {
         let file = std::fs::File::create(&tmp)
             .with_context(|| format!("{}: cannot create output", path.display()))?;
@@ -46,7 +52,8 @@ pub fn write_atomic(path: &Path, write: impl FnOnce(&mut dyn Write) -> Result<()
             .with_context(|| format!("{}: write failed", path.display()))?;
         file.sync_all()
             .with_context(|| format!("{}: write failed", path.display()))?;
-        std::fs::rename(&tmp, path).with_context(|| format!("{}: cannot move output into place", path.display()))
+        std::fs::rename(&tmp, path)
+            .with_context(|| format!("{}: cannot move output into place", path.display()))
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
@@ -68,7 +75,11 @@ pub fn viridis(t: f64) -> [u8; 3] {
         [170.0, 220.0, 50.0],
         [253.0, 231.0, 37.0],
     ];
-    let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 };
+    let t = if t.is_finite() {
+        t.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
     let x = t * (STOPS.len() - 1) as f64;
     let i = (x.floor() as usize).min(STOPS.len() - 2);
     let f = x - i as f64;

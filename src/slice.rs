@@ -71,10 +71,7 @@ pub fn run(args: Args) -> Result<()> {
     let value = |i: usize, j: usize, k: usize| -> f32 {
         match args.field {
             FieldArg::N => m.index[ch][[i, j, k, 0]],
-            FieldArg::Gradient => {
-                let a = &m.index[ch];
-                (1..4).map(|c| a[[i, j, k, c]].powi(2)).sum::<f32>().sqrt()
-            }
+            FieldArg::Gradient => m.gradient_at(ch, i, j, k).length() as f32,
             FieldArg::Boundary => m.boundary[[i, j, k]],
             FieldArg::Extinction => (0..3).map(|c| m.extinction[[i, j, k, c]]).sum::<f32>() / 3.0,
         }
@@ -102,7 +99,9 @@ pub fn run(args: Args) -> Result<()> {
     }
     let (lo, hi) = vals
         .iter()
-        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &x| {
+            (a.min(x), b.max(x))
+        });
     let span = if hi > lo { (hi - lo) as f64 } else { 1.0 };
     let s = args.scale;
     let (pw, ph) = (w * s, h * s);

@@ -69,7 +69,10 @@ pub struct Args {
 /// Run `eikon trace`.
 pub fn run(args: Args) -> Result<()> {
     if !(args.step.is_finite() && args.step > 0.0) {
-        bail!("--step: must be a positive number of voxels, got {}", args.step);
+        bail!(
+            "--step: must be a positive number of voxels, got {}",
+            args.step
+        );
     }
     if !(args.tolerance.is_finite() && args.tolerance > 0.0) {
         bail!("--tolerance: must be positive, got {}", args.tolerance);
@@ -107,7 +110,10 @@ pub fn run(args: Args) -> Result<()> {
     } else {
         medium = Medium::build(&scene)?;
         let ch = args.channel.min(medium.channels() - 1);
-        (Box::new(medium.field(ch)), format!("voxel field, channel {ch}"))
+        (
+            Box::new(medium.field(ch)),
+            format!("voxel field, channel {ch}"),
+        )
     };
     let end = trace(field.as_ref(), &geom, args.origin, args.dir, &opts);
     let every = args.every;
@@ -160,7 +166,10 @@ pub fn run(args: Args) -> Result<()> {
     match end.status {
         eikon_grid::Status::Exited | eikon_grid::Status::Missed => Ok(()),
         eikon_grid::Status::MaxSteps => {
-            bail!("the ray did not leave the volume within --max-steps {} steps", args.max_steps)
+            bail!(
+                "the ray did not leave the volume within --max-steps {} steps",
+                args.max_steps
+            )
         }
         eikon_grid::Status::Diverged => bail!("the ray diverged (non-finite state)"),
     }

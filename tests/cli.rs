@@ -59,10 +59,19 @@ fn every_config_loads_and_builds() {
         let p = e.unwrap().path();
         if p.extension().is_some_and(|x| x == "toml") {
             let out = eikon(&["info", "--json", p.to_str().unwrap()]);
-            assert!(out.status.success(), "{}: {}", p.display(), String::from_utf8_lossy(&out.stderr));
+            assert!(
+                out.status.success(),
+                "{}: {}",
+                p.display(),
+                String::from_utf8_lossy(&out.stderr)
+            );
             let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
             let lo = v["index_range"][0].as_f64().unwrap();
-            assert!(lo >= 1.0 - 1e-6, "{}: index below ambient: {lo}", p.display());
+            assert!(
+                lo >= 1.0 - 1e-6,
+                "{}: index below ambient: {lo}",
+                p.display()
+            );
             n += 1;
         }
     }
@@ -82,11 +91,17 @@ fn trace_reports_exit_through_luneburg_focus() {
         "0,0,1",
         "--json",
     ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["status"], "exited");
     let p: Vec<f64> = (0..3).map(|i| v["exit"][i].as_f64().unwrap()).collect();
-    let d: Vec<f64> = (0..3).map(|i| v["direction"][i].as_f64().unwrap()).collect();
+    let d: Vec<f64> = (0..3)
+        .map(|i| v["direction"][i].as_f64().unwrap())
+        .collect();
     assert!((p[2] - 1.0).abs() < 1e-9);
     // Back along the exit line to z = R = 0.8: within a quarter voxel of x = 0.
     let t = (p[2] - 0.8) / d[2];
@@ -133,7 +148,11 @@ fn slice_writes_a_png_of_the_grid() {
         "--scale",
         "2",
     ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let bytes = std::fs::read(&png).unwrap();
     assert_eq!(&bytes[1..4], b"PNG");
     // 16 x 16 voxels at scale 2: the IHDR width and height are 32.
@@ -173,7 +192,11 @@ fn unknown_field_is_rejected_with_its_place() {
 #[test]
 fn non_positive_index_is_rejected() {
     let dir = tempfile::tempdir().unwrap();
-    for (bad, what) in [("index = 0.0", "> 0"), ("index = -1.5", "> 0"), ("index = nan", "finite")] {
+    for (bad, what) in [
+        ("index = 0.0", "> 0"),
+        ("index = -1.5", "> 0"),
+        ("index = nan", "finite"),
+    ] {
         let p = write_scene(dir.path(), "n.toml", &SMALL.replace("index = 1.5", bad));
         expect_error(
             &["info", p.to_str().unwrap()],
@@ -192,7 +215,11 @@ fn non_positive_index_is_rejected() {
 #[test]
 fn resolution_too_large_is_refused_before_allocating() {
     let dir = tempfile::tempdir().unwrap();
-    let p = write_scene(dir.path(), "huge.toml", &SMALL.replace("resolution = 16", "resolution = 100000"));
+    let p = write_scene(
+        dir.path(),
+        "huge.toml",
+        &SMALL.replace("resolution = 16", "resolution = 100000"),
+    );
     let start = std::time::Instant::now();
     expect_error(
         &["info", p.to_str().unwrap()],
@@ -202,7 +229,16 @@ fn resolution_too_large_is_refused_before_allocating() {
     assert!(start.elapsed().as_secs_f64() < 5.0);
     let out = dir.path().join("never.png");
     expect_error(
-        &["slice", p.to_str().unwrap(), "--axis", "x", "--at", "0.5", "-o", out.to_str().unwrap()],
+        &[
+            "slice",
+            p.to_str().unwrap(),
+            "--axis",
+            "x",
+            "--at",
+            "0.5",
+            "-o",
+            out.to_str().unwrap(),
+        ],
         &["grid.resolution"],
     );
     assert!(!out.exists(), "no output may be written on failure");
@@ -211,22 +247,50 @@ fn resolution_too_large_is_refused_before_allocating() {
 #[test]
 fn bad_arguments_are_refused() {
     // clap's own usage errors exit with 2.
-    let out = eikon(&["trace", &config("luneburg.toml"), "--origin", "0,0", "--dir", "0,0,1"]);
+    let out = eikon(&[
+        "trace",
+        &config("luneburg.toml"),
+        "--origin",
+        "0,0",
+        "--dir",
+        "0,0,1",
+    ]);
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("three comma-separated numbers"));
     expect_error(
-        &["trace", &config("luneburg.toml"), "--origin", "0,0,0", "--dir", "0,0,0"],
+        &[
+            "trace",
+            &config("luneburg.toml"),
+            "--origin",
+            "0,0,0",
+            "--dir",
+            "0,0,0",
+        ],
         &["--dir"],
     );
     expect_error(
-        &["trace", &config("luneburg.toml"), "--origin", "0,0,0", "--dir", "0,0,1", "--step", "-1"],
+        &[
+            "trace",
+            &config("luneburg.toml"),
+            "--origin",
+            "0,0,0",
+            "--dir",
+            "0,0,1",
+            "--step",
+            "-1",
+        ],
         &["--step"],
     );
 }
 
 #[test]
 fn every_command_has_help() {
-    for cmd in [vec!["--help"], vec!["info", "--help"], vec!["trace", "--help"], vec!["slice", "--help"]] {
+    for cmd in [
+        vec!["--help"],
+        vec!["info", "--help"],
+        vec!["trace", "--help"],
+        vec!["slice", "--help"],
+    ] {
         let out = eikon(&cmd);
         assert!(out.status.success());
         assert!(String::from_utf8_lossy(&out.stdout).contains("Usage:"));

@@ -3,11 +3,22 @@
 //! ways to sample an index field, from voxels or exactly from the scene.
 //!
 //! # Gradient
-//! The gradient is stored per cell as the central difference of the
-//! Gaussian-smoothed index (the paper's choice) and sampled trilinearly, like
-//! n itself. The trilinear interpolant's own derivative would be piecewise
-//! constant across a cell and jump at every cell face, bending rays unevenly
-//! and breaking RK4's order; the interpolated stored gradient is continuous.
+//! The gradient is stored per cell as a central difference of the
+//! Gaussian-smoothed index (the paper's choice), sampled trilinearly like n
+//! itself, so the force on a ray is continuous. The trilinear interpolant's
+//! own derivative would be piecewise constant across a cell and jump at
+//! every cell face, bending rays unevenly and breaking RK4's order.
+//!
+//! Two refinements keep the stored gradient consistent with n:
+//! * the stencil is isotropic (`smooth::isotropic_gradient`), so its error
+//!   is parallel to the normal of an interface instead of leaning;
+//! * what is differenced is `n^2 / 2`, and grad n is recovered as
+//!   `grad(n^2/2) / n` when sampled. Along a ray `d(v_n^2)/dy = 2 grad(n^2/2)`
+//!   in both forms of the ray equation, and the trilinear integral of a
+//!   central difference telescopes, so crossing a flat interface changes
+//!   `|v|^2` by exactly the jump in `n^2`: the invariant `|v| = n` and with it
+//!   Snell's law hold to the integrator's accuracy, not the stencil's.
+//!
 //! See docs/ARCHITECTURE.md.
 //!
 //! # Units
@@ -34,7 +45,8 @@ pub struct Medium {
     /// Smoothing sigma applied to n, in voxels.
     pub smoothing: f64,
     /// One array per index channel (1, or 3 = R, G, B with dispersion), of
-    /// shape `(nx, ny, nz, 4)`: smoothed n and its gradient (per world unit).
+    /// shape `(nx, ny, nz, 4)`: the smoothed index n, then the gradient of
+    /// `n^2 / 2` per world unit (so grad n = that / n; see the module docs).
     pub index: Vec<Array4<f32>>,
     /// RGB extinction sigma_t per world unit, `(nx, ny, nz, 3)`.
     pub extinction: Array4<f32>,
@@ -143,7 +155,8 @@ impl Medium {
             })
         };
         let crop = |a: &Array3<f32>| -> Array3<f32> {
-            a.slice(s![pad..pad + nx, pad..pad + ny, pad..pad + nz]).to_owned()
+            a.slice(s![pad..pad + nx, pad..pad + ny, pad..pad + nz])
+                .to_owned()
         };
         let crop3 = |base: usize| -> Array4<f32> {
             let st = raster.stride;
@@ -153,7 +166,7 @@ impl Medium {
             })
         };
 
-        // Index fields: smooth, then n and central-difference gradient.
+        // Index fields: smooth, then n and the gradient of n^2 / 2.
         let mut index = Vec::with_capacity(raster.channels);
         for c in 0..raster.channels {
             let mut n = extract(c);
@@ -167,7 +180,8 @@ impl Medium {
                     for j in 0..ny {
                         for k in 0..nz {
                             let (pi, pj, pk) = (i + pad, j + pad, k + pad);
-                            let g = smooth::central_gradient(&nv, pi, pj, pk, h);
+                            // The gradient of n^2 / 2 (see the module docs).
+                            let g = smooth::isotropic_gradient(&nv, pi, pj, pk, h, |n| 0.5 * n * n);
                             plane[[j, k, 0]] = nv[[pi, pj, pk]];
                             plane[[j, k, 1]] = g[0] as f32;
                             plane[[j, k, 2]] = g[1] as f32;
@@ -191,7 +205,7 @@ impl Medium {
             smooth::gaussian(&mut cov, sigma);
             let cv = cov.view();
             boundary.indexed_iter_mut().for_each(|((i, j, k), b)| {
-                let g = smooth::central_gradient(&cv, i + pad, j + pad, k + pad, h);
+                let g = smooth::isotropic_gradient(&cv, i + pad, j + pad, k + pad, h, |c| c);
                 *b += 0.5 * (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt() as f32;
             });
         }
@@ -238,8 +252,25 @@ impl Medium {
     pub fn index_range(&self) -> (f32, f32) {
         self.index
             .iter()
-            .flat_map(|a| a.slice(s![.., .., .., 0]).into_iter().copied().collect::<Vec<_>>())
-            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)))
+            .flat_map(|a| {
+                a.slice(s![.., .., .., 0])
+                    .into_iter()
+                    .copied()
+                    .collect::<Vec<_>>()
+            })
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), v| {
+                (lo.min(v), hi.max(v))
+            })
+    }
+
+    /// Gradient of n (per world unit) at cell `(i, j, k)` of `channel`.
+    pub fn gradient_at(&self, channel: usize, i: usize, j: usize, k: usize) -> DVec3 {
+        let a = &self.index[channel];
+        DVec3::new(
+            a[[i, j, k, 1]] as f64,
+            a[[i, j, k, 2]] as f64,
+            a[[i, j, k, 3]] as f64,
+        ) / a[[i, j, k, 0]] as f64
     }
 
     /// The index field of `channel` for ray tracing (trilinear sampling).
@@ -302,12 +333,17 @@ impl IndexField for VoxelField<'_> {
         // One bounds check for all eight corners: the farthest is last.
         let cell = &self.data[base..base + ox + oy + oz + 4];
         let at = |o: usize| Vec4::from_slice(&cell[o..o + 4]);
-        let c00 = at(0).lerp(at(oz), fz);
-        let c01 = at(oy).lerp(at(oy + oz), fz);
-        let c10 = at(ox).lerp(at(ox + oz), fz);
-        let c11 = at(ox + oy).lerp(at(ox + oy + oz), fz);
-        let v = c00.lerp(c01, fy).lerp(c10.lerp(c11, fy), fx);
-        (v.x as f64, DVec3::new(v.y as f64, v.z as f64, v.w as f64))
+        // a + (b - a) t, not glam's a (1 - t) + b t: equal corners then give
+        // their value exactly, so a uniform region samples its own index.
+        let lerp = |a: Vec4, b: Vec4, t: f32| a + (b - a) * t;
+        let c00 = lerp(at(0), at(oz), fz);
+        let c01 = lerp(at(oy), at(oy + oz), fz);
+        let c10 = lerp(at(ox), at(ox + oz), fz);
+        let c11 = lerp(at(ox + oy), at(ox + oy + oz), fz);
+        let v = lerp(lerp(c00, c01, fy), lerp(c10, c11, fy), fx);
+        let n = v.x as f64;
+        // Stored: grad(n^2 / 2); grad n = grad(n^2 / 2) / n.
+        (n, DVec3::new(v.y as f64, v.z as f64, v.w as f64) / n)
     }
 }
 

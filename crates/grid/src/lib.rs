@@ -25,6 +25,8 @@ pub use error::{Error, Location, Result};
 pub use field::{AnalyticField, Medium, MemoryEstimate, VoxelField};
 pub use geometry::GridGeometry;
 pub use object::{IndexProfile, Material, Object};
-pub use ray::{trace, trace_many, Form, IndexField, Method, RayEnd, RayState, Status, TraceOptions};
+pub use ray::{
+    trace, trace_many, Form, IndexField, Method, RayEnd, RayState, Status, TraceOptions,
+};
 pub use scene::{Light, Receiver, Scene};
 pub use shape::Shape;

@@ -329,7 +329,7 @@ impl March {
         origin: DVec3,
         dir: DVec3,
         opts: &TraceOptions,
-    ) -> Result<March, RayEnd> {
+    ) -> Result<March, Box<RayEnd>> {
         let d = dir.normalize_or_zero();
         let mut end = RayEnd {
             status: Status::Missed,
@@ -343,14 +343,14 @@ impl March {
         };
         if d == DVec3::ZERO || !origin.is_finite() || !d.is_finite() {
             end.status = Status::Diverged;
-            return Err(end);
+            return Err(Box::new(end));
         }
         let start = if grid.contains(origin) {
             origin
         } else {
             match grid.clip_line(origin, d) {
                 Some((t0, t1)) if t1 >= 0.0 && t0 >= 0.0 => origin + d * t0,
-                _ => return Err(end),
+                _ => return Err(Box::new(end)),
             }
         };
         end.entry = start;
@@ -382,12 +382,26 @@ impl March {
         }
         let prev = self.s;
         let s = &mut self.s;
-        match opts.method {
-            Method::Euler => step_euler(field, opts.form, s, self.h),
-            Method::Rk4 => step_rk4(field, opts.form, s, self.h),
+        let h_used = match opts.method {
+            Method::Euler => {
+                step_euler(field, opts.form, s, self.h);
+                self.h
+            }
+            Method::Rk4 => {
+                step_rk4(field, opts.form, s, self.h);
+                self.h
+            }
             Method::DormandPrince => {
                 let tol_v = opts.tolerance / opts.step;
-                let r = step_dopri(field, opts.form, s, self.h, opts.tolerance, tol_v, opts.step);
+                let r = step_dopri(
+                    field,
+                    opts.form,
+                    s,
+                    self.h,
+                    opts.tolerance,
+                    tol_v,
+                    opts.step,
+                );
                 self.h = r.h_next;
                 if !r.accepted {
                     end.rejected += 1;
@@ -401,8 +415,9 @@ impl March {
                     end.optical_path = prev.opl;
                     return true;
                 }
+                r.h_done
             }
-        }
+        };
         end.steps += 1;
         // A non-finite position fails the containment test too, so the
         // finiteness check costs nothing on the common path.
@@ -419,13 +434,9 @@ impl March {
             end.optical_path = prev.opl;
             return true;
         }
-        // The step crossed the bounds: cut it where the chord leaves.
-        let chord = s.x - prev.x;
-        let t = grid
-            .clip_line(prev.x, chord)
-            .map_or(1.0, |(_, t1)| t1.clamp(0.0, 1.0));
+        let (t, position) = exit_point(field, opts.form, grid, &prev, s, h_used);
         end.status = Status::Exited;
-        end.position = prev.x + chord * t;
+        end.position = position;
         end.direction = prev.v.lerp(s.v, t).normalize();
         end.optical_path = prev.opl + (s.opl - prev.opl) * t;
         if opts.record_path {
@@ -433,6 +444,66 @@ impl March {
         }
         true
     }
+}
+
+/// Where a step from `a` to `b` (of size `h`) leaves the bounds: the step's
+/// fraction `t` and the point. The path over the step is taken as the cubic
+/// Hermite curve through both ends with their tangents `dx/dparam`, which is
+/// as accurate as the integrators' own steps; the straight chord would make
+/// the exit point only second-order accurate.
+fn exit_point<F: IndexField + ?Sized>(
+    field: &F,
+    form: Form,
+    grid: &GridGeometry,
+    a: &RayState,
+    b: &RayState,
+    h: f64,
+) -> (f64, DVec3) {
+    let chord = b.x - a.x;
+    let t_chord = grid
+        .clip_line(a.x, chord)
+        .map_or(1.0, |(_, t1)| t1.clamp(0.0, 1.0));
+    let q = a.x + chord * t_chord;
+    // The face the chord leaves through: the bound nearest the chord's exit.
+    let (mut axis, mut bound, mut gap) = (0, grid.max.x, f64::INFINITY);
+    for ax in 0..3 {
+        for side in [grid.min[ax], grid.max[ax]] {
+            if (q[ax] - side).abs() < gap {
+                (axis, bound, gap) = (ax, side, (q[ax] - side).abs());
+            }
+        }
+    }
+    let ma = deriv(field, form, a.x, a.v).x * h;
+    let mb = deriv(field, form, b.x, b.v).x * h;
+    let hermite = |t: f64| {
+        let (t2, t3) = (t * t, t * t * t);
+        a.x * (2.0 * t3 - 3.0 * t2 + 1.0)
+            + ma * (t3 - 2.0 * t2 + t)
+            + b.x * (-2.0 * t3 + 3.0 * t2)
+            + mb * (t3 - t2)
+    };
+    let slope = |t: f64| {
+        let t2 = t * t;
+        a.x * (6.0 * t2 - 6.0 * t)
+            + ma * (3.0 * t2 - 4.0 * t + 1.0)
+            + b.x * (-6.0 * t2 + 6.0 * t)
+            + mb * (3.0 * t2 - 2.0 * t)
+    };
+    let mut t = t_chord;
+    for _ in 0..6 {
+        let d = slope(t)[axis];
+        if d == 0.0 {
+            break;
+        }
+        t -= (hermite(t)[axis] - bound) / d;
+    }
+    if !(0.0..=1.0).contains(&t) {
+        // The cubic disagrees with the chord about the face: keep the chord.
+        return (t_chord, q);
+    }
+    let mut p = hermite(t);
+    p[axis] = bound;
+    (t, p.clamp(grid.min, grid.max))
 }
 
 /// March a ray from `origin` along `dir` through `field` until it leaves the
@@ -446,7 +517,7 @@ pub fn trace<F: IndexField + ?Sized>(
     opts: &TraceOptions,
 ) -> RayEnd {
     match March::start(field, grid, origin, dir, opts) {
-        Err(end) => end,
+        Err(end) => *end,
         Ok(mut m) => {
             while !m.advance(field, grid, opts) {}
             m.end
@@ -481,7 +552,7 @@ pub fn trace_many<F: IndexField + ?Sized>(
                     *lane = Some((i, m));
                     return;
                 }
-                Err(end) => out[i] = Some(end),
+                Err(end) => out[i] = Some(*end),
             }
         }
     };
@@ -536,7 +607,13 @@ mod tests {
     #[test]
     fn missed_and_guarded_rays_are_reported() {
         let g = GridGeometry::new([8, 8, 8], DVec3::ZERO, DVec3::ONE);
-        let r = trace(&Uniform(1.0), &g, DVec3::new(-1.0, 2.0, 0.5), DVec3::X, &opts(Method::Rk4));
+        let r = trace(
+            &Uniform(1.0),
+            &g,
+            DVec3::new(-1.0, 2.0, 0.5),
+            DVec3::X,
+            &opts(Method::Rk4),
+        );
         assert_eq!(r.status, Status::Missed);
         let mut o = opts(Method::Euler);
         o.max_steps = 10;
@@ -563,7 +640,11 @@ mod tests {
             .map(|i| {
                 let y = i as f64 / 36.0;
                 // Some rays miss, some start inside, all others cross the bump.
-                let o = if i % 9 == 0 { DVec3::new(-1.0, 5.0, 0.5) } else { DVec3::new(-0.2, y, 0.45) };
+                let o = if i % 9 == 0 {
+                    DVec3::new(-1.0, 5.0, 0.5)
+                } else {
+                    DVec3::new(-0.2, y, 0.45)
+                };
                 (o, DVec3::new(1.0, 0.1 * (y - 0.5), 0.05))
             })
             .collect();
@@ -593,7 +674,11 @@ mod tests {
                 let r = trace(&Uniform(1.5), &g, DVec3::new(-0.5, 0.5, 0.5), DVec3::X, &o);
                 assert_eq!(r.status, Status::Exited);
                 assert!((r.position - DVec3::new(1.0, 0.5, 0.5)).length() < 1e-12);
-                assert!((r.optical_path - 1.5).abs() < 1e-12, "{m:?} {form:?} {}", r.optical_path);
+                assert!(
+                    (r.optical_path - 1.5).abs() < 1e-12,
+                    "{m:?} {form:?} {}",
+                    r.optical_path
+                );
             }
         }
     }

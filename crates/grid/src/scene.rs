@@ -208,7 +208,8 @@ impl<'de> Deserialize<'de> for RawIndex {
                 Ok(RawIndex::Scalar(v as f64))
             }
             fn visit_seq<A: SeqAccess<'de>>(self, s: A) -> std::result::Result<RawIndex, A::Error> {
-                Deserialize::deserialize(de::value::SeqAccessDeserializer::new(s)).map(RawIndex::Rgb)
+                Deserialize::deserialize(de::value::SeqAccessDeserializer::new(s))
+                    .map(RawIndex::Rgb)
             }
             fn visit_map<A: MapAccess<'de>>(self, m: A) -> std::result::Result<RawIndex, A::Error> {
                 Deserialize::deserialize(de::value::MapAccessDeserializer::new(m))
@@ -464,10 +465,7 @@ impl Checker<'_> {
         if n > 0.0 {
             Ok(n)
         } else {
-            Err(self.err(
-                path,
-                format!("refractive index must be > 0, got {n}"),
-            ))
+            Err(self.err(path, format!("refractive index must be > 0, got {n}")))
         }
     }
 }
@@ -550,7 +548,10 @@ impl Scene {
         if !(1..=16).contains(&g.supersample) {
             return Err(c.err(
                 &[K("grid"), K("supersample")],
-                format!("must lie in 1..=16 sub-samples per axis, got {}", g.supersample),
+                format!(
+                    "must lie in 1..=16 sub-samples per axis, got {}",
+                    g.supersample
+                ),
             ));
         }
         let grid = GridSettings {
@@ -575,10 +576,7 @@ impl Scene {
                 RawIndex::Scalar(n) => IndexProfile::Constant([c.index_value(&ip, *n)?; 3]),
                 RawIndex::Rgb(n) => {
                     if !grid.dispersion {
-                        return Err(c.err(
-                            &ip,
-                            "an [r, g, b] index needs grid.dispersion = true",
-                        ));
+                        return Err(c.err(&ip, "an [r, g, b] index needs grid.dispersion = true"));
                     }
                     for &v in n {
                         c.index_value(&ip, v)?;
@@ -630,10 +628,12 @@ impl Scene {
                             if corner & 4 == 0 { lo.z } else { hi.z },
                         );
                         let n = prof.value(q, 0);
-                        if !(n > 0.0) && lo.cmple(hi).all() {
+                        if (n.is_nan() || n <= 0.0) && lo.cmple(hi).all() {
                             return Err(c.err(
                                 &ip,
-                                format!("the linear index reaches {n:.4} <= 0 at {q} inside the grid"),
+                                format!(
+                                    "the linear index reaches {n:.4} <= 0 at {q} inside the grid"
+                                ),
                             ));
                         }
                     }
@@ -647,7 +647,10 @@ impl Scene {
             let albedo = c.rgb_in(&p("albedo"), albedo, 0.0, 1.0)?;
             c.finite(&p("g"), &[gg])?;
             if !(gg > -1.0 && gg < 1.0) {
-                return Err(c.err(&p("g"), format!("Henyey-Greenstein g must lie in (-1, 1), got {gg}")));
+                return Err(c.err(
+                    &p("g"),
+                    format!("Henyey-Greenstein g must lie in (-1, 1), got {gg}"),
+                ));
             }
             let emission = c.vec3(&p("emission"), emission)?;
             if emission.min_element() < 0.0 {
@@ -719,7 +722,10 @@ impl Scene {
                     direction: c.unit(&p("direction"), *direction)?,
                     power: power(*pw)?,
                 },
-                RawLight::Point { position, power: pw } => Light::Point {
+                RawLight::Point {
+                    position,
+                    power: pw,
+                } => Light::Point {
                     position: c.vec3(&p("position"), *position)?,
                     power: power(*pw)?,
                 },
@@ -732,7 +738,9 @@ impl Scene {
                 } => {
                     c.finite(&p("angle"), &[*angle])?;
                     if !(*angle > 0.0 && *angle <= 90.0) {
-                        return Err(c.err(&p("angle"), "cone half-angle must lie in (0, 90] degrees"));
+                        return Err(
+                            c.err(&p("angle"), "cone half-angle must lie in (0, 90] degrees")
+                        );
                     }
                     c.finite(&p("falloff"), &[*falloff])?;
                     if !(0.0..=*angle).contains(falloff) {
@@ -873,7 +881,10 @@ fn check_shape(c: &Checker, sp: &[Seg], s: &RawShape) -> Result<Shape> {
             let half = size(*sz)? * 0.5;
             let r = c.positive(&f("radius"), *radius)?;
             if r > half.min_element() {
-                return Err(c.err(&f("radius"), "rounding radius exceeds half the smallest edge"));
+                return Err(c.err(
+                    &f("radius"),
+                    "rounding radius exceeds half the smallest edge",
+                ));
             }
             Shape::Box {
                 center: c.vec3(&f("center"), *center)?,
@@ -899,7 +910,10 @@ fn check_shape(c: &Checker, sp: &[Seg], s: &RawShape) -> Result<Shape> {
             rotation,
         } => {
             if profile.len() < 3 {
-                return Err(c.err(&f("profile"), "a profile needs at least 3 [radius, height] points"));
+                return Err(c.err(
+                    &f("profile"),
+                    "a profile needs at least 3 [radius, height] points",
+                ));
             }
             let mut pts = Vec::with_capacity(profile.len());
             let mut area2 = 0.0;
@@ -993,8 +1007,14 @@ priority = 2
         let p = DVec3::new(0.58, 0.0, 0.0);
         assert!(s.objects[0].shape.contains(p) && s.objects[1].shape.contains(p));
         assert_eq!(s.material_at(p).index.value(p, 0), 1.5);
-        assert_eq!(s.material_at(DVec3::new(0.3, 0.0, 0.0)).index.value(p, 0), 1.33);
-        assert_eq!(s.material_at(DVec3::new(0.9, 0.0, 0.0)).index.value(p, 0), 1.0);
+        assert_eq!(
+            s.material_at(DVec3::new(0.3, 0.0, 0.0)).index.value(p, 0),
+            1.33
+        );
+        assert_eq!(
+            s.material_at(DVec3::new(0.9, 0.0, 0.0)).index.value(p, 0),
+            1.0
+        );
     }
 
     fn err(text: &str) -> String {
@@ -1021,6 +1041,9 @@ priority = 2
         assert!(e.contains("object[0].shape.radius"), "{e}");
 
         let e = err("[grid]\nresolution = 8\nmin = [0,0,0]\nmax = [1,1,1\n");
-        assert!(e.starts_with("bad.toml:5:1: invalid array: expected `]`"), "{e}");
+        assert!(
+            e.starts_with("bad.toml:5:1: invalid array: expected `]`"),
+            "{e}"
+        );
     }
 }

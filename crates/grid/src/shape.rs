@@ -91,7 +91,10 @@ impl Shape {
                 rot,
             } => {
                 let q = local(p, *center, rot);
-                let d = DVec2::new(DVec2::new(q.x, q.z).length() - radius, q.y.abs() - half_height);
+                let d = DVec2::new(
+                    DVec2::new(q.x, q.z).length() - radius,
+                    q.y.abs() - half_height,
+                );
                 d.max(DVec2::ZERO).length() + d.max_element().min(0.0)
             }
             Shape::Revolution { base, profile, rot } => {
@@ -141,9 +144,10 @@ impl Shape {
             (c - e, c + e)
         };
         match self {
-            Shape::Sphere { center, radius } => {
-                Some((*center - DVec3::splat(*radius), *center + DVec3::splat(*radius)))
-            }
+            Shape::Sphere { center, radius } => Some((
+                *center - DVec3::splat(*radius),
+                *center + DVec3::splat(*radius),
+            )),
             Shape::Box {
                 center, half, rot, ..
             } => Some(rotated_box(*center, *half, rot)),
@@ -160,7 +164,10 @@ impl Shape {
             Shape::Revolution { base, profile, rot } => {
                 let r = profile.iter().map(|q| q.x).fold(0.0, f64::max);
                 let y0 = profile.iter().map(|q| q.y).fold(f64::INFINITY, f64::min);
-                let y1 = profile.iter().map(|q| q.y).fold(f64::NEG_INFINITY, f64::max);
+                let y1 = profile
+                    .iter()
+                    .map(|q| q.y)
+                    .fold(f64::NEG_INFINITY, f64::max);
                 let c = *base + *rot * DVec3::new(0.0, 0.5 * (y0 + y1), 0.0);
                 Some(rotated_box(c, DVec3::new(r, 0.5 * (y1 - y0), r), rot))
             }

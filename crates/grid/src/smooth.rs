@@ -56,20 +56,88 @@ pub fn gaussian(a: &mut Array3<f32>, sigma: f64) {
     }
 }
 
-/// Central-difference gradient (per world unit, with cell sizes `h`) of `a`
-/// at cell `(i, j, k)`, which must have a neighbour on both sides.
+/// Isotropic central-difference gradient (per world unit, cell sizes `h`)
+/// of `map(a)` at cell `(i, j, k)`, which needs its 18 nearest neighbours.
+///
+/// The plain central difference `(f[i+1] - f[i-1]) / 2h` has leading error
+/// `h^2/6 * (f_xxx, f_yyy, f_zzz)`, which for an interface tilted off the
+/// axes is not parallel to its normal: the gradient leans, and rays gain
+/// tangential momentum at a plane interface, breaking Snell's law by about
+/// a degree at sigma = 0.75. Averaging the central difference over the four
+/// face-neighbouring lines with weight 1/6 each (1/3 on the centre line)
+/// turns that error into `h^2/6 * grad(laplacian f)`, which is parallel to
+/// the normal of any planar interface and integrates to zero across it (the
+/// D3Q19 isotropic gradient, Kumar 2004). Linear fields stay exact and
+/// uniform regions exactly zero.
 #[inline]
-pub fn central_gradient(a: &ArrayView3<f32>, i: usize, j: usize, k: usize, h: [f64; 3]) -> [f64; 3] {
-    [
-        (a[[i + 1, j, k]] as f64 - a[[i - 1, j, k]] as f64) / (2.0 * h[0]),
-        (a[[i, j + 1, k]] as f64 - a[[i, j - 1, k]] as f64) / (2.0 * h[1]),
-        (a[[i, j, k + 1]] as f64 - a[[i, j, k - 1]] as f64) / (2.0 * h[2]),
-    ]
+pub fn isotropic_gradient(
+    a: &ArrayView3<f32>,
+    i: usize,
+    j: usize,
+    k: usize,
+    h: [f64; 3],
+    map: impl Fn(f64) -> f64,
+) -> [f64; 3] {
+    let f = |di: isize, dj: isize, dk: isize| -> f64 {
+        map(a[[
+            (i as isize + di) as usize,
+            (j as isize + dj) as usize,
+            (k as isize + dk) as usize,
+        ]] as f64)
+    };
+    // Difference along `axis` (unit offset `e`) on the line shifted by `t`.
+    let line = |e: [isize; 3], t: [isize; 3]| {
+        f(e[0] + t[0], e[1] + t[1], e[2] + t[2]) - f(t[0] - e[0], t[1] - e[1], t[2] - e[2])
+    };
+    let mut g = [0.0; 3];
+    for (axis, out) in g.iter_mut().enumerate() {
+        let mut e = [0isize; 3];
+        e[axis] = 1;
+        let (u, w) = ((axis + 1) % 3, (axis + 2) % 3);
+        let mut side = 0.0;
+        for (du, dw) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
+            let mut t = [0isize; 3];
+            t[u] = du;
+            t[w] = dw;
+            side += line(e, t);
+        }
+        *out = (line(e, [0; 3]) / 3.0 + side / 6.0) / (2.0 * h[axis]);
+    }
+    g
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn isotropic_gradient_is_exact_on_linear_fields_and_parallel_on_planes() {
+        let lin = Array3::from_shape_fn((5, 5, 5), |(i, j, k)| {
+            1.0 + 0.25 * i as f32 - 0.5 * j as f32 + 0.125 * k as f32
+        });
+        let g = isotropic_gradient(&lin.view(), 2, 2, 2, [0.5, 0.5, 0.5], |x| x);
+        assert_eq!(g, [0.5, -1.0, 0.25]);
+        // A smooth step across a tilted plane: the gradient must point along
+        // the plane's normal, which the plain central difference misses.
+        let m = glam::DVec3::new(1.0, 0.6, 0.3).normalize();
+        let step = Array3::from_shape_fn((7, 7, 7), |(i, j, k)| {
+            let d = m.dot(glam::DVec3::new(i as f64, j as f64, k as f64) - 3.2);
+            (1.25 + 0.25 * (d / 0.9).tanh()) as f32
+        });
+        let g = glam::DVec3::from_array(isotropic_gradient(&step.view(), 3, 3, 3, [1.0; 3], |x| x));
+        let c = glam::DVec3::new(
+            (step[[4, 3, 3]] - step[[2, 3, 3]]) as f64,
+            (step[[3, 4, 3]] - step[[3, 2, 3]]) as f64,
+            (step[[3, 3, 4]] - step[[3, 3, 2]]) as f64,
+        );
+        let lean = |v: glam::DVec3| v.normalize().dot(m).clamp(-1.0, 1.0).acos().to_degrees();
+        assert!(
+            lean(g) < 0.5 * lean(c),
+            "isotropic {} vs central {}",
+            lean(g),
+            lean(c)
+        );
+    }
 
     #[test]
     fn kernel_is_normalized_and_linear_fields_survive() {
