@@ -103,6 +103,14 @@ fn deriv<F: IndexField + ?Sized>(f: &F, form: Form, x: DVec3, v: DVec3) -> Deriv
     }
 }
 
+impl Deriv {
+    const ZERO: Deriv = Deriv {
+        x: DVec3::ZERO,
+        v: DVec3::ZERO,
+        opl: 0.0,
+    };
+}
+
 #[inline(always)]
 fn apply(s: &RayState, d: &Deriv, h: f64) -> RayState {
     RayState {
@@ -122,17 +130,32 @@ pub fn step_euler<F: IndexField + ?Sized>(f: &F, form: Form, s: &mut RayState, h
 /// One classical RK4 step of size `h`.
 #[inline]
 pub fn step_rk4<F: IndexField + ?Sized>(f: &F, form: Form, s: &mut RayState, h: f64) {
-    let k1 = deriv(f, form, s.x, s.v);
-    let s2 = apply(s, &k1, 0.5 * h);
-    let k2 = deriv(f, form, s2.x, s2.v);
-    let s3 = apply(s, &k2, 0.5 * h);
-    let k3 = deriv(f, form, s3.x, s3.v);
-    let s4 = apply(s, &k3, h);
-    let k4 = deriv(f, form, s4.x, s4.v);
+    let mut k = [Deriv::ZERO; 4];
+    for stage in 0..4 {
+        let t = rk4_stage_point(s, &k, stage, h);
+        k[stage] = deriv(f, form, t.x, t.v);
+    }
+    rk4_combine(s, &k, h);
+}
+
+/// Where RK4 evaluates its `stage`-th slope, given the earlier slopes.
+#[inline(always)]
+fn rk4_stage_point(s: &RayState, k: &[Deriv; 4], stage: usize, h: f64) -> RayState {
+    match stage {
+        0 => *s,
+        1 => apply(s, &k[0], 0.5 * h),
+        2 => apply(s, &k[1], 0.5 * h),
+        _ => apply(s, &k[2], h),
+    }
+}
+
+/// The RK4 update from the four slopes.
+#[inline(always)]
+fn rk4_combine(s: &mut RayState, k: &[Deriv; 4], h: f64) {
     let w = h / 6.0;
-    s.x += (k1.x + (k2.x + k3.x) * 2.0 + k4.x) * w;
-    s.v += (k1.v + (k2.v + k3.v) * 2.0 + k4.v) * w;
-    s.opl += (k1.opl + 2.0 * (k2.opl + k3.opl) + k4.opl) * w;
+    s.x += (k[0].x + (k[1].x + k[2].x) * 2.0 + k[3].x) * w;
+    s.v += (k[0].v + (k[1].v + k[2].v) * 2.0 + k[3].v) * w;
+    s.opl += (k[0].opl + 2.0 * (k[1].opl + k[2].opl) + k[3].opl) * w;
 }
 
 /// Result of one attempted adaptive step.
@@ -199,11 +222,7 @@ pub fn step_dopri<F: IndexField + ?Sized>(
     tol_v: f64,
     h_max: f64,
 ) -> AdaptiveStep {
-    let mut k = [Deriv {
-        x: DVec3::ZERO,
-        v: DVec3::ZERO,
-        opl: 0.0,
-    }; 7];
+    let mut k = [Deriv::ZERO; 7];
     k[0] = deriv(f, form, s.x, s.v);
     let mut y = *s;
     for (stage, a) in DP_A.iter().enumerate() {
@@ -372,15 +391,11 @@ impl March {
         grid: &GridGeometry,
         opts: &TraceOptions,
     ) -> bool {
-        let end = &mut self.end;
-        if end.steps >= opts.max_steps {
-            end.status = Status::MaxSteps;
-            end.position = self.s.x;
-            end.direction = self.s.direction();
-            end.optical_path = self.s.opl;
+        if self.out_of_steps(opts) {
             return true;
         }
         let prev = self.s;
+        let end = &mut self.end;
         let s = &mut self.s;
         let h_used = match opts.method {
             Method::Euler => {
@@ -418,6 +433,36 @@ impl March {
                 r.h_done
             }
         };
+        self.settle(field, grid, opts, &prev, h_used)
+    }
+
+    /// The `max_steps` guard: true (and the end recorded) once reached.
+    #[inline(always)]
+    fn out_of_steps(&mut self, opts: &TraceOptions) -> bool {
+        let end = &mut self.end;
+        if end.steps < opts.max_steps {
+            return false;
+        }
+        end.status = Status::MaxSteps;
+        end.position = self.s.x;
+        end.direction = self.s.direction();
+        end.optical_path = self.s.opl;
+        true
+    }
+
+    /// Book-keeping after a step of size `h_used` from `prev`: record the
+    /// point, or detect the exit or a blow-up; true once the ray has ended.
+    #[inline(always)]
+    fn settle<F: IndexField + ?Sized>(
+        &mut self,
+        field: &F,
+        grid: &GridGeometry,
+        opts: &TraceOptions,
+        prev: &RayState,
+        h_used: f64,
+    ) -> bool {
+        let end = &mut self.end;
+        let s = &self.s;
         end.steps += 1;
         // A non-finite position fails the containment test too, so the
         // finiteness check costs nothing on the common path.
@@ -434,7 +479,7 @@ impl March {
             end.optical_path = prev.opl;
             return true;
         }
-        let (t, position) = exit_point(field, opts.form, grid, &prev, s, h_used);
+        let (t, position) = exit_point(field, opts.form, grid, prev, s, h_used);
         end.status = Status::Exited;
         end.position = position;
         end.direction = prev.v.lerp(s.v, t).normalize();
@@ -528,6 +573,41 @@ pub fn trace<F: IndexField + ?Sized>(
 /// Rays marched together by [`trace_many`].
 const LANES: usize = 8;
 
+/// One RK4 step of every busy lane, stage by stage across the lanes so the
+/// lanes' field samples are independent work the processor can overlap (a
+/// whole RK4 step per lane is too long for it to look past).
+fn rk4_lockstep<F: IndexField + ?Sized>(
+    field: &F,
+    grid: &GridGeometry,
+    opts: &TraceOptions,
+    lanes: &mut [Option<(usize, March)>; LANES],
+    finished: &mut [bool; LANES],
+) {
+    let mut k = [[Deriv::ZERO; 4]; LANES];
+    let mut live = [false; LANES];
+    for (l, lane) in lanes.iter_mut().enumerate() {
+        if let Some((_, m)) = lane {
+            finished[l] = m.out_of_steps(opts);
+            live[l] = !finished[l];
+        }
+    }
+    for stage in 0..4 {
+        for (l, lane) in lanes.iter().enumerate() {
+            if let (true, Some((_, m))) = (live[l], lane) {
+                let t = rk4_stage_point(&m.s, &k[l], stage, m.h);
+                k[l][stage] = deriv(field, opts.form, t.x, t.v);
+            }
+        }
+    }
+    for (l, lane) in lanes.iter_mut().enumerate() {
+        if let (true, Some((_, m))) = (live[l], lane) {
+            let prev = m.s;
+            rk4_combine(&mut m.s, &k[l], m.h);
+            finished[l] = m.settle(field, grid, opts, &prev, m.h);
+        }
+    }
+}
+
 /// Trace many rays `(origin, direction)`; results are in input order and
 /// identical to calling [`trace`] on each. One ray's steps form a chain of
 /// dependent operations (sample, then step, then sample again), so a lone
@@ -559,19 +639,25 @@ pub fn trace_many<F: IndexField + ?Sized>(
     for lane in lanes.iter_mut() {
         refill(lane, &mut out);
     }
+    let mut finished = [false; LANES];
     loop {
+        if opts.method == Method::Rk4 {
+            rk4_lockstep(field, grid, opts, &mut lanes, &mut finished);
+        } else {
+            for (lane, done) in lanes.iter_mut().zip(finished.iter_mut()) {
+                if let Some((_, m)) = lane {
+                    *done = m.advance(field, grid, opts);
+                }
+            }
+        }
         let mut busy = false;
-        for lane in lanes.iter_mut() {
-            let finished = match lane {
-                Some((_, m)) => m.advance(field, grid, opts),
-                None => continue,
-            };
-            busy = true;
-            if finished {
-                let (i, m) = lane.take().expect("lane is busy");
+        for (lane, done) in lanes.iter_mut().zip(finished.iter_mut()) {
+            if std::mem::take(done) {
+                let (i, m) = lane.take().expect("a finished lane was busy");
                 out[i] = Some(m.end);
                 refill(lane, &mut out);
             }
+            busy |= lane.is_some();
         }
         if !busy {
             break;
