@@ -34,14 +34,7 @@ fn bench(c: &mut Criterion) {
         .collect();
     let mut group = c.benchmark_group("ray_steps_128");
     for method in [Method::Euler, Method::Rk4] {
-        let opts = TraceOptions {
-            form: Form::EqualDistance,
-            method,
-            step: 0.5 * geom.voxel_size(),
-            tolerance: 1e-6,
-            max_steps: 1 << 20,
-            record_path: false,
-        };
+        let opts = TraceOptions::in_voxels(geom, Form::EqualDistance, method, 0.5);
         let steps: usize = origins
             .iter()
             .map(|&o| trace(&field, geom, o, DVec3::Z, &opts).steps)

@@ -85,21 +85,20 @@ pub fn run(args: Args) -> Result<()> {
     }
     let scene = Scene::load(&args.scene)?;
     let geom = scene.grid.geometry.clone();
-    let h = geom.voxel_size();
+    let form = match args.form {
+        FormArg::Distance => Form::EqualDistance,
+        FormArg::Time => Form::EqualTime,
+    };
+    let method = match args.integrator {
+        Integrator::Euler => Method::Euler,
+        Integrator::Rk4 => Method::Rk4,
+        Integrator::Dopri5 => Method::DormandPrince,
+    };
     let opts = TraceOptions {
-        form: match args.form {
-            FormArg::Distance => Form::EqualDistance,
-            FormArg::Time => Form::EqualTime,
-        },
-        method: match args.integrator {
-            Integrator::Euler => Method::Euler,
-            Integrator::Rk4 => Method::Rk4,
-            Integrator::Dopri5 => Method::DormandPrince,
-        },
-        step: args.step * h,
-        tolerance: args.tolerance * h,
+        tolerance: args.tolerance * geom.voxel_size(),
         max_steps: args.max_steps,
         record_path: true,
+        ..TraceOptions::in_voxels(&geom, form, method, args.step)
     };
     let medium;
     let (field, source): (Box<dyn IndexField>, String) = if args.analytic {

@@ -36,12 +36,9 @@ fn domain_size(geom: &GridGeometry) -> f64 {
 /// Trace options with `step` given in voxels of `geom`.
 fn options(geom: &GridGeometry, method: Method, form: Form, step_voxels: f64) -> TraceOptions {
     TraceOptions {
-        form,
-        method,
-        step: step_voxels * geom.voxel_size(),
         tolerance: 1e-9,
-        max_steps: 1_000_000,
         record_path: true,
+        ..TraceOptions::in_voxels(geom, form, method, step_voxels)
     }
 }
 

@@ -432,6 +432,39 @@ index = 1.5
     }
 
     #[test]
+    fn build_is_the_same_whatever_the_thread_count() {
+        let scene = Scene::parse(
+            r#"
+[grid]
+resolution = 24
+min = [-1, -1, -1]
+max = [1, 1, 1]
+[[object]]
+shape = { type = "torus", center = [0, 0, 0], major_radius = 0.5, minor_radius = 0.2, rotation = [20, 10, 0] }
+index = 1.6
+extinction = [1, 2, 3]
+[[object]]
+shape = { type = "sphere", center = [0.5, 0, 0], radius = 0.3 }
+index = { type = "luneburg" }
+priority = 1
+"#,
+            "t",
+        )
+        .unwrap();
+        let with = |threads| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| Medium::build(&scene).unwrap())
+        };
+        let (a, b) = (with(1), with(3));
+        assert_eq!(a.index, b.index);
+        assert_eq!(a.boundary, b.boundary);
+        assert_eq!(a.extinction, b.extinction);
+    }
+
+    #[test]
     fn uniform_medium_samples_exactly() {
         let m = medium(
             "[grid]\nresolution = 12\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n[ambient]\nindex = 1.33\n",

@@ -311,6 +311,23 @@ pub struct TraceOptions {
     pub record_path: bool,
 }
 
+impl TraceOptions {
+    /// Options with the step given in voxels of `grid` (its smallest cell
+    /// edge), a Dormand-Prince tolerance of 1e-4 voxel, a guard of a
+    /// million steps and no path recording.
+    pub fn in_voxels(grid: &GridGeometry, form: Form, method: Method, step_voxels: f64) -> Self {
+        let h = grid.voxel_size();
+        Self {
+            form,
+            method,
+            step: step_voxels * h,
+            tolerance: 1e-4 * h,
+            max_steps: 1_000_000,
+            record_path: false,
+        }
+    }
+}
+
 /// How a ray ended, where, and how it got there.
 #[derive(Clone, Debug)]
 pub struct RayEnd {
