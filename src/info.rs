@@ -76,7 +76,7 @@ pub fn run(args: Args) -> Result<()> {
         None
     } else {
         let t = Instant::now();
-        let m = Medium::build(&scene)?;
+        let m = crate::output::build_medium(&scene)?;
         let secs = t.elapsed().as_secs_f64();
         let (lo, hi) = m.index_range();
         let bmax = m.boundary.iter().copied().fold(0f32, f32::max);

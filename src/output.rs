@@ -95,6 +95,24 @@ pub fn fmt_vec(v: DVec3) -> String {
     format!("({:.6}, {:.6}, {:.6})", v.x, v.y, v.z)
 }
 
+/// Build a scene's medium with a progress bar on stderr (drawn only when
+/// stderr is a terminal).
+pub fn build_medium(scene: &eikon_grid::Scene) -> Result<eikon_grid::Medium> {
+    let bar = indicatif::ProgressBar::new(1);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg:>20} [{bar:40}] {pos}/{len} ({elapsed})")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    let medium = eikon_grid::Medium::build_with_progress(scene, &|stage, done, total| {
+        bar.set_message(stage);
+        bar.set_length(total);
+        bar.set_position(done);
+    });
+    bar.finish_and_clear();
+    Ok(medium?)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -3,7 +3,7 @@
 use crate::output::{viridis, write_atomic};
 use anyhow::{bail, Context, Result};
 use clap::ValueEnum;
-use eikon_grid::{Medium, Scene};
+use eikon_grid::Scene;
 use std::path::PathBuf;
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -65,7 +65,7 @@ pub fn run(args: Args) -> Result<()> {
         bail!("{}: the output must be a .png file", args.output.display());
     }
     let scene = Scene::load(&args.scene)?;
-    let m = Medium::build(&scene)?;
+    let m = crate::output::build_medium(&scene)?;
     let [nx, ny, nz] = m.geometry.dims;
     let ch = args.channel.min(m.channels() - 1);
     let value = |i: usize, j: usize, k: usize| -> f32 {

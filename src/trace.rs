@@ -3,7 +3,7 @@
 use crate::output::{fmt_vec, parse_vec3};
 use anyhow::{bail, Result};
 use clap::ValueEnum;
-use eikon_grid::{trace, AnalyticField, Form, IndexField, Medium, Method, Scene, TraceOptions};
+use eikon_grid::{trace, AnalyticField, Form, IndexField, Method, Scene, TraceOptions};
 use glam::DVec3;
 use serde_json::json;
 use std::path::PathBuf;
@@ -101,13 +101,27 @@ pub fn run(args: Args) -> Result<()> {
         ..TraceOptions::in_voxels(&geom, form, method, args.step)
     };
     let medium;
+    if args.analytic {
+        let sharp: Vec<&str> = scene
+            .objects
+            .iter()
+            .filter(|o| matches!(o.material.index, eikon_grid::IndexProfile::Constant(_)))
+            .map(|o| o.name.as_str())
+            .collect();
+        if !sharp.is_empty() {
+            eprintln!(
+                "warning: --analytic samples index profiles exactly; the surfaces of constant-index objects ({}) are discontinuities without a gradient there, so rays pass them unbent",
+                sharp.join(", ")
+            );
+        }
+    }
     let (field, source): (Box<dyn IndexField>, String) = if args.analytic {
         (
             Box::new(AnalyticField::new(&scene, args.channel)),
             "analytic index".into(),
         )
     } else {
-        medium = Medium::build(&scene)?;
+        medium = crate::output::build_medium(&scene)?;
         let ch = args.channel.min(medium.channels() - 1);
         (
             Box::new(medium.field(ch)),

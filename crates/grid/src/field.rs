@@ -60,6 +60,10 @@ pub struct Medium {
     pub boundary: Array3<f32>,
 }
 
+/// Progress callback of [`Medium::build_with_progress`]: `(stage, done,
+/// total)` units of work; called from worker threads.
+pub type Progress<'a> = &'a (dyn Fn(&'static str, u64, u64) + Sync);
+
 /// Memory needed for a medium, in bytes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct MemoryEstimate {
@@ -120,6 +124,11 @@ impl Medium {
     /// central-difference gradient, boundary indicator. Refuses, before
     /// allocating, a grid that would not fit in available memory.
     pub fn build(scene: &Scene) -> Result<Medium> {
+        Self::build_with_progress(scene, &|_, _, _| {})
+    }
+
+    /// [`Medium::build`], reporting `(stage, done, total)` as it goes.
+    pub fn build_with_progress(scene: &Scene, progress: Progress) -> Result<Medium> {
         let est = Self::memory_estimate(scene);
         let avail = available_memory().unwrap_or(u128::MAX);
         if est.peak > avail {
@@ -144,7 +153,7 @@ impl Medium {
             geom.min - spacing * pad as f64,
             geom.max + spacing * pad as f64,
         );
-        let raster = voxelize::rasterize(scene, &padded);
+        let raster = voxelize::rasterize(scene, &padded, progress);
         let [nx, ny, nz] = geom.dims;
         let h = spacing.to_array();
 
@@ -169,6 +178,7 @@ impl Medium {
         // Index fields: smooth, then n and the gradient of n^2 / 2.
         let mut index = Vec::with_capacity(raster.channels);
         for c in 0..raster.channels {
+            progress("index and gradient", c as u64, raster.channels as u64);
             let mut n = extract(c);
             smooth::gaussian(&mut n, sigma);
             let nv = n.view();
@@ -197,7 +207,9 @@ impl Medium {
         // materials each coverage goes 0 -> 1 or 1 -> 0, so the sum
         // integrates to exactly one along the normal (eq 2's delta).
         let mut boundary = Array3::<f32>::zeros((nx, ny, nz));
+        let materials = scene.objects.len() as u64 + 1;
         for m in 0..=scene.objects.len() {
+            progress("boundary indicator", m as u64, materials);
             let mut cov = extract(raster.at(Raster::COV) + m);
             if cov.iter().all(|&x| x == cov[[0, 0, 0]]) {
                 continue;

@@ -7,11 +7,13 @@
 //! object containing it (Schmidt & Budge) and the cell stores the mean of the
 //! sub-samples' properties, plus the fraction covered by every material.
 
+use crate::field::Progress;
 use crate::geometry::GridGeometry;
 use crate::object::Material;
 use crate::scene::Scene;
 use glam::DVec3;
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Per-cell raw properties, interleaved: `[n_0..n_c, ext3, alb3, g, emi3, cov_0..cov_K]`
 /// where coverage `K` (the last) is the ambient medium.
@@ -55,7 +57,7 @@ fn accumulate(cell: &mut [f32], m: &Material, p: DVec3, channels: usize, w: f32,
 
 /// Rasterize `scene` on `geom` (which may extend past the scene's own grid
 /// to make room for a smoothing halo).
-pub(crate) fn rasterize(scene: &Scene, geom: &GridGeometry) -> Raster {
+pub(crate) fn rasterize(scene: &Scene, geom: &GridGeometry, progress: Progress) -> Raster {
     let channels = scene.channels();
     let nobj = scene.objects.len();
     let stride = stride(channels, nobj);
@@ -73,6 +75,7 @@ pub(crate) fn rasterize(scene: &Scene, geom: &GridGeometry) -> Raster {
         })
         .collect();
     let mut data = vec![0f32; nx * ny * nz * stride];
+    let slabs_done = AtomicU64::new(0);
     data.par_chunks_mut(ny * nz * stride)
         .enumerate()
         .for_each(|(i, slab)| {
@@ -119,6 +122,8 @@ pub(crate) fn rasterize(scene: &Scene, geom: &GridGeometry) -> Raster {
                     }
                 }
             }
+            let done = slabs_done.fetch_add(1, Ordering::Relaxed) + 1;
+            progress("voxelizing", done, nx as u64);
         });
     Raster {
         stride,
