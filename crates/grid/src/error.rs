@@ -31,7 +31,7 @@ impl fmt::Display for Location {
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
     /// The scene file could not be read at all.
-    #[error("{}: cannot read scene file: {source}", path.display())]
+    #[error("{}: cannot read scene file", path.display())]
     Read {
         /// The file that was asked for.
         path: PathBuf,

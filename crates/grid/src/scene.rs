@@ -31,7 +31,10 @@ struct RawScene {
 }
 
 #[derive(Deserialize)]
-#[serde(untagged, expecting = "a whole number of voxels or [nx, ny, nz]")]
+#[serde(
+    untagged,
+    expecting = "expected a positive whole number of voxels or [nx, ny, nz]"
+)]
 enum RawResolution {
     Longest(u64),
     PerAxis([u64; 3]),
