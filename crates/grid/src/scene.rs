@@ -504,170 +504,7 @@ impl Scene {
 
     fn check(raw: RawScene, c: &Checker) -> Result<Scene> {
         use Seg::{Index as I, Key as K};
-        // Grid.
-        let g = &raw.grid;
-        let min = c.vec3(&[K("grid"), K("min")], g.min)?;
-        let max = c.vec3(&[K("grid"), K("max")], g.max)?;
-        if !(max.cmpgt(min).all()) {
-            return Err(c.err(
-                &[K("grid"), K("max")],
-                format!("must exceed grid.min on every axis ({max} vs {min})"),
-            ));
-        }
-        let extent = max - min;
-        let res = &[K("grid"), K("resolution")];
-        let dims = match g.resolution {
-            RawResolution::Longest(n) => {
-                if n == 0 {
-                    return Err(c.err(res, "must be at least 1"));
-                }
-                let h = extent.max_element() / n as f64;
-                let d = (extent / h).round().max(DVec3::ONE);
-                [d.x as u64, d.y as u64, d.z as u64]
-            }
-            RawResolution::PerAxis(d) => {
-                if d.contains(&0) {
-                    return Err(c.err(res, "every axis needs at least 1 voxel"));
-                }
-                d
-            }
-        };
-        let dims = dims.map(|d| usize::try_from(d).unwrap_or(usize::MAX));
-        if dims
-            .iter()
-            .try_fold(1usize, |a, &d| a.checked_mul(d))
-            .is_none()
-        {
-            return Err(c.err(res, format!("{dims:?} voxels cannot even be counted")));
-        }
-        let smoothing = g.smoothing;
-        c.finite(&[K("grid"), K("smoothing")], &[smoothing])?;
-        if !(0.0..=8.0).contains(&smoothing) {
-            return Err(c.err(
-                &[K("grid"), K("smoothing")],
-                format!("sigma in voxels must lie in [0, 8], got {smoothing}"),
-            ));
-        }
-        if !(1..=16).contains(&g.supersample) {
-            return Err(c.err(
-                &[K("grid"), K("supersample")],
-                format!(
-                    "must lie in 1..=16 sub-samples per axis, got {}",
-                    g.supersample
-                ),
-            ));
-        }
-        let grid = GridSettings {
-            geometry: GridGeometry::new(dims, min, max),
-            smoothing,
-            supersample: g.supersample as usize,
-            dispersion: g.dispersion,
-        };
-
-        // Materials.
-        let material = |base: &[Seg],
-                        index: &RawIndex,
-                        shape: Option<&Shape>,
-                        ext: [f64; 3],
-                        albedo: [f64; 3],
-                        gg: f64,
-                        emission: [f64; 3]|
-         -> Result<Material> {
-            let p = |k| [base, &[K(k)]].concat();
-            let ip = p("index");
-            let index = match index {
-                RawIndex::Scalar(n) => IndexProfile::Constant([c.index_value(&ip, *n)?; 3]),
-                RawIndex::Rgb(n) => {
-                    if !grid.dispersion {
-                        return Err(c.err(&ip, "an [r, g, b] index needs grid.dispersion = true"));
-                    }
-                    for &v in n {
-                        c.index_value(&ip, v)?;
-                    }
-                    IndexProfile::Constant(*n)
-                }
-                RawIndex::Profile(RawProfile::Luneburg { outer }) => {
-                    let outer = c.index_value(&[&ip[..], &[K("outer")]].concat(), *outer)?;
-                    match shape {
-                        Some(Shape::Sphere { center, radius }) => IndexProfile::Luneburg {
-                            center: *center,
-                            radius: *radius,
-                            outer,
-                        },
-                        _ => {
-                            return Err(c.err(
-                                &ip,
-                                "a Luneburg profile needs a sphere shape (it takes the sphere's centre and radius)",
-                            ))
-                        }
-                    }
-                }
-                RawIndex::Profile(RawProfile::Linear {
-                    n0,
-                    gradient,
-                    origin,
-                }) => {
-                    let n0 = c.index_value(&[&ip[..], &[K("n0")]].concat(), *n0)?;
-                    let gradient = c.vec3(&[&ip[..], &[K("gradient")]].concat(), *gradient)?;
-                    let origin = c.vec3(&[&ip[..], &[K("origin")]].concat(), *origin)?;
-                    let prof = IndexProfile::Linear {
-                        n0,
-                        gradient,
-                        origin,
-                    };
-                    // n must stay positive wherever the object meets the grid
-                    // (with room for the smoothing halo): check the corners of
-                    // that box, where a linear function takes its extremes.
-                    let halo = grid.geometry.spacing() * (4.0 * smoothing + 2.0);
-                    let (mut lo, mut hi) = (min - halo, max + halo);
-                    if let Some((a, b)) = shape.and_then(Shape::aabb) {
-                        lo = lo.max(a);
-                        hi = hi.min(b);
-                    }
-                    for corner in 0..8 {
-                        let q = DVec3::new(
-                            if corner & 1 == 0 { lo.x } else { hi.x },
-                            if corner & 2 == 0 { lo.y } else { hi.y },
-                            if corner & 4 == 0 { lo.z } else { hi.z },
-                        );
-                        let n = prof.value(q, 0);
-                        if (n.is_nan() || n <= 0.0) && lo.cmple(hi).all() {
-                            return Err(c.err(
-                                &ip,
-                                format!(
-                                    "the linear index reaches {n:.4} <= 0 at {q} inside the grid"
-                                ),
-                            ));
-                        }
-                    }
-                    prof
-                }
-            };
-            let extinction = c.vec3(&p("extinction"), ext)?;
-            if extinction.min_element() < 0.0 {
-                return Err(c.err(&p("extinction"), "extinction must be >= 0 (1 / world unit)"));
-            }
-            let albedo = c.rgb_in(&p("albedo"), albedo, 0.0, 1.0)?;
-            c.finite(&p("g"), &[gg])?;
-            if !(gg > -1.0 && gg < 1.0) {
-                return Err(c.err(
-                    &p("g"),
-                    format!("Henyey-Greenstein g must lie in (-1, 1), got {gg}"),
-                ));
-            }
-            let emission = c.vec3(&p("emission"), emission)?;
-            if emission.min_element() < 0.0 {
-                return Err(c.err(&p("emission"), "emission must be >= 0"));
-            }
-            Ok(Material {
-                index,
-                extinction,
-                albedo,
-                g: gg,
-                emission,
-            })
-        };
-
+        let grid = check_grid(c, &raw.grid)?;
         let a = &raw.ambient;
         if let RawIndex::Profile(_) = a.index {
             return Err(c.err(
@@ -675,91 +512,22 @@ impl Scene {
                 "the ambient index must be a number (or [r, g, b] with dispersion)",
             ));
         }
-        let ambient = material(
-            &[K("ambient")],
-            &a.index,
-            None,
-            a.extinction,
-            a.albedo,
-            a.g,
-            a.emission,
-        )?;
-
+        let ambient = check_material(c, &grid, &[K("ambient")], a.fields(), None)?;
         let mut objects = Vec::with_capacity(raw.objects.len());
         for (i, o) in raw.objects.iter().enumerate() {
-            let base = [K("object"), I(i)];
-            let sp = [K("object"), I(i), K("shape")];
-            let shape = check_shape(c, &sp, &o.shape)?;
-            let mat = material(
-                &base,
-                &o.index,
-                Some(&shape),
-                o.extinction,
-                o.albedo,
-                o.g,
-                o.emission,
-            )?;
+            let shape = check_shape(c, &[K("object"), I(i), K("shape")], &o.shape)?;
+            let material =
+                check_material(c, &grid, &[K("object"), I(i)], o.fields(), Some(&shape))?;
             objects.push(Object {
                 name: o.name.clone().unwrap_or_else(|| format!("object{i}")),
                 shape,
-                material: mat,
+                material,
                 priority: o.priority,
             });
         }
-
-        let mut lights = Vec::with_capacity(raw.lights.len());
-        for (i, l) in raw.lights.iter().enumerate() {
-            let p = |k| [K("light"), I(i), K(k)];
-            let power = |v| -> Result<DVec3> {
-                let v = c.vec3(&p("power"), v)?;
-                if v.min_element() < 0.0 {
-                    return Err(c.err(&p("power"), "power must be >= 0"));
-                }
-                Ok(v)
-            };
-            lights.push(match l {
-                RawLight::Directional {
-                    direction,
-                    power: pw,
-                } => Light::Directional {
-                    direction: c.unit(&p("direction"), *direction)?,
-                    power: power(*pw)?,
-                },
-                RawLight::Point {
-                    position,
-                    power: pw,
-                } => Light::Point {
-                    position: c.vec3(&p("position"), *position)?,
-                    power: power(*pw)?,
-                },
-                RawLight::Spot {
-                    position,
-                    direction,
-                    angle,
-                    falloff,
-                    power: pw,
-                } => {
-                    c.finite(&p("angle"), &[*angle])?;
-                    if !(*angle > 0.0 && *angle <= 90.0) {
-                        return Err(
-                            c.err(&p("angle"), "cone half-angle must lie in (0, 90] degrees")
-                        );
-                    }
-                    c.finite(&p("falloff"), &[*falloff])?;
-                    if !(0.0..=*angle).contains(falloff) {
-                        return Err(c.err(&p("falloff"), "falloff must lie in [0, angle] degrees"));
-                    }
-                    Light::Spot {
-                        position: c.vec3(&p("position"), *position)?,
-                        direction: c.unit(&p("direction"), *direction)?,
-                        angle: *angle,
-                        falloff: *falloff,
-                        power: power(*pw)?,
-                    }
-                }
-            });
-        }
-
+        let lights = (raw.lights.iter().enumerate())
+            .map(|(i, l)| check_light(c, i, l))
+            .collect::<Result<Vec<_>>>()?;
         let receiver = match &raw.receiver {
             None => None,
             Some(r) => Some(Receiver {
@@ -844,6 +612,262 @@ fn parse_path(field: &str) -> Vec<Seg<'_>> {
         }
     }
     out
+}
+
+/// The optical fields an object and the ambient medium share.
+struct MaterialFields<'a> {
+    index: &'a RawIndex,
+    extinction: [f64; 3],
+    albedo: [f64; 3],
+    g: f64,
+    emission: [f64; 3],
+}
+
+impl RawAmbient {
+    fn fields(&self) -> MaterialFields<'_> {
+        MaterialFields {
+            index: &self.index,
+            extinction: self.extinction,
+            albedo: self.albedo,
+            g: self.g,
+            emission: self.emission,
+        }
+    }
+}
+
+impl RawObject {
+    fn fields(&self) -> MaterialFields<'_> {
+        MaterialFields {
+            index: &self.index,
+            extinction: self.extinction,
+            albedo: self.albedo,
+            g: self.g,
+            emission: self.emission,
+        }
+    }
+}
+
+fn check_grid(c: &Checker, g: &RawGrid) -> Result<GridSettings> {
+    use Seg::Key as K;
+    let min = c.vec3(&[K("grid"), K("min")], g.min)?;
+    let max = c.vec3(&[K("grid"), K("max")], g.max)?;
+    if !(max.cmpgt(min).all()) {
+        return Err(c.err(
+            &[K("grid"), K("max")],
+            format!("must exceed grid.min on every axis ({max} vs {min})"),
+        ));
+    }
+    let extent = max - min;
+    let res = &[K("grid"), K("resolution")];
+    let dims = match g.resolution {
+        RawResolution::Longest(n) => {
+            if n == 0 {
+                return Err(c.err(res, "must be at least 1"));
+            }
+            let h = extent.max_element() / n as f64;
+            let d = (extent / h).round().max(DVec3::ONE);
+            [d.x as u64, d.y as u64, d.z as u64]
+        }
+        RawResolution::PerAxis(d) => {
+            if d.contains(&0) {
+                return Err(c.err(res, "every axis needs at least 1 voxel"));
+            }
+            d
+        }
+    };
+    let dims = dims.map(|d| usize::try_from(d).unwrap_or(usize::MAX));
+    if dims
+        .iter()
+        .try_fold(1usize, |a, &d| a.checked_mul(d))
+        .is_none()
+    {
+        return Err(c.err(res, format!("{dims:?} voxels cannot even be counted")));
+    }
+    let smoothing = g.smoothing;
+    c.finite(&[K("grid"), K("smoothing")], &[smoothing])?;
+    if !(0.0..=8.0).contains(&smoothing) {
+        return Err(c.err(
+            &[K("grid"), K("smoothing")],
+            format!("sigma in voxels must lie in [0, 8], got {smoothing}"),
+        ));
+    }
+    if !(1..=16).contains(&g.supersample) {
+        return Err(c.err(
+            &[K("grid"), K("supersample")],
+            format!(
+                "must lie in 1..=16 sub-samples per axis, got {}",
+                g.supersample
+            ),
+        ));
+    }
+    Ok(GridSettings {
+        geometry: GridGeometry::new(dims, min, max),
+        smoothing,
+        supersample: g.supersample as usize,
+        dispersion: g.dispersion,
+    })
+}
+
+/// The index profile at field path `ip`; `shape` is the object's (None for
+/// the ambient medium).
+fn check_index(
+    c: &Checker,
+    grid: &GridSettings,
+    ip: &[Seg],
+    index: &RawIndex,
+    shape: Option<&Shape>,
+) -> Result<IndexProfile> {
+    let sub = |k| [ip, &[Seg::Key(k)]].concat();
+    Ok(match index {
+        RawIndex::Scalar(n) => IndexProfile::Constant([c.index_value(ip, *n)?; 3]),
+        RawIndex::Rgb(n) => {
+            if !grid.dispersion {
+                return Err(c.err(ip, "an [r, g, b] index needs grid.dispersion = true"));
+            }
+            for &v in n {
+                c.index_value(ip, v)?;
+            }
+            IndexProfile::Constant(*n)
+        }
+        RawIndex::Profile(RawProfile::Luneburg { outer }) => {
+            let outer = c.index_value(&sub("outer"), *outer)?;
+            match shape {
+                Some(Shape::Sphere { center, radius }) => IndexProfile::Luneburg {
+                    center: *center,
+                    radius: *radius,
+                    outer,
+                },
+                _ => {
+                    return Err(c.err(
+                        ip,
+                        "a Luneburg profile needs a sphere shape (it takes the sphere's centre and radius)",
+                    ))
+                }
+            }
+        }
+        RawIndex::Profile(RawProfile::Linear {
+            n0,
+            gradient,
+            origin,
+        }) => {
+            let prof = IndexProfile::Linear {
+                n0: c.index_value(&sub("n0"), *n0)?,
+                gradient: c.vec3(&sub("gradient"), *gradient)?,
+                origin: c.vec3(&sub("origin"), *origin)?,
+            };
+            // n must stay positive wherever the object meets the grid (with
+            // room for the smoothing halo): check the corners of that box,
+            // where a linear function takes its extremes.
+            let geom = &grid.geometry;
+            let halo = geom.spacing() * (4.0 * grid.smoothing + 2.0);
+            let (mut lo, mut hi) = (geom.min - halo, geom.max + halo);
+            if let Some((a, b)) = shape.and_then(Shape::aabb) {
+                lo = lo.max(a);
+                hi = hi.min(b);
+            }
+            for corner in 0..8 {
+                let q = DVec3::new(
+                    if corner & 1 == 0 { lo.x } else { hi.x },
+                    if corner & 2 == 0 { lo.y } else { hi.y },
+                    if corner & 4 == 0 { lo.z } else { hi.z },
+                );
+                let n = prof.value(q, 0);
+                if (n.is_nan() || n <= 0.0) && lo.cmple(hi).all() {
+                    return Err(c.err(
+                        ip,
+                        format!("the linear index reaches {n:.4} <= 0 at {q} inside the grid"),
+                    ));
+                }
+            }
+            prof
+        }
+    })
+}
+
+/// The material whose fields sit under path `base`.
+fn check_material(
+    c: &Checker,
+    grid: &GridSettings,
+    base: &[Seg],
+    m: MaterialFields,
+    shape: Option<&Shape>,
+) -> Result<Material> {
+    let p = |k| [base, &[Seg::Key(k)]].concat();
+    let index = check_index(c, grid, &p("index"), m.index, shape)?;
+    let extinction = c.vec3(&p("extinction"), m.extinction)?;
+    if extinction.min_element() < 0.0 {
+        return Err(c.err(&p("extinction"), "extinction must be >= 0 (1 / world unit)"));
+    }
+    let albedo = c.rgb_in(&p("albedo"), m.albedo, 0.0, 1.0)?;
+    c.finite(&p("g"), &[m.g])?;
+    if !(m.g > -1.0 && m.g < 1.0) {
+        return Err(c.err(
+            &p("g"),
+            format!("Henyey-Greenstein g must lie in (-1, 1), got {}", m.g),
+        ));
+    }
+    let emission = c.vec3(&p("emission"), m.emission)?;
+    if emission.min_element() < 0.0 {
+        return Err(c.err(&p("emission"), "emission must be >= 0"));
+    }
+    Ok(Material {
+        index,
+        extinction,
+        albedo,
+        g: m.g,
+        emission,
+    })
+}
+
+/// Light `i` of the file.
+fn check_light(c: &Checker, i: usize, l: &RawLight) -> Result<Light> {
+    let p = |k| [Seg::Key("light"), Seg::Index(i), Seg::Key(k)];
+    let power = |v| -> Result<DVec3> {
+        let v = c.vec3(&p("power"), v)?;
+        if v.min_element() < 0.0 {
+            return Err(c.err(&p("power"), "power must be >= 0"));
+        }
+        Ok(v)
+    };
+    Ok(match l {
+        RawLight::Directional {
+            direction,
+            power: pw,
+        } => Light::Directional {
+            direction: c.unit(&p("direction"), *direction)?,
+            power: power(*pw)?,
+        },
+        RawLight::Point {
+            position,
+            power: pw,
+        } => Light::Point {
+            position: c.vec3(&p("position"), *position)?,
+            power: power(*pw)?,
+        },
+        RawLight::Spot {
+            position,
+            direction,
+            angle,
+            falloff,
+            power: pw,
+        } => {
+            c.finite(&p("angle"), &[*angle])?;
+            if !(*angle > 0.0 && *angle <= 90.0) {
+                return Err(c.err(&p("angle"), "cone half-angle must lie in (0, 90] degrees"));
+            }
+            c.finite(&p("falloff"), &[*falloff])?;
+            if !(0.0..=*angle).contains(falloff) {
+                return Err(c.err(&p("falloff"), "falloff must lie in [0, angle] degrees"));
+            }
+            Light::Spot {
+                position: c.vec3(&p("position"), *position)?,
+                direction: c.unit(&p("direction"), *direction)?,
+                angle: *angle,
+                falloff: *falloff,
+                power: power(*pw)?,
+            }
+        }
+    })
 }
 
 fn check_shape(c: &Checker, sp: &[Seg], s: &RawShape) -> Result<Shape> {
