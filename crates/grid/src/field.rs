@@ -275,6 +275,33 @@ impl Medium {
             })
     }
 
+    /// Trilinear sample at world point `p` of an RGB field of this medium
+    /// (`extinction`, `albedo` or `emission`), with the cell-centre
+    /// convention and clamping of [`VoxelField`].
+    pub fn sample_rgb(&self, field: &Array4<f32>, p: DVec3) -> DVec3 {
+        let g = &self.geometry;
+        let hi = DVec3::new(g.dims[0] as f64, g.dims[1] as f64, g.dims[2] as f64) - 1.0;
+        let u = g.world_to_voxel(p).clamp(DVec3::ZERO, hi);
+        let i0 = [0, 1, 2].map(|a| (u[a] as usize).min(g.dims[a].saturating_sub(2)));
+        let f = [0, 1, 2].map(|a| u[a] - i0[a] as f64);
+        let mut out = DVec3::ZERO;
+        for corner in 0..8 {
+            let d = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
+            let mut w = 1.0;
+            let mut idx = [0usize; 3];
+            for a in 0..3 {
+                idx[a] = (i0[a] + d[a]).min(g.dims[a] - 1);
+                w *= if d[a] == 1 { f[a] } else { 1.0 - f[a] };
+            }
+            if w != 0.0 {
+                for c in 0..3 {
+                    out[c] += w * field[[idx[0], idx[1], idx[2], c]] as f64;
+                }
+            }
+        }
+        out
+    }
+
     /// Gradient of n (per world unit) at cell `(i, j, k)` of `channel`.
     pub fn gradient_at(&self, channel: usize, i: usize, j: usize, k: usize) -> DVec3 {
         let a = &self.index[channel];
@@ -474,6 +501,18 @@ priority = 1
         assert_eq!(a.index, b.index);
         assert_eq!(a.boundary, b.boundary);
         assert_eq!(a.extinction, b.extinction);
+    }
+
+    #[test]
+    fn rgb_fields_sample_trilinearly() {
+        let m = medium(
+            "[grid]\nresolution = [4, 1, 1]\nmin = [0, 0, 0]\nmax = [4, 1, 1]\nsmoothing = 0\n[[object]]\nshape = { type = \"box\", center = [3, 0.5, 0.5], size = [2, 2, 2] }\nindex = 1.5\nextinction = [2, 4, 6]\n",
+        );
+        // Centres at x = 0.5, 1.5, 2.5, 3.5; the box covers x > 2.
+        let e = |x: f64| m.sample_rgb(&m.extinction, DVec3::new(x, 0.5, 0.5));
+        assert_eq!(e(1.5), DVec3::ZERO);
+        assert_eq!(e(2.0), DVec3::new(1.0, 2.0, 3.0));
+        assert_eq!(e(3.9), DVec3::new(2.0, 4.0, 6.0));
     }
 
     #[test]

@@ -1,13 +1,327 @@
 //! # eikon-wavefront
 //!
 //! Light simulation by adaptive wavefront tracing (Ihrke et al. 2007,
-//! sections 4.2 and 5.2). This crate is being built up in the order of the
-//! light-simulation issue; so far it holds the data-parallel list rebuild
-//! the simulation runs after every step:
+//! sections 4.2 and 5.2). Each light emits a wavefront of four-particle
+//! patches where it meets the volume ([`light`]); then every step runs
+//! the four steps of the paper, as four calls in [`simulate_light`]:
 //!
-//! * [`histopyramid`]: compaction and expansion of the patch list (each
-//!   patch eliminated, retained or tessellated into four).
+//! 1. [`propagate`](propagate::propagate): corners move with eqs 14-15, flux is attenuated
+//!    with eq 18;
+//! 2. [`irradiance`](propagate::irradiance): each patch's differential irradiance is its
+//!    flux over its area (eq 17);
+//! 3. [`refine`](refine::refine): tessellation analysis (eliminate, retain, tessellate)
+//!    and the new patch list through a [`HistoPyramid`];
+//! 4. [`deposit`](voxelize::LightVolume::deposit): each patch deposits its midpoint's
+//!    irradiance and direction into the light volume, highest energy first.
+//!
+//! Everything is deterministic: the same scene gives the same volumes
+//! whatever the number of threads.
 
 pub mod histopyramid;
+pub mod light;
+pub mod patch;
+pub mod propagate;
+pub mod refine;
+pub mod voxelize;
 
 pub use histopyramid::HistoPyramid;
+pub use patch::Patches;
+pub use voxelize::LightVolume;
+
+use eikon_grid::{Light, Medium, Method, Scene};
+
+/// Settings of a simulation.
+#[derive(Clone, Copy, Debug)]
+pub struct Options {
+    /// Equal-time step, in voxels of optical path.
+    pub step: f64,
+    /// Integrator for the corners (Euler or RK4; the adaptive scheme would
+    /// break the common time of a wavefront).
+    pub method: Method,
+    /// Size of the emitted patches, in voxels.
+    pub patch_size: f64,
+    /// Tessellate a patch whose span exceeds this many voxels.
+    pub split: f64,
+    /// Eliminate a patch whose transmittance falls below this.
+    pub threshold: f64,
+    /// Most patches alive at once (splits beyond are held back).
+    pub max_patches: usize,
+    /// Most tessellations of one emitted patch; `None` picks
+    /// [`default_depth`].
+    pub max_depth: Option<u8>,
+    /// Step limit per wavefront; `None` picks one from the volume size.
+    pub max_steps: Option<usize>,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            step: 0.5,
+            method: Method::Rk4,
+            patch_size: 1.0,
+            split: 1.0,
+            threshold: 1e-4,
+            max_patches: 8 << 20,
+            max_depth: None,
+            max_steps: None,
+        }
+    }
+}
+
+/// A setting or a scene that cannot be simulated.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// An option is out of range.
+    #[error("{option}: {message}")]
+    Option {
+        /// The option's name.
+        option: &'static str,
+        /// What is wrong.
+        message: String,
+    },
+    /// The scene cannot be lit as given.
+    #[error(transparent)]
+    Scene(#[from] eikon_grid::Error),
+}
+
+impl Options {
+    /// Check every setting.
+    pub fn check(&self) -> Result<(), Error> {
+        let bad = |option, message: String| Err(Error::Option { option, message });
+        if !(self.step.is_finite() && self.step > 0.0) {
+            return bad(
+                "step",
+                format!("must be a positive number of voxels, got {}", self.step),
+            );
+        }
+        if self.method == Method::DormandPrince {
+            return bad(
+                "method",
+                "adaptive steps break the common time of a wavefront; use euler or rk4".into(),
+            );
+        }
+        if !(self.patch_size.is_finite() && self.patch_size > 0.0) {
+            return bad(
+                "patch-size",
+                format!("must be positive, got {}", self.patch_size),
+            );
+        }
+        if !(self.split.is_finite() && self.split > 0.0) {
+            return bad("split", format!("must be positive, got {}", self.split));
+        }
+        if !(self.threshold > 0.0 && self.threshold < 1.0) {
+            return bad(
+                "threshold",
+                format!(
+                    "transmittance threshold must lie in (0, 1), got {}",
+                    self.threshold
+                ),
+            );
+        }
+        if self.max_patches < 16 {
+            return bad(
+                "max-patches",
+                format!("must be at least 16, got {}", self.max_patches),
+            );
+        }
+        Ok(())
+    }
+}
+
+/// What happened to one light's wavefront(s).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Summary {
+    /// Steps taken (the longest wavefront's, with dispersion).
+    pub steps: usize,
+    /// Most patches alive at once.
+    pub peak_patches: usize,
+    /// Patches emitted.
+    pub emitted: usize,
+    /// Patches that left the volume.
+    pub exited: usize,
+    /// Patches eliminated by the transmittance threshold.
+    pub absorbed: usize,
+    /// Patches eliminated at a caustic.
+    pub caustic: usize,
+    /// Patches still alive at the step limit.
+    pub step_limit: usize,
+    /// Splits held back by the patch limit.
+    pub held: usize,
+    /// RGB power that entered the volume, W.
+    pub entered: [f64; 3],
+    /// RGB power taken out of the beams inside the volume (absorbed or
+    /// scattered away), W.
+    pub absorbed_power: [f64; 3],
+    /// RGB power carried out of the volume, W.
+    pub exited_power: [f64; 3],
+    /// RGB power dropped with eliminated patches (threshold, caustics,
+    /// step limit), W.
+    pub culled_power: [f64; 3],
+}
+
+impl Summary {
+    /// `entered - (absorbed + exited + culled)` relative to `entered`, the
+    /// largest over the channels that carry power.
+    pub fn energy_imbalance(&self) -> f64 {
+        (0..3)
+            .filter(|&c| self.entered[c] > 0.0)
+            .map(|c| {
+                let out = self.absorbed_power[c] + self.exited_power[c] + self.culled_power[c];
+                (self.entered[c] - out).abs() / self.entered[c]
+            })
+            .fold(0.0, f64::max)
+    }
+}
+
+/// Default tessellation limit. A spherical wave's patches grow from about
+/// a voxel to the volume's diagonal, and may halve that often. A plane
+/// wave's patches only grow where optics spreads them, and a patch torn
+/// across a discontinuity of the ray map (straddling an object's
+/// silhouette, part of it skimming inside the smoothed interface) stretches
+/// without bound: four levels (256 pieces of an emitted patch) leave room
+/// for a diverging lens without letting a tear multiply unchecked.
+pub fn default_depth(light: &Light, grid: &eikon_grid::GridGeometry, opts: &Options) -> u8 {
+    match light {
+        Light::Directional { .. } => 4,
+        _ => {
+            let ratio = grid.diagonal() / (opts.split.min(opts.patch_size) * grid.voxel_size());
+            (ratio.log2().ceil().max(0.0) as u8).saturating_add(1)
+        }
+    }
+}
+
+/// Simulation progress: `(step, live patches)` of the wavefront running.
+pub type Progress<'a> = &'a (dyn Fn(usize, usize) + Sync);
+
+fn add(acc: &mut [f64; 3], x: &[f64; 3]) {
+    (0..3).for_each(|c| acc[c] += x[c]);
+}
+
+/// Reject scenes that cannot be lit: no lights, or a point or spot light
+/// inside matter so opaque that its light dies within a voxel.
+pub fn check_scene(scene: &Scene, medium: &Medium, opts: &Options) -> Result<(), Error> {
+    if scene.lights.is_empty() {
+        return Err(scene
+            .error_at(
+                "light",
+                "the scene has no [[light]]: there is nothing to simulate",
+            )
+            .into());
+    }
+    let h = medium.geometry.voxel_size();
+    for (i, l) in scene.lights.iter().enumerate() {
+        let position = match l {
+            Light::Point { position, .. } | Light::Spot { position, .. } => *position,
+            Light::Directional { .. } => continue,
+        };
+        if !medium.geometry.contains(position) {
+            continue;
+        }
+        let ext = medium.sample_rgb(&medium.extinction, position);
+        if (0..3).all(|c| (-ext[c] * h).exp() < opts.threshold) {
+            return Err(scene
+                .error_at(
+                    &format!("light[{i}].position"),
+                    format!(
+                        "the light sits in opaque matter (extinction {ext} per world unit): its light would not get one voxel away"
+                    ),
+                )
+                .into());
+        }
+    }
+    Ok(())
+}
+
+/// Simulate one light: its wavefront (or, with dispersion, one wavefront
+/// per colour channel, each through its own index field) from emission to
+/// the last patch. Returns the light volume and the summary.
+pub fn simulate_light(
+    light: &Light,
+    medium: &Medium,
+    opts: &Options,
+    progress: Progress,
+) -> Result<(LightVolume, Summary), Error> {
+    opts.check()?;
+    let grid = &medium.geometry;
+    let h = grid.voxel_size();
+    let groups = medium.channels();
+    let mut volume = LightVolume::new(grid, groups);
+    let mut summary = Summary::default();
+    let rules = refine::Rules {
+        split_span: opts.split * h,
+        threshold: opts.threshold,
+        max_patches: opts.max_patches,
+        max_depth: opts
+            .max_depth
+            .unwrap_or_else(|| default_depth(light, grid, opts)),
+    };
+    let dt = opts.step * h;
+    let n_max = medium.index_range().1 as f64;
+    let max_steps = opts
+        .max_steps
+        .unwrap_or((16.0 * grid.diagonal() * n_max / dt).ceil() as usize);
+    let (mut p, mut next) = (Patches::default(), Patches::default());
+    let mut scratch = refine::Scratch::default();
+    let mut absorbed = Vec::new();
+    for g in 0..groups {
+        let (mask, group) = if groups == 1 {
+            ([1.0; 3], None)
+        } else {
+            let mut m = [0.0; 3];
+            m[g] = 1.0;
+            (m, Some(g))
+        };
+        let field = propagate::Bounded::new(medium, g);
+        p.clear();
+        let entered = light::emit(light, grid, &field, opts.patch_size * h, mask, &mut p);
+        add(&mut summary.entered, &entered);
+        summary.emitted += p.len();
+        // Step 3 (and its book-keeping): tessellation analysis and the new
+        // patch list.
+        let mut refine = |p: &mut Patches, s: &mut Summary| {
+            let ended = refine::refine(
+                p,
+                &mut next,
+                &mut scratch,
+                &field,
+                grid,
+                &rules,
+                &mut s.held,
+            );
+            s.exited += ended.exited;
+            s.absorbed += ended.absorbed;
+            s.caustic += ended.caustic;
+            add(&mut s.exited_power, &ended.exited_flux);
+            add(&mut s.culled_power, &ended.culled_flux);
+        };
+        // Patches that start far from a point light are larger than the
+        // split size: tessellate them before the first step.
+        for _ in 0..16 {
+            let before = p.len();
+            refine(&mut p, &mut summary);
+            if p.len() == before {
+                break;
+            }
+        }
+        volume.deposit(&p, medium, group);
+        let mut step = 0;
+        while !p.is_empty() && step < max_steps {
+            step += 1;
+            propagate::propagate(&mut p, medium, &field, opts.method, dt, &mut absorbed);
+            for a in &absorbed {
+                add(&mut summary.absorbed_power, a);
+            }
+            propagate::irradiance(&mut p);
+            refine(&mut p, &mut summary);
+            volume.deposit(&p, medium, group);
+            summary.peak_patches = summary.peak_patches.max(p.len());
+            progress(step, p.len());
+        }
+        summary.steps = summary.steps.max(step);
+        summary.step_limit += p.len();
+        for f in &p.flux {
+            add(&mut summary.culled_power, f);
+        }
+    }
+    Ok((volume, summary))
+}

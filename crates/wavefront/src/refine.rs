@@ -1,0 +1,237 @@
+//! Step 3: tessellation analysis and the rebuilt patch list (5.2.3).
+//!
+//! Each patch becomes Eliminate (0), Retain (1) or Tessellate (4):
+//! * eliminated when its transmittance `flux / flux0` has fallen below the
+//!   threshold in every channel (absorbed), when it has left the volume
+//!   (its midpoint is outside and its direction never brings it back), or
+//!   when its orientation has flipped against its direction of travel (it
+//!   passed through a caustic, where the intensity law breaks down);
+//! * tessellated when its longest edge exceeds `split` voxels;
+//! * retained otherwise.
+//!
+//! The counts feed a [`HistoPyramid`]; every output slot then finds its
+//! source patch and, for a tessellated one, which of its four children it
+//! becomes: quarters, or four strips across the long side of a sliver
+//! ([`Split`]). A child's corners are bilinear in the parent's (positions,
+//! `v` and optical path), with `v` rescaled to `|v| = n` at its new
+//! position; the flux is shared in proportion to the children's areas, so
+//! splitting conserves it exactly.
+
+use crate::histopyramid::HistoPyramid;
+use crate::patch::{area, normal, span, Patches, Split};
+use eikon_grid::{GridGeometry, IndexField, RayState};
+use rayon::prelude::*;
+
+/// Why patches left the list, and how much flux they took with them.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Ended {
+    /// Patches that left the volume.
+    pub exited: usize,
+    /// Patches whose transmittance fell below the threshold.
+    pub absorbed: usize,
+    /// Patches that flipped at a caustic.
+    pub caustic: usize,
+    /// RGB flux carried out of the volume.
+    pub exited_flux: [f64; 3],
+    /// RGB flux of patches dropped by the threshold or at a caustic.
+    pub culled_flux: [f64; 3],
+}
+
+/// Fate of one patch.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Fate {
+    Exit,
+    Absorbed,
+    Caustic,
+    Retain,
+    Split,
+}
+
+/// Settings of the analysis.
+#[derive(Clone, Copy, Debug)]
+pub struct Rules {
+    /// Tessellate above this span, world units.
+    pub split_span: f64,
+    /// Eliminate below this transmittance.
+    pub threshold: f64,
+    /// Never grow the list beyond this many patches: would-be splits are
+    /// retained instead (and counted).
+    pub max_patches: usize,
+    /// Never tessellate a patch more often than this since emission: a
+    /// patch straddling a discontinuity of the ray map (the silhouette of
+    /// an object) stretches without bound, and so would its descendants.
+    pub max_depth: u8,
+}
+
+/// Reusable buffers of [`refine`].
+#[derive(Default)]
+pub struct Scratch {
+    fate: Vec<Fate>,
+    counts: Vec<u8>,
+    source: Vec<u32>,
+    part: Vec<u8>,
+    pyramid: HistoPyramid,
+}
+
+fn fate(p: &Patches, i: usize, grid: &GridGeometry, rules: &Rules) -> Fate {
+    let x = p.positions(i);
+    let dir = p.direction(i);
+    let mid = p.midpoint(i);
+    if !grid.contains(mid) && grid.clip_line(mid, dir).is_none_or(|(_, t1)| t1 <= 0.0) {
+        return Fate::Exit;
+    }
+    let (f, f0) = (p.flux[i], p.flux0[i]);
+    if (0..3).all(|c| f[c] <= rules.threshold * f0[c]) {
+        return Fate::Absorbed;
+    }
+    if normal(&x).dot(dir) <= 0.0 {
+        return Fate::Caustic;
+    }
+    if span(&x) > rules.split_span * (1.0 + 1e-9) && p.depth[i] < rules.max_depth {
+        Fate::Split
+    } else {
+        Fate::Retain
+    }
+}
+
+/// Analyse every patch of `p`, rebuild the list into `next` through the
+/// HistoPyramid and swap it into `p`. Returns what left the list; `held`
+/// counts splits refused by `max_patches`.
+pub fn refine<F: IndexField + ?Sized>(
+    p: &mut Patches,
+    next: &mut Patches,
+    scratch: &mut Scratch,
+    field: &F,
+    grid: &GridGeometry,
+    rules: &Rules,
+    held: &mut usize,
+) -> Ended {
+    let n = p.len();
+    scratch.fate.clear();
+    scratch.fate.resize(n, Fate::Retain);
+    scratch
+        .fate
+        .par_iter_mut()
+        .enumerate()
+        .for_each(|(i, f)| *f = fate(p, i, grid, rules));
+
+    // Book-keeping in patch order: deterministic sums.
+    let mut ended = Ended::default();
+    let mut splits = 0usize;
+    let mut kept = 0usize;
+    for (i, f) in scratch.fate.iter().enumerate() {
+        let add = |acc: &mut [f64; 3]| (0..3).for_each(|c| acc[c] += p.flux[i][c]);
+        match f {
+            Fate::Exit => {
+                ended.exited += 1;
+                add(&mut ended.exited_flux);
+            }
+            Fate::Absorbed => {
+                ended.absorbed += 1;
+                add(&mut ended.culled_flux);
+            }
+            Fate::Caustic => {
+                ended.caustic += 1;
+                add(&mut ended.culled_flux);
+            }
+            Fate::Retain => kept += 1,
+            Fate::Split => splits += 1,
+        }
+    }
+    // Splits that would overflow the list are refused; patches earlier in
+    // the list get the room first.
+    let mut room = rules.max_patches.saturating_sub(kept + splits) / 3;
+    scratch.counts.clear();
+    scratch.counts.extend(scratch.fate.iter().map(|f| match f {
+        Fate::Retain => 1,
+        Fate::Split => {
+            if room > 0 {
+                room -= 1;
+                4
+            } else {
+                *held += 1;
+                1
+            }
+        }
+        _ => 0,
+    }));
+
+    scratch.pyramid.build(&scratch.counts);
+    scratch
+        .pyramid
+        .expand_into(&mut scratch.source, &mut scratch.part);
+    let total = scratch.source.len();
+    let blank = RayState {
+        x: glam::DVec3::ZERO,
+        v: glam::DVec3::ZERO,
+        opl: 0.0,
+    };
+    for c in next.corner.iter_mut() {
+        c.clear();
+        c.resize(total, blank);
+    }
+    next.flux.clear();
+    next.flux.resize(total, [0.0; 3]);
+    next.flux0.clear();
+    next.flux0.resize(total, [0.0; 3]);
+    next.area0.clear();
+    next.area0.resize(total, 0.0);
+    next.irradiance.clear();
+    next.irradiance.resize(total, [0.0; 3]);
+    next.depth.clear();
+    next.depth.resize(total, 0);
+
+    let counts = &scratch.counts;
+    let [n0, n1, n2, n3] = &mut next.corner;
+    (
+        n0.par_iter_mut(),
+        n1.par_iter_mut(),
+        n2.par_iter_mut(),
+        n3.par_iter_mut(),
+        next.flux.par_iter_mut(),
+        next.flux0.par_iter_mut(),
+        next.area0.par_iter_mut(),
+        next.irradiance.par_iter_mut(),
+        next.depth.par_iter_mut(),
+        scratch.source.par_iter(),
+        scratch.part.par_iter(),
+    )
+        .into_par_iter()
+        .for_each(
+            |(a, b, c, d, flux, flux0, area0, irr, depth, &src, &part)| {
+                let i = src as usize;
+                let parent = [0, 1, 2, 3].map(|k| p.corner[k][i]);
+                if counts[i] == 1 {
+                    [*a, *b, *c, *d] = parent;
+                    *flux = p.flux[i];
+                    *flux0 = p.flux0[i];
+                    *area0 = p.area0[i];
+                    *irr = p.irradiance[i];
+                    *depth = p.depth[i];
+                    return;
+                }
+                let split = Split::of(&parent.map(|r| r.x));
+                let areas = [0, 1, 2, 3].map(|q| area(&split.child(&parent, q).map(|r| r.x)));
+                let total: f64 = areas.iter().sum();
+                let share = if total > 0.0 {
+                    areas[part as usize] / total
+                } else {
+                    0.25
+                };
+                let mut child = split.child(&parent, part as usize);
+                for r in child.iter_mut() {
+                    // Bilinear v has the right direction but not |v| = n.
+                    r.v = r.v.normalize_or_zero() * field.sample(r.x).0;
+                }
+                [*a, *b, *c, *d] = child;
+                *flux = p.flux[i].map(|f| f * share);
+                *flux0 = p.flux0[i].map(|f| f * share);
+                *area0 = p.area0[i] * share;
+                *depth = p.depth[i] + 1;
+                let ar = areas[part as usize];
+                *irr = flux.map(|f| if ar > 0.0 { f / ar } else { 0.0 });
+            },
+        );
+    std::mem::swap(p, next);
+    ended
+}

@@ -1,0 +1,245 @@
+//! Physics tests of the light simulation (adaptive wavefront tracing)
+//! against analytic optics.
+
+use eikon_grid::{Medium, Scene};
+use eikon_wavefront::{simulate_light, LightVolume, Options, Summary};
+use glam::DVec3;
+use std::f64::consts::PI;
+
+fn medium(text: &str) -> (Scene, Medium) {
+    let scene = Scene::parse(text, "test").unwrap();
+    let m = Medium::build(&scene).unwrap();
+    (scene, m)
+}
+
+fn run(scene: &Scene, m: &Medium, light: usize) -> (LightVolume, Summary) {
+    simulate_light(&scene.lights[light], m, &Options::default(), &|_, _| {}).unwrap()
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(|a, b| a.total_cmp(b));
+    v[v.len() / 2]
+}
+
+#[test]
+fn point_light_falls_off_as_inverse_square() {
+    let p = DVec3::new(0.013, -0.021, 0.007);
+    let (scene, m) = medium(&format!(
+        "[grid]\nresolution = 64\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
+         [[light]]\ntype = \"point\"\nposition = [{}, {}, {}]\npower = [2, 1, 0.5]\n",
+        p.x, p.y, p.z
+    ));
+    let (vol, summary) = run(&scene, &m, 0);
+    let g = &m.geometry;
+    let h = g.voxel_size();
+    let mut errs = Vec::new();
+    for ((i, j, k), _) in vol
+        .irradiance
+        .slice(ndarray::s![.., .., .., 0])
+        .indexed_iter()
+    {
+        let c = g.voxel_center(i, j, k);
+        let r = (c - p).length();
+        if r < 3.0 * h {
+            continue;
+        }
+        let want = 2.0 / (4.0 * PI * r * r);
+        errs.push((vol.irradiance[[i, j, k, 0]] as f64 / want - 1.0).abs());
+    }
+    let holes = errs.iter().filter(|&&e| e == 1.0).count();
+    let med = median(errs.clone());
+    let max = errs.iter().copied().fold(0.0, f64::max);
+    println!(
+        "1/r^2: {} voxels, median relative error {med:.2e}, max {max:.2e}, {holes} never reached; {} patches at peak",
+        errs.len(),
+        summary.peak_patches
+    );
+    assert!(med <= 0.01, "median relative error {med}");
+    // The colour channels scale with the power.
+    let (i, j, k) = (10, 40, 50);
+    let e = |c| vol.irradiance[[i, j, k, c]] as f64;
+    assert!((e(1) / e(0) - 0.5).abs() < 1e-6 && (e(2) / e(0) - 0.25).abs() < 1e-6);
+}
+
+#[test]
+fn plane_wave_decays_by_beer_lambert() {
+    let sigma = 1.5;
+    let (scene, m) = medium(&format!(
+        "[grid]\nresolution = 64\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
+         [ambient]\nextinction = [{sigma}, {}, 0]\n\
+         [[light]]\ntype = \"directional\"\ndirection = [1, 0, 0]\npower = [3, 3, 3]\n",
+        2.0 * sigma
+    ));
+    let (vol, summary) = run(&scene, &m, 0);
+    let g = &m.geometry;
+    let mut worst: f64 = 0.0;
+    for ((i, j, k), _) in vol
+        .irradiance
+        .slice(ndarray::s![.., .., .., 0])
+        .indexed_iter()
+    {
+        let d = g.voxel_center(i, j, k).x - g.min.x;
+        for (c, s) in [(0, sigma), (1, 2.0 * sigma), (2, 0.0)] {
+            let want = 3.0 * (-s * d).exp();
+            let got = vol.irradiance[[i, j, k, c]] as f64;
+            worst = worst.max((got / want - 1.0).abs());
+        }
+    }
+    println!(
+        "Beer-Lambert: worst relative error {worst:.2e} (transmission down to {:.3})",
+        (-4.0 * sigma).exp()
+    );
+    assert!(worst <= 0.01, "worst relative error {worst}");
+    // The light volume points along the beam.
+    assert_eq!(vol.direction[0][[5, 6, 7, 0]], 1.0);
+    assert!(summary.energy_imbalance() < 1e-9, "{summary:?}");
+}
+
+const GLASS_SPHERE: &str = r#"
+[grid]
+resolution = 64
+min = [-1, -1, -1]
+max = [1, 1, 1]
+
+[[object]]
+shape = { type = "sphere", center = [0.02, 0.1, -0.01], radius = 0.5 }
+index = 1.5
+extinction = [0.3, 0.6, 0.9]
+albedo = [0.5, 0.5, 0.5]
+
+[[light]]
+type = "directional"
+direction = [0.2, -1.0, 0.1]
+power = [1, 1, 1]
+
+[[light]]
+type = "point"
+position = [0.7, 0.8, -0.6]
+power = [5, 5, 5]
+
+[[light]]
+type = "spot"
+position = [-1.5, 0.3, 0.2]
+direction = [1, -0.2, 0]
+angle = 30
+falloff = 5
+power = [20, 10, 5]
+"#;
+
+#[test]
+fn energy_is_accounted_for() {
+    let (scene, m) = medium(GLASS_SPHERE);
+    for l in 0..scene.lights.len() {
+        let (_, s) = run(&scene, &m, l);
+        let imbalance = s.energy_imbalance();
+        println!(
+            "light {l}: entered {:.4?} absorbed {:.4?} exited {:.4?} culled {:.4?}; imbalance {imbalance:.2e}; {} steps, peak {} patches, ended: {} exited, {} absorbed, {} caustic, {} at the step limit",
+            s.entered, s.absorbed_power, s.exited_power, s.culled_power, s.steps, s.peak_patches, s.exited, s.absorbed, s.caustic, s.step_limit
+        );
+        assert!(imbalance <= 0.005, "light {l}: imbalance {imbalance}");
+        // The glass absorbs blue most (extinction 0.3, 0.6, 0.9).
+        let frac = |c: usize| s.absorbed_power[c] / s.entered[c];
+        assert!(frac(2) > frac(1) && frac(1) > frac(0), "absorbed fractions");
+        assert!(s.entered.iter().all(|&e| e > 0.0));
+    }
+}
+
+#[test]
+fn volumes_are_identical_whatever_the_thread_count() {
+    let (scene, m) = medium(GLASS_SPHERE);
+    let with = |threads| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| run(&scene, &m, 0))
+    };
+    let (a, sa) = with(1);
+    let (b, sb) = with(2);
+    assert_eq!(a.irradiance, b.irradiance);
+    assert_eq!(a.direction, b.direction);
+    assert_eq!(sa, sb);
+}
+
+#[test]
+fn luneburg_lens_focuses_a_plane_wave_on_its_far_surface() {
+    let (scene, m) = medium(
+        "[grid]\nresolution = 64\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
+         [[object]]\nshape = { type = \"sphere\", center = [0, 0, 0], radius = 0.8 }\nindex = { type = \"luneburg\" }\n\
+         [[light]]\ntype = \"directional\"\ndirection = [0, 0, 1]\npower = [1, 1, 1]\n",
+    );
+    let (vol, _) = run(&scene, &m, 0);
+    let (mut best, mut at) = (0.0f32, (0, 0, 0));
+    for ((i, j, k), &e) in vol
+        .irradiance
+        .slice(ndarray::s![.., .., .., 0])
+        .indexed_iter()
+    {
+        if e > best {
+            (best, at) = (e, (i, j, k));
+        }
+    }
+    let g = &m.geometry;
+    let c = g.voxel_center(at.0, at.1, at.2);
+    let focus = DVec3::new(0.0, 0.0, 0.8);
+    let miss = (c - focus).length() / g.voxel_size();
+    println!("Luneburg: irradiance peak {best:.1} W/m^2 at {c}, {miss:.2} voxel from the focus");
+    assert!(miss <= 1.0, "peak {miss} voxels from the focus");
+}
+
+#[test]
+fn bad_settings_and_scenes_are_refused() {
+    let (scene, m) = medium(GLASS_SPHERE);
+    for (opts, what) in [
+        (
+            Options {
+                threshold: 0.0,
+                ..Options::default()
+            },
+            "threshold",
+        ),
+        (
+            Options {
+                threshold: -1.0,
+                ..Options::default()
+            },
+            "threshold",
+        ),
+        (
+            Options {
+                step: 0.0,
+                ..Options::default()
+            },
+            "step",
+        ),
+        (
+            Options {
+                method: eikon_grid::Method::DormandPrince,
+                ..Options::default()
+            },
+            "method",
+        ),
+    ] {
+        let e = simulate_light(&scene.lights[0], &m, &opts, &|_, _| {})
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with(what), "{e}");
+    }
+    let (dark, dm) = medium("[grid]\nresolution = 8\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n");
+    let e = eikon_wavefront::check_scene(&dark, &dm, &Options::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("no [[light]]"), "{e}");
+    let (buried, bm) = medium(
+        "[grid]\nresolution = 8\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n\
+         [[object]]\nshape = { type = \"sphere\", center = [0.5, 0.5, 0.5], radius = 0.3 }\nindex = 1.5\nextinction = [1e6, 1e6, 1e6]\n\
+         [[light]]\ntype = \"point\"\nposition = [0.5, 0.5, 0.5]\npower = [1, 1, 1]\n",
+    );
+    let e = eikon_wavefront::check_scene(&buried, &bm, &Options::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("light[0].position") && e.contains("opaque"),
+        "{e}"
+    );
+}
