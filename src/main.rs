@@ -2,6 +2,8 @@
 
 mod info;
 mod output;
+mod probe;
+mod simulate;
 mod slice;
 mod trace;
 
@@ -24,6 +26,10 @@ enum Command {
     Trace(trace::Args),
     /// Write a false-colour PNG slice of a field, to see what was built.
     Slice(slice::Args),
+    /// Simulate every light by adaptive wavefront tracing; write the light volumes.
+    Simulate(simulate::Args),
+    /// Print the simulated irradiance and light direction at a point.
+    Probe(probe::Args),
 }
 
 fn main() -> ExitCode {
@@ -32,6 +38,8 @@ fn main() -> ExitCode {
         Command::Info(a) => info::run(a),
         Command::Trace(a) => trace::run(a),
         Command::Slice(a) => slice::run(a),
+        Command::Simulate(a) => simulate::run(a),
+        Command::Probe(a) => probe::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -290,9 +290,132 @@ fn every_command_has_help() {
         vec!["info", "--help"],
         vec!["trace", "--help"],
         vec!["slice", "--help"],
+        vec!["simulate", "--help"],
+        vec!["probe", "--help"],
     ] {
         let out = eikon(&cmd);
         assert!(out.status.success());
         assert!(String::from_utf8_lossy(&out.stdout).contains("Usage:"));
     }
+}
+
+const LIT: &str = r#"
+[grid]
+resolution = 32
+min = [-1, -1, -1]
+max = [1, 1, 1]
+
+[[light]]
+type = "point"
+position = [0.1, 0.05, -0.02]
+power = [4, 2, 1]
+"#;
+
+#[test]
+fn simulate_writes_light_volumes_that_probe_reads() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_scene(dir.path(), "lit.toml", LIT);
+    let out = dir.path().join("light");
+    let run = eikon(&[
+        "simulate",
+        scene.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let summary: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let energy = &summary["lights"][0]["energy_w"];
+    assert!(
+        energy["imbalance_relative"].as_f64().unwrap() < 1e-9,
+        "{energy}"
+    );
+    assert!((energy["entered"][0].as_f64().unwrap() - 4.0).abs() < 1e-9);
+    for f in [
+        "light_volumes.json",
+        "light0_irradiance.npy",
+        "light0_direction.npy",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    // 0.5 away from the light: irradiance P / (4 pi r^2), pointing away.
+    let at = [0.6, 0.05, -0.02];
+    let probe = eikon(&[
+        "probe",
+        out.to_str().unwrap(),
+        "--at",
+        &format!("{},{},{}", at[0], at[1], at[2]),
+        "--json",
+    ]);
+    assert!(
+        probe.status.success(),
+        "{}",
+        String::from_utf8_lossy(&probe.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&probe.stdout).unwrap();
+    let e = v["lights"][0]["irradiance"][0].as_f64().unwrap();
+    let want = 4.0 / (4.0 * std::f64::consts::PI * 0.25);
+    assert!((e / want - 1.0).abs() < 0.02, "{e} vs {want}");
+    let d = v["lights"][0]["direction"][0][0].as_f64().unwrap();
+    assert!(d > 0.99, "direction x {d}");
+    // Outside the volume is refused.
+    expect_error(
+        &["probe", out.to_str().unwrap(), "--at", "3,0,0"],
+        &["--at", "outside"],
+    );
+    expect_error(
+        &["probe", dir.path().to_str().unwrap(), "--at", "0,0,0"],
+        &["light_volumes.json"],
+    );
+}
+
+#[test]
+fn simulate_refuses_bad_input_without_writing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("never");
+    let dark = write_scene(dir.path(), "dark.toml", SMALL);
+    expect_error(
+        &[
+            "simulate",
+            dark.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ],
+        &["dark.toml", "no [[light]]"],
+    );
+    let lit = write_scene(dir.path(), "lit.toml", LIT);
+    for t in ["0", "-0.5", "1.5"] {
+        expect_error(
+            &[
+                "simulate",
+                lit.to_str().unwrap(),
+                "-o",
+                out.to_str().unwrap(),
+                "--threshold",
+                t,
+            ],
+            &["--threshold"],
+        );
+    }
+    let buried = write_scene(
+        dir.path(),
+        "buried.toml",
+        &format!(
+            "{LIT}\n[[object]]\nshape = {{ type = \"sphere\", center = [0.1, 0.05, -0.02], radius = 0.3 }}\nindex = 1.5\nextinction = [1e6, 1e6, 1e6]\n"
+        ),
+    );
+    expect_error(
+        &[
+            "simulate",
+            buried.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ],
+        &["light[0].position", "opaque"],
+    );
+    assert!(!out.exists(), "no output may be written on failure");
 }

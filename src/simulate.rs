@@ -1,0 +1,265 @@
+//! `eikon simulate`: the light volumes of every light of a scene.
+
+use crate::output::{build_medium, write_atomic};
+use anyhow::{bail, Context, Result};
+use clap::ValueEnum;
+use eikon_grid::{Light, Method, Scene};
+use eikon_wavefront::{check_scene, simulate_light, LightVolume, Options, Summary};
+use ndarray::{Array4, Array5, Axis};
+use ndarray_npy::WriteNpyExt;
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// The sidecar that describes a light-volume directory.
+pub const SIDECAR: &str = "light_volumes.json";
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Integrator {
+    /// Forward Euler, first order.
+    Euler,
+    /// Classical fourth-order Runge-Kutta.
+    Rk4,
+}
+
+/// Arguments of `eikon simulate`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Scene file (TOML).
+    scene: PathBuf,
+    /// Output directory (created if missing).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Equal-time step, in voxels of optical path.
+    #[arg(long, default_value_t = 0.5, allow_hyphen_values = true)]
+    step: f64,
+    /// Integrator for the particles.
+    #[arg(long, value_enum, default_value = "rk4")]
+    integrator: Integrator,
+    /// Size of the emitted patches, in voxels.
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
+    patch_size: f64,
+    /// Tessellate patches whose corners span more than this many voxels.
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
+    split: f64,
+    /// Drop patches whose transmittance falls below this, in (0, 1).
+    #[arg(long, default_value_t = 1e-4, allow_hyphen_values = true)]
+    threshold: f64,
+    /// Most patches alive at once.
+    #[arg(long, default_value_t = 8 << 20)]
+    max_patches: usize,
+    /// Print the summary as JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+fn light_json(l: &Light) -> Value {
+    match l {
+        Light::Directional { direction, power } => json!({
+            "type": "directional", "direction": direction.to_array(), "power": power.to_array(),
+            "power_unit": "W/m^2 across the beam",
+        }),
+        Light::Point { position, power } => json!({
+            "type": "point", "position": position.to_array(), "power": power.to_array(),
+            "power_unit": "W",
+        }),
+        Light::Spot {
+            position,
+            direction,
+            angle,
+            falloff,
+            power,
+        } => json!({
+            "type": "spot", "position": position.to_array(), "direction": direction.to_array(),
+            "angle_degrees": angle, "falloff_degrees": falloff, "power": power.to_array(),
+            "power_unit": "W (of the unrestricted point light)",
+        }),
+    }
+}
+
+/// The summary of one light as JSON.
+pub fn summary_json(s: &Summary, seconds: f64) -> Value {
+    json!({
+        "steps": s.steps,
+        "peak_patches": s.peak_patches,
+        "emitted": s.emitted,
+        "ended": {
+            "exited": s.exited,
+            "absorbed": s.absorbed,
+            "caustic": s.caustic,
+            "step_limit": s.step_limit,
+        },
+        "splits_held_back": s.held,
+        "energy_w": {
+            "entered": s.entered,
+            "absorbed": s.absorbed_power,
+            "exited": s.exited_power,
+            "culled": s.culled_power,
+            "imbalance_relative": s.energy_imbalance(),
+        },
+        "seconds": seconds,
+    })
+}
+
+fn print_summary(i: usize, s: &Summary, seconds: f64) {
+    let rgb = |v: [f64; 3]| format!("({:.6}, {:.6}, {:.6})", v[0], v[1], v[2]);
+    println!("light {i}");
+    println!("  steps          {}", s.steps);
+    println!(
+        "  peak patches   {} ({} emitted)",
+        s.peak_patches, s.emitted
+    );
+    println!(
+        "  patches ended  {} exited, {} absorbed, {} at caustics, {} at the step limit",
+        s.exited, s.absorbed, s.caustic, s.step_limit
+    );
+    if s.held > 0 {
+        println!("  held back      {} splits (--max-patches)", s.held);
+    }
+    println!("  entered        {} W", rgb(s.entered));
+    println!("  absorbed       {} W", rgb(s.absorbed_power));
+    println!("  exited         {} W", rgb(s.exited_power));
+    println!("  culled         {} W", rgb(s.culled_power));
+    println!(
+        "  imbalance      {:.2e} of the entered power",
+        s.energy_imbalance()
+    );
+    println!("  wall time      {seconds:.2} s");
+}
+
+fn write_npy<A: WriteNpyExt>(dir: &Path, name: &str, a: &A) -> Result<()> {
+    let path = dir.join(name);
+    write_atomic(&path, |w| {
+        a.write_npy(w)
+            .with_context(|| format!("{}: writing NumPy data", path.display()))
+    })
+}
+
+/// Run `eikon simulate`.
+pub fn run(args: Args) -> Result<()> {
+    let opts = Options {
+        step: args.step,
+        method: match args.integrator {
+            Integrator::Euler => Method::Euler,
+            Integrator::Rk4 => Method::Rk4,
+        },
+        patch_size: args.patch_size,
+        split: args.split,
+        threshold: args.threshold,
+        max_patches: args.max_patches,
+        ..Options::default()
+    };
+    if let Err(e) = opts.check() {
+        bail!("--{e}");
+    }
+    let scene = Scene::load(&args.scene)?;
+    let medium = build_medium(&scene)?;
+    check_scene(&scene, &medium, &opts)?;
+    if args.output.exists() && !args.output.is_dir() {
+        bail!("{}: exists and is not a directory", args.output.display());
+    }
+    let started = Instant::now();
+    let mut results: Vec<(LightVolume, Summary, f64)> = Vec::new();
+    for (i, light) in scene.lights.iter().enumerate() {
+        let bar = indicatif::ProgressBar::new_spinner();
+        bar.set_style(
+            indicatif::ProgressStyle::with_template("{spinner} light {prefix}: {msg} ({elapsed})")
+                .expect("valid template"),
+        );
+        bar.set_prefix(format!("{i}/{}", scene.lights.len()));
+        let t = Instant::now();
+        let (volume, summary) = simulate_light(light, &medium, &opts, &|step, live| {
+            bar.set_message(format!("step {step}, {live} live patches"));
+            bar.tick();
+        })?;
+        bar.finish_and_clear();
+        results.push((volume, summary, t.elapsed().as_secs_f64()));
+    }
+    let wall = started.elapsed().as_secs_f64();
+
+    // Write every volume, then the sidecar last: a directory with a sidecar
+    // is complete.
+    std::fs::create_dir_all(&args.output).with_context(|| {
+        format!(
+            "{}: cannot create the output directory",
+            args.output.display()
+        )
+    })?;
+    let g = &medium.geometry;
+    let mut lights = Vec::new();
+    for (i, ((volume, summary, secs), light)) in results.iter().zip(&scene.lights).enumerate() {
+        let irr = format!("light{i}_irradiance.npy");
+        let dir = format!("light{i}_direction.npy");
+        write_npy(&args.output, &irr, &volume.irradiance)?;
+        let shape: Vec<usize> = if volume.direction.len() == 1 {
+            write_npy(&args.output, &dir, &volume.direction[0])?;
+            volume.direction[0].shape().to_vec()
+        } else {
+            let views: Vec<_> = volume.direction.iter().map(Array4::view).collect();
+            let stacked: Array5<f32> = ndarray::stack(Axis(0), &views)?;
+            write_npy(&args.output, &dir, &stacked)?;
+            stacked.shape().to_vec()
+        };
+        let mut l = light_json(light);
+        l["irradiance_file"] = json!(irr);
+        l["direction_file"] = json!(dir);
+        l["direction_shape"] = json!(shape);
+        l["summary"] = summary_json(summary, *secs);
+        lights.push(l);
+    }
+    let sidecar = json!({
+        "format": "eikon-light-volumes",
+        "version": 1,
+        "scene": args.scene.display().to_string(),
+        "grid": {
+            "dims": g.dims,
+            "min": g.min.to_array(),
+            "max": g.max.to_array(),
+            "spacing": g.spacing().to_array(),
+            "convention": "array index [i, j, k] holds the value at the centre of cell (i, j, k): min + (i + 0.5, j + 0.5, k + 0.5) * spacing",
+        },
+        "units": {
+            "length": "world units of the scene",
+            "irradiance": "W/m^2: differential irradiance across the wavefront, highest-energy ray per cell; in-scattered radiance per unit length is albedo * sigma_t * phase(direction, view) * irradiance",
+            "direction": "unit vector of travel of the kept ray; shape (nx, ny, nz, 3), or (3, nx, ny, nz, 3) per R, G, B with dispersion",
+        },
+        "options": {
+            "step_voxels": opts.step,
+            "integrator": format!("{:?}", opts.method),
+            "patch_size_voxels": opts.patch_size,
+            "split_voxels": opts.split,
+            "threshold": opts.threshold,
+        },
+        "lights": lights,
+        "seconds": wall,
+    });
+    write_atomic(&args.output.join(SIDECAR), |w| {
+        serde_json::to_writer_pretty(&mut *w, &sidecar)?;
+        w.write_all(b"\n")?;
+        Ok(())
+    })?;
+    if args.json {
+        let summaries: Vec<Value> = results
+            .iter()
+            .map(|(_, s, secs)| summary_json(s, *secs))
+            .collect();
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&json!({
+                "output": args.output.display().to_string(),
+                "lights": summaries,
+                "seconds": wall,
+            }))?
+        );
+    } else {
+        for (i, (_, s, secs)) in results.iter().enumerate() {
+            print_summary(i, s, *secs);
+        }
+        println!(
+            "wrote {} light volume(s) to {} in {wall:.2} s",
+            results.len(),
+            args.output.display()
+        );
+    }
+    Ok(())
+}
