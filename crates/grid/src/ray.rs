@@ -86,6 +86,12 @@ struct Deriv {
 #[inline(always)]
 fn deriv<F: IndexField + ?Sized>(f: &F, form: Form, x: DVec3, v: DVec3) -> Deriv {
     let (n, g) = f.sample(x);
+    rhs(form, n, g, v)
+}
+
+/// The right-hand side from an index sample `(n, g)` already taken.
+#[inline(always)]
+fn rhs(form: Form, n: f64, g: DVec3, v: DVec3) -> Deriv {
     let inv = 1.0 / n;
     match form {
         // eq 9, eq 10; dL/ds = n by definition of optical path.
@@ -136,6 +142,46 @@ pub fn step_rk4<F: IndexField + ?Sized>(f: &F, form: Form, s: &mut RayState, h: 
         k[stage] = deriv(f, form, t.x, t.v);
     }
     rk4_combine(s, &k, h);
+}
+
+/// Put `s` back on the eikonal shell `|v| = n` (keeping its direction),
+/// with `n = sample.0` taken at `s.x`. In exact arithmetic the ray
+/// equation keeps `|v| = n`; numerically `|v|` drifts where the sampled
+/// gradient is not exactly that of the sampled n (thin, tilted
+/// interfaces), and in the equal-time form that drift is a drift of
+/// optical path: corners launched together would leave their wavefront.
+#[inline(always)]
+fn onto_shell(s: &mut RayState, n: f64) {
+    let len = s.v.length();
+    if len > 0.0 {
+        s.v *= n / len;
+    }
+}
+
+/// One RK4 step that starts by putting the state on the eikonal shell
+/// `|v| = n`, reusing the index sample of its first stage (no extra cost).
+/// Particles of one wavefront stepped with it in the equal-time form
+/// (eqs 14-15) all travel exactly `h` of optical path per step.
+#[inline]
+pub fn step_rk4_on_shell<F: IndexField + ?Sized>(f: &F, form: Form, s: &mut RayState, h: f64) {
+    let (n, g) = f.sample(s.x);
+    onto_shell(s, n);
+    let mut k = [Deriv::ZERO; 4];
+    k[0] = rhs(form, n, g, s.v);
+    for stage in 1..4 {
+        let t = rk4_stage_point(s, &k, stage, h);
+        k[stage] = deriv(f, form, t.x, t.v);
+    }
+    rk4_combine(s, &k, h);
+}
+
+/// Forward Euler after putting the state on the eikonal shell (see
+/// [`step_rk4_on_shell`]).
+#[inline]
+pub fn step_euler_on_shell<F: IndexField + ?Sized>(f: &F, form: Form, s: &mut RayState, h: f64) {
+    let (n, g) = f.sample(s.x);
+    onto_shell(s, n);
+    *s = apply(s, &rhs(form, n, g, s.v), h);
 }
 
 /// Where RK4 evaluates its `stage`-th slope, given the earlier slopes.

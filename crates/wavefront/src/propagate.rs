@@ -1,7 +1,8 @@
 //! Steps 1 and 2 of a simulation step: move every corner with the
 //! equal-time ray equation (eqs 14-15), attenuate the flux along the way
 //! (eq 18), then recompute each patch's differential irradiance from its
-//! new area (eq 17).
+//! new area (eq 17). Corners are kept on the eikonal shell `|v| = n`
+//! (`ray::step_rk4_on_shell`), which makes equal time equal optical path.
 //!
 //! # The attenuation integral
 //! Eq 18's `int sigma_t / n dt` is taken along the patch's central path,
@@ -12,7 +13,7 @@
 //! optical depth. Outside the volume bounds sigma_t is zero.
 
 use crate::patch::{area, Patches};
-use eikon_grid::ray::{step_euler, step_rk4};
+use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
 use eikon_grid::{Form, GridGeometry, IndexField, Medium, Method, RayState, VoxelField};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -83,9 +84,11 @@ pub fn propagate(
             let mid = |s: [&RayState; 4]| (s[0].x + s[1].x + s[2].x + s[3].x) * 0.25;
             let before = extinction_per_index(medium, field, mid([a, b, c, d]));
             for s in [&mut *a, &mut *b, &mut *c, &mut *d] {
+                // On the shell |v| = n, so each corner advances exactly dt
+                // of optical path and the four stay on one wavefront.
                 match method {
-                    Method::Euler => step_euler(field, Form::EqualTime, s, dt),
-                    _ => step_rk4(field, Form::EqualTime, s, dt),
+                    Method::Euler => step_euler_on_shell(field, Form::EqualTime, s, dt),
+                    _ => step_rk4_on_shell(field, Form::EqualTime, s, dt),
                 }
             }
             let after = extinction_per_index(medium, field, mid([a, b, c, d]));
