@@ -257,6 +257,7 @@ fn wavefront_drift(text: &str, length: f64, step: f64) -> (f64, f64, usize) {
     let g = &m.geometry;
     let h = g.voxel_size();
     let field = propagate::Bounded::new(&m, 0);
+    let empty = eikon_grid::EmptySpace::new(&m, 0);
     let mut p = Patches::default();
     light::emit(&scene.lights[0], g, &field, h, [1.0; 3], &mut p);
     let d0 = p.direction(0);
@@ -270,6 +271,7 @@ fn wavefront_drift(text: &str, length: f64, step: f64) -> (f64, f64, usize) {
             &mut p,
             &m,
             &field,
+            &empty,
             eikon_grid::Method::Rk4,
             dt,
             &mut absorbed,

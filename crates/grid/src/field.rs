@@ -321,6 +321,84 @@ impl Medium {
     }
 }
 
+/// Coarse map of the empty space of a medium, for skipping it: blocks of
+/// `BLOCK^3` cells where, out to one cell beyond the block, the index is
+/// one constant, its gradient is zero and nothing absorbs, scatters or
+/// emits. Any trilinear sample taken within a cell of such a block sees
+/// exactly that constant, so a ray there goes straight and loses nothing,
+/// and may be moved without sampling at all.
+#[derive(Clone, Debug)]
+pub struct EmptySpace {
+    dims: [usize; 3],
+    min: DVec3,
+    inv_block: DVec3,
+    /// The block's uniform index, or NaN where the block is not empty.
+    n: Vec<f32>,
+}
+
+impl EmptySpace {
+    /// Cells per block edge.
+    pub const BLOCK: usize = 4;
+
+    /// The empty space of index channel `channel` of `medium`.
+    pub fn new(medium: &Medium, channel: usize) -> Self {
+        let b = Self::BLOCK;
+        let g = &medium.geometry;
+        let dims = g.dims.map(|d| d.div_ceil(b));
+        let idx = &medium.index[channel];
+        let clear = |i: usize, j: usize, k: usize| -> bool {
+            (1..4).all(|c| idx[[i, j, k, c]] == 0.0)
+                && (0..3).all(|c| {
+                    medium.extinction[[i, j, k, c]] == 0.0 && medium.emission[[i, j, k, c]] == 0.0
+                })
+        };
+        let mut n = vec![f32::NAN; dims[0] * dims[1] * dims[2]];
+        n.par_iter_mut().enumerate().for_each(|(flat, out)| {
+            let (bi, bj, bk) = (flat / (dims[1] * dims[2]), (flat / dims[2]) % dims[1], flat % dims[2]);
+            // The block and a margin of one cell around it.
+            let span = |bx: usize, a: usize| (bx * b).saturating_sub(1)..((bx + 1) * b + 1).min(g.dims[a]);
+            let n0 = idx[[bi * b, bj * b, bk * b, 0]];
+            for i in span(bi, 0) {
+                for j in span(bj, 1) {
+                    for k in span(bk, 2) {
+                        if idx[[i, j, k, 0]] != n0 || !clear(i, j, k) {
+                            return;
+                        }
+                    }
+                }
+            }
+            *out = n0;
+        });
+        Self {
+            dims,
+            min: g.min,
+            inv_block: 1.0 / (g.spacing() * b as f64),
+            n,
+        }
+    }
+
+    /// The uniform index around `p` if `p` lies in an empty block inside
+    /// the grid, else `None`.
+    #[inline(always)]
+    pub fn index_at(&self, p: DVec3) -> Option<f64> {
+        let u = (p - self.min) * self.inv_block;
+        if !(u.x >= 0.0 && u.y >= 0.0 && u.z >= 0.0) {
+            return None;
+        }
+        let (i, j, k) = (u.x as usize, u.y as usize, u.z as usize);
+        if i >= self.dims[0] || j >= self.dims[1] || k >= self.dims[2] {
+            return None;
+        }
+        let n = self.n[(i * self.dims[1] + j) * self.dims[2] + k];
+        (!n.is_nan()).then_some(n as f64)
+    }
+
+    /// Fraction of blocks that are empty.
+    pub fn empty_fraction(&self) -> f64 {
+        self.n.iter().filter(|x| !x.is_nan()).count() as f64 / self.n.len() as f64
+    }
+}
+
 /// Trilinear sampling of one voxelized index channel and its stored gradient.
 #[derive(Clone, Copy, Debug)]
 pub struct VoxelField<'a> {
@@ -513,6 +591,40 @@ priority = 1
         assert_eq!(e(1.5), DVec3::ZERO);
         assert_eq!(e(2.0), DVec3::new(1.0, 2.0, 3.0));
         assert_eq!(e(3.9), DVec3::new(2.0, 4.0, 6.0));
+    }
+
+    #[test]
+    fn empty_space_is_found_around_objects_only() {
+        let m = medium(
+            "[grid]\nresolution = 32\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n[[object]]\nshape = { type = \"sphere\", center = [0, 0, 0], radius = 0.3 }\nindex = 1.5\n",
+        );
+        let e = EmptySpace::new(&m, 0);
+        assert_eq!(e.index_at(DVec3::new(0.9, 0.9, 0.9)), Some(1.0));
+        assert_eq!(e.index_at(DVec3::ZERO), None);
+        assert_eq!(e.index_at(DVec3::new(0.32, 0.0, 0.0)), None);
+        assert_eq!(e.index_at(DVec3::new(1.5, 0.0, 0.0)), None);
+        // Wherever it claims emptiness, sampling agrees exactly.
+        let f = m.field(0);
+        for i in 0..4000 {
+            let t = |k: u32| ((i * 7919 + k * 104_729) % 1000) as f64 / 500.0 - 1.0;
+            let p = DVec3::new(t(1), t(2), t(3));
+            if let Some(n) = e.index_at(p) {
+                let (fn_, g) = f.sample(p);
+                assert_eq!((fn_, g), (n, DVec3::ZERO), "at {p}");
+            }
+        }
+        // Every block whose cells (and margin) lie beyond the smoothed
+        // surface (radius + 3 sigma + supersampling + margin < 6 cells) is
+        // found empty.
+        let h = m.geometry.voxel_size();
+        let blk = EmptySpace::BLOCK as f64 * h;
+        for (bi, bj, bk) in (0..8).flat_map(|i| (0..8).flat_map(move |j| (0..8).map(move |k| (i, j, k)))) {
+            let c = m.geometry.min + (DVec3::new(bi as f64, bj as f64, bk as f64) + 0.5) * blk;
+            if c.length() - 0.5 * blk * 3f64.sqrt() > 0.3 + 6.0 * h {
+                assert!(e.index_at(c).is_some(), "block at {c} should be empty");
+            }
+        }
+        assert!(e.empty_fraction() > 0.5, "{}", e.empty_fraction());
     }
 
     #[test]

@@ -22,7 +22,7 @@ mod smooth;
 mod voxelize;
 
 pub use error::{Error, Location, Result};
-pub use field::{AnalyticField, Medium, MemoryEstimate, VoxelField};
+pub use field::{AnalyticField, EmptySpace, Medium, MemoryEstimate, VoxelField};
 pub use geometry::GridGeometry;
 pub use object::{IndexProfile, Material, Object};
 pub use ray::{

@@ -272,6 +272,7 @@ pub fn simulate_light(
             (m, Some(g))
         };
         let field = propagate::Bounded::new(medium, g);
+        let empty = eikon_grid::EmptySpace::new(medium, g);
         p.clear();
         let entered = light::emit(light, grid, &field, opts.patch_size * h, mask, &mut p);
         add(&mut summary.entered, &entered);
@@ -303,17 +304,17 @@ pub fn simulate_light(
                 break;
             }
         }
-        volume.deposit(&p, medium, group);
+        volume.deposit(&p, medium, &empty, group);
         let mut step = 0;
         while !p.is_empty() && step < max_steps {
             step += 1;
-            propagate::propagate(&mut p, medium, &field, opts.method, dt, &mut absorbed);
+            propagate::propagate(&mut p, medium, &field, &empty, opts.method, dt, &mut absorbed);
             for a in &absorbed {
                 add(&mut summary.absorbed_power, a);
             }
             propagate::irradiance(&mut p);
             refine(&mut p, &mut summary);
-            volume.deposit(&p, medium, group);
+            volume.deposit(&p, medium, &empty, group);
             summary.peak_patches = summary.peak_patches.max(p.len());
             progress(step, p.len());
         }

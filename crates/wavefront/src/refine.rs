@@ -156,6 +156,10 @@ pub fn refine<F: IndexField + ?Sized>(
         _ => 0,
     }));
 
+    if kept == n {
+        // Every patch retained: the list stands as it is.
+        return ended;
+    }
     scratch.pyramid.build(&scratch.counts);
     scratch
         .pyramid

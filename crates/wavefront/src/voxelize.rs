@@ -21,7 +21,7 @@
 //! phase function `p` in 1/sr, per unit length of the eye ray.
 
 use crate::patch::{area, Patches};
-use eikon_grid::{GridGeometry, Medium};
+use eikon_grid::{EmptySpace, GridGeometry, Medium};
 use ndarray::{Array3, Array4};
 
 /// The light volume of one light source.
@@ -54,7 +54,7 @@ impl LightVolume {
     /// Deposit every patch of a wavefront. `group` is the wavefront's
     /// colour channel with dispersion (it writes that channel only), or
     /// `None` for a wavefront carrying all three.
-    pub fn deposit(&mut self, p: &Patches, medium: &Medium, group: Option<usize>) {
+    pub fn deposit(&mut self, p: &Patches, medium: &Medium, empty: &EmptySpace, group: Option<usize>) {
         let grid = &medium.geometry;
         let inv = 1.0 / grid.spacing();
         let dims = grid.dims;
@@ -79,7 +79,11 @@ impl LightVolume {
             if ar.is_nan() || ar <= 0.0 {
                 continue;
             }
-            let ext = medium.sample_rgb(&medium.extinction, mid);
+            let ext = if empty.index_at(mid).is_some() {
+                glam::DVec3::ZERO
+            } else {
+                medium.sample_rgb(&medium.extinction, mid)
+            };
             let e = [0, 1, 2].map(|c| p.flux[i][c] * (-ext[c] * s).exp() / ar);
             let key = match group {
                 None => (e[0] + e[1] + e[2]) as f32,
