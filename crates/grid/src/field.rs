@@ -354,9 +354,14 @@ impl EmptySpace {
         };
         let mut n = vec![f32::NAN; dims[0] * dims[1] * dims[2]];
         n.par_iter_mut().enumerate().for_each(|(flat, out)| {
-            let (bi, bj, bk) = (flat / (dims[1] * dims[2]), (flat / dims[2]) % dims[1], flat % dims[2]);
+            let (bi, bj, bk) = (
+                flat / (dims[1] * dims[2]),
+                (flat / dims[2]) % dims[1],
+                flat % dims[2],
+            );
             // The block and a margin of one cell around it.
-            let span = |bx: usize, a: usize| (bx * b).saturating_sub(1)..((bx + 1) * b + 1).min(g.dims[a]);
+            let span =
+                |bx: usize, a: usize| (bx * b).saturating_sub(1)..((bx + 1) * b + 1).min(g.dims[a]);
             let n0 = idx[[bi * b, bj * b, bk * b, 0]];
             for i in span(bi, 0) {
                 for j in span(bj, 1) {
@@ -618,7 +623,9 @@ priority = 1
         // found empty.
         let h = m.geometry.voxel_size();
         let blk = EmptySpace::BLOCK as f64 * h;
-        for (bi, bj, bk) in (0..8).flat_map(|i| (0..8).flat_map(move |j| (0..8).map(move |k| (i, j, k)))) {
+        for (bi, bj, bk) in
+            (0..8).flat_map(|i| (0..8).flat_map(move |j| (0..8).map(move |k| (i, j, k))))
+        {
             let c = m.geometry.min + (DVec3::new(bi as f64, bj as f64, bk as f64) + 0.5) * blk;
             if c.length() - 0.5 * blk * 3f64.sqrt() > 0.3 + 6.0 * h {
                 assert!(e.index_at(c).is_some(), "block at {c} should be empty");

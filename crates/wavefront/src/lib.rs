@@ -308,7 +308,15 @@ pub fn simulate_light(
         let mut step = 0;
         while !p.is_empty() && step < max_steps {
             step += 1;
-            propagate::propagate(&mut p, medium, &field, &empty, opts.method, dt, &mut absorbed);
+            propagate::propagate(
+                &mut p,
+                medium,
+                &field,
+                &empty,
+                opts.method,
+                dt,
+                &mut absorbed,
+            );
             for a in &absorbed {
                 add(&mut summary.absorbed_power, a);
             }

@@ -14,7 +14,9 @@
 
 use crate::patch::{area, Patches};
 use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
-use eikon_grid::{EmptySpace, Form, GridGeometry, IndexField, Medium, Method, RayState, VoxelField};
+use eikon_grid::{
+    EmptySpace, Form, GridGeometry, IndexField, Medium, Method, RayState, VoxelField,
+};
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -89,7 +91,10 @@ pub fn propagate(
             // in a constant index without loss, taken without sampling.
             let m0 = mid([a, b, c, d]);
             if let Some(n) = empty.index_at(m0) {
-                if [&*a, &*b, &*c, &*d].iter().all(|s| empty.index_at(s.x) == Some(n)) {
+                if [&*a, &*b, &*c, &*d]
+                    .iter()
+                    .all(|s| empty.index_at(s.x) == Some(n))
+                {
                     for s in [&mut *a, &mut *b, &mut *c, &mut *d] {
                         s.v = s.v.normalize_or_zero() * n;
                         s.x += s.v * (dt / (n * n));

@@ -54,7 +54,13 @@ impl LightVolume {
     /// Deposit every patch of a wavefront. `group` is the wavefront's
     /// colour channel with dispersion (it writes that channel only), or
     /// `None` for a wavefront carrying all three.
-    pub fn deposit(&mut self, p: &Patches, medium: &Medium, empty: &EmptySpace, group: Option<usize>) {
+    pub fn deposit(
+        &mut self,
+        p: &Patches,
+        medium: &Medium,
+        empty: &EmptySpace,
+        group: Option<usize>,
+    ) {
         let grid = &medium.geometry;
         let inv = 1.0 / grid.spacing();
         let dims = grid.dims;
