@@ -103,23 +103,32 @@ pub fn run(args: Args) -> Result<()> {
             Ok(a)
         };
         let irr = file("irradiance_file")?;
-        let dir = file("direction_file")?;
+        // Photon volumes carry no direction.
+        let dir = if l["direction_file"].is_null() {
+            None
+        } else {
+            Some(file("direction_file")?)
+        };
         let shape_ok = |a: &ArrayD<f32>, lead: usize| {
             a.ndim() == 4 + lead && a.shape()[lead..lead + 3] == dims && a.shape()[lead + 3] == 3
         };
-        if !shape_ok(&irr, 0) || !(shape_ok(&dir, 0) || shape_ok(&dir, 1)) {
+        if !shape_ok(&irr, 0)
+            || dir
+                .as_ref()
+                .is_some_and(|d| !(shape_ok(d, 0) || shape_ok(d, 1)))
+        {
             bail!(
                 "{}: light {i}: arrays do not match grid.dims {dims:?}",
                 args.volumes.display()
             );
         }
         let e = trilinear(&irr, &[], dims, u);
-        let directions: Vec<DVec3> = if dir.ndim() == 4 {
-            vec![trilinear(&dir, &[], dims, u).normalize_or_zero()]
-        } else {
-            (0..dir.shape()[0])
-                .map(|c| trilinear(&dir, &[c], dims, u).normalize_or_zero())
-                .collect()
+        let directions: Vec<DVec3> = match &dir {
+            None => Vec::new(),
+            Some(d) if d.ndim() == 4 => vec![trilinear(d, &[], dims, u).normalize_or_zero()],
+            Some(d) => (0..d.shape()[0])
+                .map(|c| trilinear(d, &[c], dims, u).normalize_or_zero())
+                .collect(),
         };
         out.push((e, directions));
     }

@@ -4,6 +4,7 @@ use crate::output::{build_medium, write_atomic};
 use anyhow::{bail, Context, Result};
 use clap::ValueEnum;
 use eikon_grid::{Light, Method, Scene};
+use eikon_wavefront::photons::simulate_photons;
 use eikon_wavefront::{check_scene, simulate_light, LightVolume, Options, Summary};
 use ndarray::{Array4, Array5, Axis};
 use ndarray_npy::WriteNpyExt;
@@ -11,8 +12,25 @@ use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+/// What one light's simulation produced.
+enum Volumes {
+    /// Irradiance and direction volumes.
+    Wavefront(LightVolume),
+    /// The photon estimate of the irradiance.
+    Photons(Array4<f32>),
+}
+
 /// The sidecar that describes a light-volume directory.
 pub const SIDECAR: &str = "light_volumes.json";
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum SimMethod {
+    /// Adaptive wavefront tracing (the paper's method).
+    Wavefront,
+    /// Brute-force photons with a track-length histogram: the baseline and
+    /// cross-check (no direction volume).
+    Photons,
+}
 
 #[derive(Clone, Copy, ValueEnum)]
 enum Integrator {
@@ -48,6 +66,17 @@ pub struct Args {
     /// Most patches alive at once.
     #[arg(long, default_value_t = 8 << 20)]
     max_patches: usize,
+    /// Light transport method.
+    #[arg(long, value_enum, default_value = "wavefront")]
+    method: SimMethod,
+    /// Photons per light (per colour channel with dispersion), with
+    /// `--method photons`.
+    #[arg(long, default_value_t = 1_000_000)]
+    count: usize,
+    /// Random seed of `--method photons`: the same seed gives the same
+    /// volumes whatever the number of threads.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
     /// Print the summary as JSON.
     #[arg(long)]
     json: bool,
@@ -152,6 +181,9 @@ pub fn run(args: Args) -> Result<()> {
     if let Err(e) = opts.check() {
         bail!("--{e}");
     }
+    if args.method == SimMethod::Photons && args.count == 0 {
+        bail!("--count: need at least one photon");
+    }
     let scene = Scene::load(&args.scene)?;
     let medium = build_medium(&scene)?;
     check_scene(&scene, &medium, &opts)?;
@@ -159,7 +191,7 @@ pub fn run(args: Args) -> Result<()> {
         bail!("{}: exists and is not a directory", args.output.display());
     }
     let started = Instant::now();
-    let mut results: Vec<(LightVolume, Summary, f64)> = Vec::new();
+    let mut results: Vec<(Volumes, Summary, f64)> = Vec::new();
     for (i, light) in scene.lights.iter().enumerate() {
         let bar = indicatif::ProgressBar::new_spinner();
         bar.set_style(
@@ -168,10 +200,21 @@ pub fn run(args: Args) -> Result<()> {
         );
         bar.set_prefix(format!("{i}/{}", scene.lights.len()));
         let t = Instant::now();
-        let (volume, summary) = simulate_light(light, &medium, &opts, &|step, live| {
-            bar.set_message(format!("step {step}, {live} live patches"));
-            bar.tick();
-        })?;
+        let (volume, summary) = match args.method {
+            SimMethod::Wavefront => {
+                let (v, s) = simulate_light(light, &medium, &opts, &|step, live| {
+                    bar.set_message(format!("step {step}, {live} live patches"));
+                    bar.tick();
+                })?;
+                (Volumes::Wavefront(v), s)
+            }
+            SimMethod::Photons => {
+                bar.set_message(format!("tracing {} photons", args.count));
+                bar.enable_steady_tick(std::time::Duration::from_millis(200));
+                let (v, s) = simulate_photons(light, &medium, args.count, args.seed, &opts)?;
+                (Volumes::Photons(v.irradiance), s)
+            }
+        };
         bar.finish_and_clear();
         results.push((volume, summary, t.elapsed().as_secs_f64()));
     }
@@ -189,21 +232,26 @@ pub fn run(args: Args) -> Result<()> {
     let mut lights = Vec::new();
     for (i, ((volume, summary, secs), light)) in results.iter().zip(&scene.lights).enumerate() {
         let irr = format!("light{i}_irradiance.npy");
-        let dir = format!("light{i}_direction.npy");
-        write_npy(&args.output, &irr, &volume.irradiance)?;
-        let shape: Vec<usize> = if volume.direction.len() == 1 {
-            write_npy(&args.output, &dir, &volume.direction[0])?;
-            volume.direction[0].shape().to_vec()
-        } else {
-            let views: Vec<_> = volume.direction.iter().map(Array4::view).collect();
-            let stacked: Array5<f32> = ndarray::stack(Axis(0), &views)?;
-            write_npy(&args.output, &dir, &stacked)?;
-            stacked.shape().to_vec()
-        };
         let mut l = light_json(light);
         l["irradiance_file"] = json!(irr);
-        l["direction_file"] = json!(dir);
-        l["direction_shape"] = json!(shape);
+        match volume {
+            Volumes::Wavefront(volume) => {
+                write_npy(&args.output, &irr, &volume.irradiance)?;
+                let dir = format!("light{i}_direction.npy");
+                let shape: Vec<usize> = if volume.direction.len() == 1 {
+                    write_npy(&args.output, &dir, &volume.direction[0])?;
+                    volume.direction[0].shape().to_vec()
+                } else {
+                    let views: Vec<_> = volume.direction.iter().map(Array4::view).collect();
+                    let stacked: Array5<f32> = ndarray::stack(Axis(0), &views)?;
+                    write_npy(&args.output, &dir, &stacked)?;
+                    stacked.shape().to_vec()
+                };
+                l["direction_file"] = json!(dir);
+                l["direction_shape"] = json!(shape);
+            }
+            Volumes::Photons(irradiance) => write_npy(&args.output, &irr, irradiance)?,
+        }
         l["summary"] = summary_json(summary, *secs);
         lights.push(l);
     }
@@ -220,8 +268,12 @@ pub fn run(args: Args) -> Result<()> {
         },
         "units": {
             "length": "world units of the scene",
-            "irradiance": "W/m^2: differential irradiance across the wavefront, highest-energy ray per cell; in-scattered radiance per unit length is albedo * sigma_t * phase(direction, view) * irradiance",
+            "irradiance": "W/m^2: wavefront: differential irradiance across the wavefront, highest-energy ray per cell (in-scattered radiance per unit length is albedo * sigma_t * phase(direction, view) * irradiance); photons: fluence rate, the cell average of the summed irradiance of all rays",
             "direction": "unit vector of travel of the kept ray; shape (nx, ny, nz, 3), or (3, nx, ny, nz, 3) per R, G, B with dispersion",
+        },
+        "method": match args.method {
+            SimMethod::Wavefront => "wavefront",
+            SimMethod::Photons => "photons",
         },
         "options": {
             "step_voxels": opts.step,
@@ -229,6 +281,8 @@ pub fn run(args: Args) -> Result<()> {
             "patch_size_voxels": opts.patch_size,
             "split_voxels": opts.split,
             "threshold": opts.threshold,
+            "photons": (args.method == SimMethod::Photons).then_some(args.count),
+            "seed": (args.method == SimMethod::Photons).then_some(args.seed),
         },
         "lights": lights,
         "seconds": wall,

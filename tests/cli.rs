@@ -419,3 +419,63 @@ fn simulate_refuses_bad_input_without_writing() {
     );
     assert!(!out.exists(), "no output may be written on failure");
 }
+
+#[test]
+fn simulate_with_photons_agrees_with_the_wavefront_in_free_space() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_scene(dir.path(), "lit.toml", LIT);
+    let out = dir.path().join("photons");
+    let run = eikon(&[
+        "simulate",
+        scene.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--method",
+        "photons",
+        "--count",
+        "200000",
+        "--seed",
+        "7",
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("light_volumes.json")).unwrap())
+            .unwrap();
+    assert_eq!(meta["method"], "photons");
+    assert!(meta["lights"][0]["direction_file"].is_null());
+    let probe = eikon(&[
+        "probe",
+        out.to_str().unwrap(),
+        "--at",
+        "-0.5,0.4,0.3",
+        "--json",
+    ]);
+    assert!(
+        probe.status.success(),
+        "{}",
+        String::from_utf8_lossy(&probe.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&probe.stdout).unwrap();
+    let e = v["lights"][0]["irradiance"][0].as_f64().unwrap();
+    let r2 = 0.6f64.powi(2) + 0.35f64.powi(2) + 0.32f64.powi(2);
+    let want = 4.0 / (4.0 * std::f64::consts::PI * r2);
+    // 200k photons over 32^3 cells: a few hundred crossings per cell.
+    assert!((e / want - 1.0).abs() < 0.1, "{e} vs {want}");
+    expect_error(
+        &[
+            "simulate",
+            scene.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--method",
+            "photons",
+            "--count",
+            "0",
+        ],
+        &["--count"],
+    );
+}

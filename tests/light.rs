@@ -1,16 +1,13 @@
 //! Physics tests of the light simulation (adaptive wavefront tracing)
 //! against analytic optics.
 
+mod common;
+
+use common::{medium, GLASS_SPHERE};
 use eikon_grid::{Medium, Scene};
 use eikon_wavefront::{simulate_light, LightVolume, Options, Summary};
 use glam::DVec3;
 use std::f64::consts::PI;
-
-fn medium(text: &str) -> (Scene, Medium) {
-    let scene = Scene::parse(text, "test").unwrap();
-    let m = Medium::build(&scene).unwrap();
-    (scene, m)
-}
 
 fn run(scene: &Scene, m: &Medium, light: usize) -> (LightVolume, Summary) {
     simulate_light(&scene.lights[light], m, &Options::default(), &|_, _| {}).unwrap()
@@ -94,37 +91,6 @@ fn plane_wave_decays_by_beer_lambert() {
     assert_eq!(vol.direction[0][[5, 6, 7, 0]], 1.0);
     assert!(summary.energy_imbalance() < 1e-9, "{summary:?}");
 }
-
-const GLASS_SPHERE: &str = r#"
-[grid]
-resolution = 64
-min = [-1, -1, -1]
-max = [1, 1, 1]
-
-[[object]]
-shape = { type = "sphere", center = [0.02, 0.1, -0.01], radius = 0.5 }
-index = 1.5
-extinction = [0.3, 0.6, 0.9]
-albedo = [0.5, 0.5, 0.5]
-
-[[light]]
-type = "directional"
-direction = [0.2, -1.0, 0.1]
-power = [1, 1, 1]
-
-[[light]]
-type = "point"
-position = [0.7, 0.8, -0.6]
-power = [5, 5, 5]
-
-[[light]]
-type = "spot"
-position = [-1.5, 0.3, 0.2]
-direction = [1, -0.2, 0]
-angle = 30
-falloff = 5
-power = [20, 10, 5]
-"#;
 
 #[test]
 fn energy_is_accounted_for() {

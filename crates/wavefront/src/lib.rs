@@ -14,12 +14,15 @@
 //! 4. [`deposit`](voxelize::LightVolume::deposit): each patch deposits its midpoint's
 //!    irradiance and direction into the light volume, highest energy first.
 //!
+//! [`photons`] is the brute-force baseline: photons with a track-length histogram.
+//!
 //! Everything is deterministic: the same scene gives the same volumes
 //! whatever the number of threads.
 
 pub mod histopyramid;
 pub mod light;
 pub mod patch;
+pub mod photons;
 pub mod propagate;
 pub mod refine;
 pub mod voxelize;

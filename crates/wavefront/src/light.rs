@@ -21,11 +21,11 @@ use glam::DVec3;
 use std::f64::consts::PI;
 
 /// Distance a patch starts before the bounds, in voxels.
-const MARGIN_VOXELS: f64 = 0.5;
+pub(crate) const MARGIN_VOXELS: f64 = 0.5;
 /// Fewest patches along a cube-sphere face.
 const MIN_FACE_PATCHES: usize = 16;
 /// Radius, in voxels, of the sphere a point light inside the volume starts on.
-const INNER_RADIUS_VOXELS: f64 = 1.0;
+pub(crate) const INNER_RADIUS_VOXELS: f64 = 1.0;
 
 /// Emit the initial wavefront of `light` into `out`, scaled per colour
 /// channel by `mask` (1 for channels this wavefront carries). Patches are
@@ -92,6 +92,42 @@ fn start<F: IndexField + ?Sized>(field: &F, x: DVec3, dir: DVec3) -> RayState {
     RayState::new(x, dir, field.sample(x).0)
 }
 
+/// Where a directional light's wavefront is emitted from: the plane
+/// normal to its direction `d` that first touches the volume, in the
+/// orthonormal frame `(u, w, d)` with `u x w = d` (so corners listed
+/// counter-clockwise in `(u, w)` face along `d`), with the ranges `a` and
+/// `b` of the volume's projection onto `u` and `w`.
+pub(crate) struct PlaneFrame {
+    pub u: DVec3,
+    pub w: DVec3,
+    pub a: (f64, f64),
+    pub b: (f64, f64),
+    /// Offset of the plane along `d`.
+    pub s0: f64,
+}
+
+impl PlaneFrame {
+    pub(crate) fn new(d: DVec3, grid: &GridGeometry) -> Self {
+        let u = perpendicular(d);
+        let w = d.cross(u);
+        let cs = corners_of(grid);
+        let range = |axis: DVec3| {
+            cs.iter()
+                .map(|c| c.dot(axis))
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+                    (lo.min(x), hi.max(x))
+                })
+        };
+        Self {
+            u,
+            w,
+            a: range(u),
+            b: range(w),
+            s0: range(d).0,
+        }
+    }
+}
+
 fn directional<F: IndexField + ?Sized>(
     d: DVec3,
     irradiance: DVec3,
@@ -101,21 +137,13 @@ fn directional<F: IndexField + ?Sized>(
     mask: [f64; 3],
     out: &mut Patches,
 ) {
-    // Orthonormal (u, w, d) with u x w = d, so corners listed
-    // counter-clockwise in (u, w) face along d.
-    let u = perpendicular(d);
-    let w = d.cross(u);
-    let cs = corners_of(grid);
-    let range = |axis: DVec3| {
-        cs.iter()
-            .map(|c| c.dot(axis))
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
-                (lo.min(x), hi.max(x))
-            })
-    };
-    let (a0, a1) = range(u);
-    let (b0, b1) = range(w);
-    let (s0, _) = range(d);
+    let PlaneFrame {
+        u,
+        w,
+        a: (a0, a1),
+        b: (b0, b1),
+        s0,
+    } = PlaneFrame::new(d, grid);
     let na = ((a1 - a0) / size).ceil().max(1.0) as usize;
     let nb = ((b1 - b0) / size).ceil().max(1.0) as usize;
     let margin = MARGIN_VOXELS * grid.voxel_size();
@@ -149,7 +177,7 @@ fn triangle_solid_angle(a: DVec3, b: DVec3, c: DVec3) -> f64 {
 
 /// Spot weight of direction `dir`: 1 inside the cone, a smoothstep across
 /// the `falloff` band at its edge, 0 outside.
-fn cone_weight(dir: DVec3, cone: Option<(DVec3, f64, f64)>) -> f64 {
+pub(crate) fn cone_weight(dir: DVec3, cone: Option<(DVec3, f64, f64)>) -> f64 {
     let Some((axis, angle, falloff)) = cone else {
         return 1.0;
     };

@@ -23,6 +23,66 @@
 use crate::patch::{area, Patches};
 use eikon_grid::{EmptySpace, GridGeometry, Medium};
 use ndarray::{Array3, Array4};
+use rayon::prelude::*;
+
+/// What one patch leaves in the volume this step.
+#[derive(Clone, Copy, Debug)]
+struct Deposit {
+    /// Flat cell index.
+    cell: u32,
+    /// Energy compared by the highest-energy rule.
+    key: f32,
+    irradiance: [f32; 3],
+    direction: [f32; 3],
+}
+
+/// The deposit of patch `i`: its irradiance carried to the centre of the
+/// cell holding its midpoint (see the module docs), or `None` outside.
+fn deposit_of(
+    p: &Patches,
+    i: usize,
+    medium: &Medium,
+    empty: &EmptySpace,
+    group: Option<usize>,
+) -> Option<Deposit> {
+    let grid = &medium.geometry;
+    let dims = grid.dims;
+    let mid = p.midpoint(i);
+    let u = (mid - grid.min) / grid.spacing();
+    if !(u.cmpge(glam::DVec3::ZERO).all()) {
+        return None;
+    }
+    let (x, y, z) = (u.x as usize, u.y as usize, u.z as usize);
+    if x >= dims[0] || y >= dims[1] || z >= dims[2] {
+        return None;
+    }
+    let d = p.direction(i);
+    let s = d.dot(grid.voxel_center(x, y, z) - mid);
+    let moved = [0, 1, 2, 3].map(|c| {
+        let r = &p.corner[c][i];
+        r.x + r.v.normalize_or_zero() * s
+    });
+    let ar = area(&moved);
+    if ar.is_nan() || ar <= 0.0 {
+        return None;
+    }
+    let ext = if empty.index_at(mid).is_some() {
+        glam::DVec3::ZERO
+    } else {
+        medium.sample_rgb(&medium.extinction, mid)
+    };
+    let e = [0, 1, 2].map(|c| p.flux[i][c] * (-ext[c] * s).exp() / ar);
+    let key = match group {
+        None => e[0] + e[1] + e[2],
+        Some(c) => e[c],
+    };
+    Some(Deposit {
+        cell: ((x * dims[1] + y) * dims[2] + z) as u32,
+        key: key as f32,
+        irradiance: e.map(|v| v as f32),
+        direction: [d.x as f32, d.y as f32, d.z as f32],
+    })
+}
 
 /// The light volume of one light source.
 #[derive(Clone, Debug)]
@@ -35,6 +95,8 @@ pub struct LightVolume {
     pub direction: Vec<Array4<f32>>,
     /// Energy of the ray kept so far, per cell and wavefront group.
     best: Vec<Array3<f32>>,
+    /// This step's deposits, reused from step to step.
+    pending: Vec<Option<Deposit>>,
 }
 
 impl LightVolume {
@@ -48,12 +110,16 @@ impl LightVolume {
                 .map(|_| Array4::zeros((nx, ny, nz, 3)))
                 .collect(),
             best: (0..groups).map(|_| Array3::zeros((nx, ny, nz))).collect(),
+            pending: Vec::new(),
         }
     }
 
     /// Deposit every patch of a wavefront. `group` is the wavefront's
     /// colour channel with dispersion (it writes that channel only), or
     /// `None` for a wavefront carrying all three.
+    ///
+    /// The deposits are computed in parallel, then applied in patch order,
+    /// so the result does not depend on the number of threads.
     pub fn deposit(
         &mut self,
         p: &Patches,
@@ -61,52 +127,26 @@ impl LightVolume {
         empty: &EmptySpace,
         group: Option<usize>,
     ) {
-        let grid = &medium.geometry;
-        let inv = 1.0 / grid.spacing();
-        let dims = grid.dims;
+        (0..p.len())
+            .into_par_iter()
+            .map(|i| deposit_of(p, i, medium, empty, group))
+            .collect_into_vec(&mut self.pending);
         let g = group.unwrap_or(0);
-        for i in 0..p.len() {
-            let mid = p.midpoint(i);
-            let u = (mid - grid.min) * inv;
-            if !(u.cmpge(glam::DVec3::ZERO).all()) {
+        let best = self.best[g].as_slice_mut().expect("contiguous");
+        let irr = self.irradiance.as_slice_mut().expect("contiguous");
+        let dir = self.direction[g].as_slice_mut().expect("contiguous");
+        for d in self.pending.iter().flatten() {
+            let cell = d.cell as usize;
+            // Strictly greater: the first of equal rays stays.
+            if d.key <= best[cell] {
                 continue;
             }
-            let (x, y, z) = (u.x as usize, u.y as usize, u.z as usize);
-            if x >= dims[0] || y >= dims[1] || z >= dims[2] {
-                continue;
-            }
-            let d = p.direction(i);
-            let s = d.dot(grid.voxel_center(x, y, z) - mid);
-            let moved = [0, 1, 2, 3].map(|c| {
-                let r = &p.corner[c][i];
-                r.x + r.v.normalize_or_zero() * s
-            });
-            let ar = area(&moved);
-            if ar.is_nan() || ar <= 0.0 {
-                continue;
-            }
-            let ext = if empty.index_at(mid).is_some() {
-                glam::DVec3::ZERO
-            } else {
-                medium.sample_rgb(&medium.extinction, mid)
-            };
-            let e = [0, 1, 2].map(|c| p.flux[i][c] * (-ext[c] * s).exp() / ar);
-            let key = match group {
-                None => (e[0] + e[1] + e[2]) as f32,
-                Some(c) => e[c] as f32,
-            };
-            // Strictly greater: the first of equal rays stays (deterministic).
-            if key <= self.best[g][[x, y, z]] {
-                continue;
-            }
-            self.best[g][[x, y, z]] = key;
+            best[cell] = d.key;
             match group {
-                None => (0..3).for_each(|c| self.irradiance[[x, y, z, c]] = e[c] as f32),
-                Some(c) => self.irradiance[[x, y, z, c]] = e[c] as f32,
+                None => irr[3 * cell..3 * cell + 3].copy_from_slice(&d.irradiance),
+                Some(c) => irr[3 * cell + c] = d.irradiance[c],
             }
-            for a in 0..3 {
-                self.direction[g][[x, y, z, a]] = d[a] as f32;
-            }
+            dir[3 * cell..3 * cell + 3].copy_from_slice(&d.direction);
         }
     }
 }

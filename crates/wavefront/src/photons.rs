@@ -1,0 +1,826 @@
+//! The brute-force photon baseline: the same light, medium and ray
+//! equation as the wavefront, traced one particle at a time with no
+//! intensity law, so the two can check each other.
+//!
+//! # Emission
+//! Photons follow the distribution of the wavefront that [`light::emit`]
+//! tiles, sampled at random instead of on a lattice:
+//! * directional: uniform points on the rectangle of the box's projection
+//!   that the plane wave is tiled over, each carrying
+//!   `irradiance * rectangle area / count`;
+//! * point: uniform directions on the sphere, each carrying `power / count`;
+//! * spot: the same, times the spot's cone weight.
+//!
+//! The draws are stratified (jittered): the emission domain, the plane's
+//! rectangle or the sphere in the equal-area coordinates `(z, phi)`, is cut
+//! into `count` cells of equal area, in rows, and photon `i` is uniform in
+//! cell `i`. Each photon is still uniform over its cell and the cells tile
+//! the domain, so the estimate stays unbiased; its variance is never above
+//! that of independent draws and, in a beam, much lower (every voxel column
+//! gets its share of photons, not a Poisson number). Consecutive photons
+//! also start side by side, so their paths share the cache lines of the
+//! voxel fields.
+//!
+//! A photon whose line misses the box carries no light into it: it is
+//! dropped and not counted as entered. The others start like a patch
+//! corner, half a voxel before their ray enters the bounds (on the
+//! one-voxel sphere for a point light inside the volume), with
+//! `v = n * direction`.
+//!
+//! # Transport
+//! Exactly as [`propagate`](crate::propagate::propagate) moves a patch
+//! corner: the equal-time ray equation (eqs 14-15) with the same
+//! integrator and step in the [`Bounded`] field, on the eikonal shell
+//! `|v| = n`, straight through empty space ([`EmptySpace`]), and eq 18's
+//! attenuation by the trapezoid of `sigma_t / n` before and after each step
+//! times `dt`. A photon ends when
+//! it has left the bounds (it is outside and its forward line misses the
+//! box), when its transmittance is below the threshold in every channel,
+//! or at the wavefront's step limit.
+//!
+//! # Estimator
+//! The track-length estimator of the fluence rate: a photon of flux `P`
+//! that travels a length `l` through a cell of volume `V` adds `P l / V`
+//! (W/m^2). For light from one direction the fluence rate is the
+//! irradiance across the beam, so the result compares directly with
+//! [`LightVolume::irradiance`](crate::LightVolume::irradiance); where rays
+//! from several directions overlap it is their sum, while the light volume
+//! keeps the strongest one.
+//!
+//! Each step's chord is split exactly among the cells it crosses (a 3D DDA)
+//! and each piece carries the flux integrated over it, with the step's
+//! optical depth spread evenly along the step. Binning a whole step into the
+//! cell of its midpoint would alias: every photon of a plane wave entering
+//! through one face starts at the same depth, so all their step midpoints
+//! share one phase against the cells and whole slabs get too many or too
+//! few. Measured with 300k photons of a plane wave along (0.2, -1, 0.1) in
+//! vacuum: slabs 2% low, and a mean per-voxel error of 5.0% instead of the
+//! 2.0% of the noise alone; more photons do not remove it.
+//!
+//! # Determinism
+//! Photon `i` draws from its own SplitMix64 stream keyed by `(seed, i)`,
+//! so it does not matter which thread traces it. Deposits are fixed-point
+//! integers added atomically, which commutes; energy sums are taken per
+//! fixed chunk of photons and added in chunk order. The volume and the
+//! summary are therefore bitwise the same for any thread count.
+
+use crate::light::{self, cone_weight, PlaneFrame};
+use crate::propagate::Bounded;
+use crate::{Error, Options, Summary};
+use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
+use eikon_grid::{EmptySpace, Form, GridGeometry, IndexField, Light, Medium, Method, RayState};
+use glam::DVec3;
+use ndarray::Array4;
+use rayon::prelude::*;
+use std::f64::consts::PI;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// The photon estimate of one light.
+#[derive(Clone, Debug)]
+pub struct PhotonVolume {
+    /// RGB fluence rate per cell (the cell average), W/m^2,
+    /// `(nx, ny, nz, 3)`: the irradiance across the beam where light
+    /// arrives from one direction.
+    pub irradiance: Array4<f32>,
+}
+
+/// Fixed-point units that the brightest photon of a channel deposits by
+/// crossing one voxel edge-on (a path of one voxel length). Rounding each
+/// deposit to a unit then costs at most 2^-25 of such a deposit, and a
+/// 64-bit counter holds 2^40 (about 10^12) such crossings per cell before
+/// it could overflow.
+const UNITS_PER_CROSSING: f64 = (1u64 << 24) as f64;
+
+/// Photons per work item: the energy sums are taken per chunk and then
+/// added in chunk order, so they do not depend on the thread count.
+const CHUNK: usize = 1024;
+
+/// Trace `count` photons of `light` through `medium` (one set per colour
+/// channel with dispersion, each through its own index field, from the
+/// same draws) and estimate the fluence rate per cell. `seed` picks the random numbers: the same
+/// seed gives bitwise the same result whatever the number of threads.
+///
+/// Of `opts`, `step`, `method`, `threshold` and `max_steps` apply, with
+/// the same meaning as for the wavefront. In the summary, `emitted` counts
+/// photons that entered the volume, `exited`, `absorbed` (below the
+/// threshold) and `step_limit` how they ended, `steps` is the longest
+/// photon's, and the patch counts (`peak_patches`, `caustic`, `held`) are
+/// zero. The powers are accounted as for the wavefront: culled power is
+/// what photons carried when the threshold or the step limit ended them.
+pub fn simulate_photons(
+    light: &Light,
+    medium: &Medium,
+    count: usize,
+    seed: u64,
+    opts: &Options,
+) -> Result<(PhotonVolume, Summary), Error> {
+    opts.check()?;
+    if count == 0 {
+        return Err(Error::Option {
+            option: "photons",
+            message: "need at least one photon".into(),
+        });
+    }
+    let grid = &medium.geometry;
+    let h = grid.voxel_size();
+    let dt = opts.step * h;
+    let n_max = medium.index_range().1 as f64;
+    let max_steps = opts
+        .max_steps
+        .unwrap_or((16.0 * grid.diagonal() * n_max / dt).ceil() as usize);
+    let [nx, ny, nz] = grid.dims;
+    let cells: Vec<AtomicU64> = (0..nx * ny * nz * 3).map(|_| AtomicU64::new(0)).collect();
+    let clear = clear_cells(medium);
+    let groups = medium.channels();
+    let key = mix(seed.wrapping_add(GOLDEN));
+    let mut summary = Summary::default();
+    let mut scale = [0.0; 3];
+    for g in 0..groups {
+        let mask = if groups == 1 {
+            [1.0; 3]
+        } else {
+            let mut m = [0.0; 3];
+            m[g] = 1.0;
+            m
+        };
+        let source = Source::new(light, grid, count, mask);
+        let strata = Strata::new(count, source.aspect());
+        // Fixed-point scale per channel: units per watt-metre, so that the
+        // largest photon flux over one voxel length gives UNITS_PER_CROSSING.
+        for (s, &f) in scale.iter_mut().zip(&source.flux) {
+            if f > 0.0 {
+                *s = UNITS_PER_CROSSING / (f * h);
+            }
+        }
+        let tracer = Tracer {
+            medium,
+            grid,
+            field: Bounded::new(medium, g),
+            empty: EmptySpace::new(medium, g),
+            method: opts.method,
+            dt,
+            threshold: opts.threshold,
+            max_steps,
+            clear: &clear,
+            deposit: Deposit::new(grid, &cells, scale),
+        };
+        let tallies: Vec<Tally> = (0..count.div_ceil(CHUNK))
+            .into_par_iter()
+            .map(|chunk| {
+                let mut t = Tally::default();
+                for i in chunk * CHUNK..((chunk + 1) * CHUNK).min(count) {
+                    let mut rng = Rng::new(key, i as u64);
+                    let (a, b) = strata.draw(i, &mut rng);
+                    if let Some((s, flux)) = source.launch(a, b, grid, &tracer.field) {
+                        tracer.trace(s, flux, &mut t);
+                    }
+                }
+                t
+            })
+            .collect();
+        for t in &tallies {
+            t.add_to(&mut summary);
+        }
+    }
+    // Back from fixed point: units / scale is watt-metres, over the cell
+    // volume a fluence rate.
+    let volume = grid.spacing().x * grid.spacing().y * grid.spacing().z;
+    let irradiance = Array4::from_shape_fn((nx, ny, nz, 3), |(i, j, k, c)| {
+        let units = cells[((i * ny + j) * nz + k) * 3 + c].load(Ordering::Relaxed);
+        if scale[c] > 0.0 {
+            (units as f64 / scale[c] / volume) as f32
+        } else {
+            0.0
+        }
+    });
+    Ok((PhotonVolume { irradiance }, summary))
+}
+
+// ---------------------------------------------------------------------------
+// Random numbers.
+
+const GOLDEN: u64 = 0x9E37_79B9_7F4A_7C15;
+
+/// The SplitMix64 output function (Steele, Lea and Flood 2014).
+#[inline]
+fn mix(mut z: u64) -> u64 {
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// SplitMix64 stream of one photon. The start state hashes the run's key
+/// (itself a hash of the seed) with the photon's index, so photons of one
+/// seed, and the photon sets of two seeds, do not share streams.
+struct Rng(u64);
+
+impl Rng {
+    fn new(key: u64, index: u64) -> Self {
+        Rng(mix(key ^ index))
+    }
+
+    /// Uniform in [0, 1), 53 random bits.
+    #[inline]
+    fn uniform(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(GOLDEN);
+        (mix(self.0) >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+}
+
+// ---------------------------------------------------------------------------
+// Emission.
+
+/// An equal-area partition of the unit square into `count` cells: `rows`
+/// rows, row `r` holding photons `start(r)..start(r + 1)` in cells of equal
+/// width, its height proportional to that number.
+struct Strata {
+    count: u128,
+    rows: u128,
+}
+
+impl Strata {
+    /// Cells about square for a domain `aspect` times wider than high.
+    fn new(count: usize, aspect: f64) -> Self {
+        let rows = (count as f64 / aspect)
+            .sqrt()
+            .round()
+            .clamp(1.0, count as f64);
+        Self {
+            count: count as u128,
+            rows: rows as u128,
+        }
+    }
+
+    /// First photon of row `r`.
+    fn start(&self, r: u128) -> u128 {
+        r * self.count / self.rows
+    }
+
+    /// Photon `i`'s point: uniform in its cell of the unit square.
+    fn draw(&self, i: usize, rng: &mut Rng) -> (f64, f64) {
+        let i = i as u128;
+        // Row of photon i: start(r) <= i < start(r + 1).
+        let mut r = (i * self.rows / self.count).min(self.rows - 1);
+        while r > 0 && self.start(r) > i {
+            r -= 1;
+        }
+        while r + 1 < self.rows && self.start(r + 1) <= i {
+            r += 1;
+        }
+        let (lo, hi) = (self.start(r), self.start(r + 1));
+        let width = (hi - lo) as f64;
+        let a = ((i - lo) as f64 + rng.uniform()) / width;
+        let b = (lo as f64 + rng.uniform() * width) / self.count as f64;
+        (a.min(1.0), b.min(1.0))
+    }
+}
+
+enum Shape {
+    /// The plane wave's rectangle: `u a + w b + d s0` for `a` in `[a0, a1]`
+    /// and `b` in `[b0, b1]`, as in `light::emit`.
+    Plane {
+        d: DVec3,
+        u: DVec3,
+        w: DVec3,
+        a: (f64, f64),
+        b: (f64, f64),
+        s0: f64,
+    },
+    /// Directions from a point, with an optional spot cone.
+    Sphere {
+        p: DVec3,
+        cone: Option<(DVec3, f64, f64)>,
+    },
+}
+
+/// Where photons come from and what each carries.
+struct Source {
+    shape: Shape,
+    /// RGB flux of a photon of full (spot) weight, W: the most any photon
+    /// carries, which sets the fixed-point scale.
+    flux: [f64; 3],
+}
+
+impl Source {
+    fn new(light: &Light, grid: &GridGeometry, count: usize, mask: [f64; 3]) -> Source {
+        let share =
+            |power: DVec3, area: f64| [0, 1, 2].map(|c| power[c] * mask[c] * area / count as f64);
+        let (shape, flux) = match light {
+            Light::Directional { direction, power } => {
+                let d = *direction;
+                let PlaneFrame { u, w, a, b, s0 } = PlaneFrame::new(d, grid);
+                let area = (a.1 - a.0) * (b.1 - b.0);
+                (Shape::Plane { d, u, w, a, b, s0 }, share(*power, area))
+            }
+            Light::Point { position, power } => (
+                Shape::Sphere {
+                    p: *position,
+                    cone: None,
+                },
+                share(*power, 1.0),
+            ),
+            Light::Spot {
+                position,
+                direction,
+                angle,
+                falloff,
+                power,
+            } => (
+                Shape::Sphere {
+                    p: *position,
+                    cone: Some((*direction, *angle, *falloff)),
+                },
+                share(*power, 1.0),
+            ),
+        };
+        Source { shape, flux }
+    }
+
+    /// Width over height of the emission domain in the coordinates
+    /// [`Self::launch`] takes.
+    fn aspect(&self) -> f64 {
+        match self.shape {
+            Shape::Plane { a, b, .. } if b.1 > b.0 => ((a.1 - a.0) / (b.1 - b.0)).max(1e-6),
+            // (z, phi) spans 2 by 2 pi.
+            _ => 1.0 / PI,
+        }
+    }
+
+    /// The photon at `(sa, sb)` of the unit square (uniform there): its
+    /// start state and flux, or `None` when its ray misses the volume (or a
+    /// spot's cone).
+    fn launch<F: IndexField + ?Sized>(
+        &self,
+        sa: f64,
+        sb: f64,
+        grid: &GridGeometry,
+        field: &F,
+    ) -> Option<(RayState, [f64; 3])> {
+        let h = grid.voxel_size();
+        let margin = light::MARGIN_VOXELS * h;
+        let (x, dir, weight) = match self.shape {
+            Shape::Plane { d, u, w, a, b, s0 } => {
+                let aa = a.0 + sa * (a.1 - a.0);
+                let bb = b.0 + sb * (b.1 - b.0);
+                let on_plane = u * aa + w * bb + d * s0;
+                let (t0, t1) = grid.clip_line(on_plane, d)?;
+                if t1 <= 0.0 {
+                    return None;
+                }
+                (on_plane + d * (t0 - margin).max(0.0), d, 1.0)
+            }
+            Shape::Sphere { p, cone } => {
+                // Uniform on the sphere: z uniform in [-1, 1] (Archimedes).
+                let z = 1.0 - 2.0 * sa;
+                let phi = 2.0 * PI * sb;
+                let r = (1.0 - z * z).max(0.0).sqrt();
+                let dir = DVec3::new(r * phi.cos(), r * phi.sin(), z);
+                let weight = cone_weight(dir, cone);
+                if weight == 0.0 {
+                    return None;
+                }
+                let inner = light::INNER_RADIUS_VOXELS * h;
+                let start = if grid.contains(p) {
+                    inner
+                } else {
+                    match grid.clip_line(p, dir) {
+                        Some((t0, t1)) if t1 > 0.0 => (t0 - margin).max(inner),
+                        _ => return None,
+                    }
+                };
+                (p + dir * start, dir, weight)
+            }
+        };
+        let flux = self.flux.map(|f| f * weight);
+        Some((RayState::new(x, dir, field.sample(x).0), flux))
+    }
+}
+
+// ---------------------------------------------------------------------------
+// Transport.
+
+/// Energy book-keeping of a chunk of photons.
+#[derive(Default)]
+struct Tally {
+    entered: [f64; 3],
+    absorbed: [f64; 3],
+    exited: [f64; 3],
+    culled: [f64; 3],
+    photons: usize,
+    exits: usize,
+    thresholded: usize,
+    step_limit: usize,
+    steps: usize,
+}
+
+impl Tally {
+    fn add_to(&self, s: &mut Summary) {
+        for c in 0..3 {
+            s.entered[c] += self.entered[c];
+            s.absorbed_power[c] += self.absorbed[c];
+            s.exited_power[c] += self.exited[c];
+            s.culled_power[c] += self.culled[c];
+        }
+        s.emitted += self.photons;
+        s.exited += self.exits;
+        s.absorbed += self.thresholded;
+        s.step_limit += self.step_limit;
+        s.steps = s.steps.max(self.steps);
+    }
+}
+
+fn add(acc: &mut [f64; 3], x: &[f64; 3]) {
+    (0..3).for_each(|c| acc[c] += x[c]);
+}
+
+struct Tracer<'a> {
+    medium: &'a Medium,
+    grid: &'a GridGeometry,
+    field: Bounded<'a>,
+    empty: EmptySpace,
+    method: Method,
+    dt: f64,
+    threshold: f64,
+    max_steps: usize,
+    clear: &'a [bool],
+    deposit: Deposit<'a>,
+}
+
+/// Per interpolation cell (the lower corner `i0` that
+/// [`Medium::sample_rgb`] interpolates from), whether all eight samples
+/// it reads have zero extinction: there the sample is exactly zero, and
+/// most of a scene's volume is usually clear air.
+fn clear_cells(medium: &Medium) -> Vec<bool> {
+    let [nx, ny, nz] = medium.geometry.dims;
+    let ext = &medium.extinction;
+    let mut out = vec![false; nx * ny * nz];
+    for i in 0..nx {
+        for j in 0..ny {
+            for k in 0..nz {
+                out[(i * ny + j) * nz + k] = (0..8).all(|corner| {
+                    let (a, b, c) = (
+                        (i + (corner & 1)).min(nx - 1),
+                        (j + ((corner >> 1) & 1)).min(ny - 1),
+                        (k + ((corner >> 2) & 1)).min(nz - 1),
+                    );
+                    (0..3).all(|ch| ext[[a, b, c, ch]] == 0.0)
+                });
+            }
+        }
+    }
+    out
+}
+
+impl Tracer<'_> {
+    /// `sigma_t / n` per channel at `p`, zero outside the bounds: the
+    /// integrand of eq 18 exactly as `propagate` samples it (bitwise: in a
+    /// clear cell `sample_rgb` adds up exact zeros).
+    #[inline]
+    fn extinction_per_index(&self, p: DVec3) -> DVec3 {
+        if !self.grid.contains(p) || self.empty.index_at(p).is_some() {
+            return DVec3::ZERO;
+        }
+        // The interpolation cell exactly as `Medium::sample_rgb` finds it.
+        let g = self.grid;
+        let hi = DVec3::new(g.dims[0] as f64, g.dims[1] as f64, g.dims[2] as f64) - 1.0;
+        let u = g.world_to_voxel(p).clamp(DVec3::ZERO, hi);
+        let [i, j, k] = [0, 1, 2].map(|a| (u[a] as usize).min(g.dims[a].saturating_sub(2)));
+        if self.clear[(i * g.dims[1] + j) * g.dims[2] + k] {
+            return DVec3::ZERO;
+        }
+        self.medium.sample_rgb(&self.medium.extinction, p) / self.field.sample(p).0
+    }
+
+    /// Whether a photon at `s` has left for good: outside the bounds, and
+    /// its forward line never comes back (the wavefront's exit rule).
+    #[inline]
+    fn left(&self, s: &RayState) -> bool {
+        !self.grid.contains(s.x)
+            && self
+                .grid
+                .clip_line(s.x, s.v.normalize_or_zero())
+                .is_none_or(|(_, t1)| t1 <= 0.0)
+    }
+
+    /// Trace one photon from `s` with flux `flux0` to its end.
+    fn trace(&self, mut s: RayState, flux0: [f64; 3], t: &mut Tally) {
+        t.photons += 1;
+        add(&mut t.entered, &flux0);
+        let mut flux = flux0;
+        // The wavefront analyses its patches once before the first step.
+        if self.left(&s) {
+            t.exits += 1;
+            add(&mut t.exited, &flux);
+            return;
+        }
+        // sigma_t / n at the photon, kept from the end of the last step.
+        let mut before = None;
+        let mut steps = 0;
+        loop {
+            if steps == self.max_steps {
+                t.step_limit += 1;
+                add(&mut t.culled, &flux);
+                break;
+            }
+            steps += 1;
+            let x0 = s.x;
+            if let Some(n) = self.empty.index_at(x0) {
+                // Empty space, as `propagate` skips it: a straight step
+                // (under a cell long) in a constant index, without loss.
+                s.v = s.v.normalize_or_zero() * n;
+                s.x += s.v * (self.dt / (n * n));
+                s.opl += self.dt;
+                self.deposit.step(x0, s.x, &flux, DVec3::ZERO);
+                before = None;
+            } else {
+                let b = before.unwrap_or_else(|| self.extinction_per_index(x0));
+                // On the eikonal shell |v| = n, like the wavefront's corners.
+                match self.method {
+                    Method::Euler => {
+                        step_euler_on_shell(&self.field, Form::EqualTime, &mut s, self.dt)
+                    }
+                    _ => step_rk4_on_shell(&self.field, Form::EqualTime, &mut s, self.dt),
+                }
+                let after = self.extinction_per_index(s.x);
+                before = Some(after);
+                // Eq 18 over one step, trapezoid rule in t.
+                let depth = (b + after) * (0.5 * self.dt);
+                self.deposit.step(x0, s.x, &flux, depth);
+                for c in 0..3 {
+                    let kept = flux[c] * (-depth[c]).exp();
+                    t.absorbed[c] += flux[c] - kept;
+                    flux[c] = kept;
+                }
+            }
+            if self.left(&s) {
+                t.exits += 1;
+                add(&mut t.exited, &flux);
+                break;
+            }
+            if (0..3).all(|c| flux[c] <= self.threshold * flux0[c]) {
+                t.thresholded += 1;
+                add(&mut t.culled, &flux);
+                break;
+            }
+        }
+        t.steps = t.steps.max(steps);
+    }
+}
+
+// ---------------------------------------------------------------------------
+// The track-length histogram.
+
+/// Fixed-point accumulation into the cells: `(nx, ny, nz, 3)` counters in
+/// standard order, each in units of `1 / scale[c]` watt-metres.
+struct Deposit<'a> {
+    cells: &'a [AtomicU64],
+    dims: [usize; 3],
+    min: DVec3,
+    inv_spacing: DVec3,
+    scale: [f64; 3],
+    grid: &'a GridGeometry,
+}
+
+impl<'a> Deposit<'a> {
+    fn new(grid: &'a GridGeometry, cells: &'a [AtomicU64], scale: [f64; 3]) -> Self {
+        Self {
+            cells,
+            dims: grid.dims,
+            min: grid.min,
+            inv_spacing: 1.0 / grid.spacing(),
+            scale,
+            grid,
+        }
+    }
+
+    /// Deposit the chord from `a` to `b` of a photon that carried `flux` at
+    /// `a` and loses optical depth `depth` over it: each cell it crosses
+    /// gets `int flux(t) dl` over its piece, with `flux(t) = flux
+    /// exp(-depth t)` for `t` from 0 at `a` to 1 at `b`.
+    #[inline]
+    fn step(&self, a: DVec3, b: DVec3, flux: &[f64; 3], depth: DVec3) {
+        let d = b - a;
+        let len = d.length();
+        if !(len > 0.0 && len.is_finite()) {
+            return;
+        }
+        let Some((t0, t1)) = self.grid.clip_line(a, d) else {
+            return;
+        };
+        let (t0, t1) = (t0.max(0.0), t1.min(1.0));
+        if t1 <= t0 {
+            return;
+        }
+        // Watt-metres per unit of t, in fixed-point units.
+        let w = [0, 1, 2].map(|c| flux[c] * len * self.scale[c]);
+        // Cell coordinates: cell (i, j, k) spans [i, i + 1) etc.
+        let g = (a - self.min) * self.inv_spacing;
+        let dg = d * self.inv_spacing;
+        let start = g + dg * t0;
+        let mut cell = [0i64; 3];
+        let mut step = [0i64; 3];
+        let mut next = [f64::INFINITY; 3];
+        let mut delta = [f64::INFINITY; 3];
+        for ax in 0..3 {
+            let hi = self.dims[ax] as i64 - 1;
+            cell[ax] = (start[ax].floor() as i64).clamp(0, hi);
+            if dg[ax] > 0.0 {
+                step[ax] = 1;
+                next[ax] = (cell[ax] as f64 + 1.0 - g[ax]) / dg[ax];
+                delta[ax] = 1.0 / dg[ax];
+            } else if dg[ax] < 0.0 {
+                step[ax] = -1;
+                next[ax] = (cell[ax] as f64 - g[ax]) / dg[ax];
+                delta[ax] = -1.0 / dg[ax];
+            }
+        }
+        let mut t = t0;
+        loop {
+            let ax = if next[0] <= next[1] && next[0] <= next[2] {
+                0
+            } else if next[1] <= next[2] {
+                1
+            } else {
+                2
+            };
+            let end = next[ax].min(t1);
+            if end > t {
+                self.add(cell, &w, depth, t, end);
+            }
+            if next[ax] >= t1 {
+                break;
+            }
+            cell[ax] += step[ax];
+            if cell[ax] < 0 || cell[ax] >= self.dims[ax] as i64 {
+                break;
+            }
+            next[ax] += delta[ax];
+            t = t.max(end);
+        }
+    }
+
+    /// Add `w int_{ta}^{tb} exp(-depth t) dt` to `cell`, per channel.
+    #[inline]
+    fn add(&self, cell: [i64; 3], w: &[f64; 3], depth: DVec3, ta: f64, tb: f64) {
+        let [i, j, k] = cell.map(|x| x as usize);
+        let base = ((i * self.dims[1] + j) * self.dims[2] + k) * 3;
+        for c in 0..3 {
+            if w[c] == 0.0 {
+                continue;
+            }
+            let tau = depth[c];
+            // exp(-tau ta) (1 - exp(-tau (tb - ta))) / tau, without the
+            // cancellation of the difference when tau is small.
+            let integral = if tau > 0.0 {
+                (-tau * ta).exp() * -(-tau * (tb - ta)).exp_m1() / tau
+            } else {
+                tb - ta
+            };
+            // Round to the nearest unit (truncation of a non-negative
+            // number, without a libm call).
+            let units = (w[c] * integral + 0.5) as u64;
+            if units > 0 {
+                self.cells[base + c].fetch_add(units, Ordering::Relaxed);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn random_numbers_are_uniform_and_seeded() {
+        let mut r = Rng::new(mix(7), 3);
+        let xs: Vec<f64> = (0..100_000).map(|_| r.uniform()).collect();
+        assert!(xs.iter().all(|&x| (0.0..1.0).contains(&x)));
+        let mean = xs.iter().sum::<f64>() / xs.len() as f64;
+        // Standard error of the mean: 1 / sqrt(12 * 1e5) = 9.1e-4.
+        assert!((mean - 0.5).abs() < 4e-3, "{mean}");
+        let first = |key, i| Rng::new(key, i).uniform();
+        assert_eq!(first(mix(7), 3), xs[0]);
+        assert_ne!(first(mix(7), 4), xs[0]);
+        assert_ne!(first(mix(8), 3), xs[0]);
+    }
+
+    /// Sum of every counter of `cells`, channel 0, back in watt-metres.
+    fn total(cells: &[AtomicU64], scale: f64) -> f64 {
+        cells
+            .iter()
+            .step_by(3)
+            .map(|c| c.load(Ordering::Relaxed) as f64)
+            .sum::<f64>()
+            / scale
+    }
+
+    #[test]
+    fn a_chord_deposits_its_length_inside_the_volume() {
+        let grid = GridGeometry::new([5, 4, 3], DVec3::ZERO, DVec3::new(5.0, 4.0, 3.0));
+        let cells: Vec<AtomicU64> = (0..5 * 4 * 3 * 3).map(|_| AtomicU64::new(0)).collect();
+        let scale = 1e9;
+        let dep = Deposit::new(&grid, &cells, [scale; 3]);
+        // From outside to outside, obliquely through several cells.
+        let (a, b) = (DVec3::new(-1.0, 0.3, 0.2), DVec3::new(6.0, 3.1, 2.9));
+        dep.step(a, b, &[2.0, 0.0, 0.0], DVec3::ZERO);
+        let (t0, t1) = grid.clip_line(a, b - a).unwrap();
+        let want = 2.0 * (b - a).length() * (t1.min(1.0) - t0.max(0.0));
+        let got = total(&cells, scale);
+        assert!((got - want).abs() < 1e-7, "{got} vs {want}");
+        // The cell of the middle of the chord got its share.
+        let mid = grid.world_to_voxel((a + b) * 0.5).round();
+        let idx = ((mid.x as usize * 4 + mid.y as usize) * 3 + mid.z as usize) * 3;
+        assert!(cells[idx].load(Ordering::Relaxed) > 0);
+    }
+
+    #[test]
+    fn an_attenuated_chord_deposits_the_mean_flux() {
+        let grid = GridGeometry::new([4, 1, 1], DVec3::ZERO, DVec3::new(4.0, 1.0, 1.0));
+        let cells: Vec<AtomicU64> = (0..4 * 3).map(|_| AtomicU64::new(0)).collect();
+        let scale = 1e12;
+        let dep = Deposit::new(&grid, &cells, [scale; 3]);
+        let tau = 2.0;
+        let (a, b) = (DVec3::new(0.0, 0.5, 0.5), DVec3::new(4.0, 0.5, 0.5));
+        dep.step(a, b, &[1.0; 3], DVec3::splat(tau));
+        // Each unit cell gets int exp(-tau x / 4) dx over it.
+        for i in 0..4 {
+            let x = i as f64;
+            let want = 4.0 / tau * ((-tau * x / 4.0).exp() - (-tau * (x + 1.0) / 4.0).exp());
+            let got = cells[i * 3].load(Ordering::Relaxed) as f64 / scale;
+            assert!((got - want).abs() < 1e-9, "cell {i}: {got} vs {want}");
+        }
+    }
+
+    #[test]
+    fn strata_tile_the_square_in_equal_areas() {
+        for (count, aspect) in [
+            (1, 1.0),
+            (7, 1.0),
+            (1000, 2.5),
+            (1023, 1.0 / PI),
+            (5, 100.0),
+        ] {
+            let strata = Strata::new(count, aspect);
+            // Rows hold every photon once, in order, and have heights in
+            // proportion to their photons: cells of equal area 1 / count.
+            let mut covered = 0;
+            for r in 0..strata.rows {
+                let (lo, hi) = (strata.start(r), strata.start(r + 1));
+                assert_eq!(lo, covered);
+                assert!(hi > lo, "empty row {r} of {count}");
+                covered = hi;
+            }
+            assert_eq!(covered, count as u128);
+            let mut rng = Rng::new(1, 2);
+            let mut sum = (0.0, 0.0);
+            for i in 0..count {
+                let (a, b) = strata.draw(i, &mut rng);
+                assert!((0.0..=1.0).contains(&a) && (0.0..=1.0).contains(&b));
+                sum = (sum.0 + a, sum.1 + b);
+            }
+            // A stratified sample's mean is within a cell of 1/2.
+            let n = count as f64;
+            let cell = (1.0 / n).sqrt().max(1.0 / strata.rows as f64);
+            assert!((sum.0 / n - 0.5).abs() <= cell && (sum.1 / n - 0.5).abs() <= cell);
+        }
+    }
+
+    #[test]
+    fn no_photons_is_refused() {
+        let grid = GridGeometry::new([4, 4, 4], DVec3::ZERO, DVec3::ONE);
+        let scene = eikon_grid::Scene::parse(
+            "[grid]\nresolution = 4\nmin = [0, 0, 0]\nmax = [1, 1, 1]\n",
+            "test",
+        )
+        .unwrap();
+        let m = Medium::build(&scene).unwrap();
+        assert_eq!(m.geometry, grid);
+        let light = Light::Point {
+            position: DVec3::splat(0.5),
+            power: DVec3::ONE,
+        };
+        let e = simulate_photons(&light, &m, 0, 1, &Options::default()).unwrap_err();
+        assert!(e.to_string().starts_with("photons"), "{e}");
+    }
+
+    #[test]
+    fn a_point_light_in_vacuum_sends_all_its_power_out() {
+        let scene = eikon_grid::Scene::parse(
+            "[grid]\nresolution = 16\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n",
+            "test",
+        )
+        .unwrap();
+        let m = Medium::build(&scene).unwrap();
+        let light = Light::Point {
+            position: DVec3::new(0.1, -0.2, 0.05),
+            power: DVec3::new(3.0, 2.0, 1.0),
+        };
+        let (_, s) = simulate_photons(&light, &m, 5000, 9, &Options::default()).unwrap();
+        assert_eq!((s.emitted, s.exited), (5000, 5000));
+        for (c, p) in [3.0, 2.0, 1.0].into_iter().enumerate() {
+            assert!((s.entered[c] - p).abs() < 1e-12 * p);
+            assert!((s.exited_power[c] - p).abs() < 1e-12 * p);
+        }
+        assert!(s.energy_imbalance() < 1e-12);
+    }
+}
