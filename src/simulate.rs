@@ -66,6 +66,10 @@ pub struct Args {
     /// Most patches alive at once.
     #[arg(long, default_value_t = 8 << 20)]
     max_patches: usize,
+    /// Step limit per wavefront (default: 16 crossings of the volume's
+    /// diagonal at its highest index).
+    #[arg(long)]
+    max_steps: Option<usize>,
     /// Light transport method.
     #[arg(long, value_enum, default_value = "wavefront")]
     method: SimMethod,
@@ -176,6 +180,7 @@ pub fn run(args: Args) -> Result<()> {
         split: args.split,
         threshold: args.threshold,
         max_patches: args.max_patches,
+        max_steps: args.max_steps,
         ..Options::default()
     };
     if let Err(e) = opts.check() {
