@@ -65,7 +65,7 @@
 //! summary are therefore bitwise the same for any thread count.
 
 use crate::light::{self, cone_weight, PlaneFrame};
-use crate::propagate::Bounded;
+use crate::propagate::{step_depth, Bounded};
 use crate::{Error, Options, Summary};
 use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
 use eikon_grid::{EmptySpace, Form, GridGeometry, IndexField, Light, Medium, Method, RayState};
@@ -543,8 +543,8 @@ impl Tracer<'_> {
                 }
                 let after = self.extinction_per_index(s.x);
                 before = Some(after);
-                // Eq 18 over one step, trapezoid rule in t.
-                let depth = (b + after) * (0.5 * self.dt);
+                // Eq 18 over one step, exactly as for a patch.
+                let depth = step_depth(&self.medium.geometry, x0, s.x, b, after, self.dt);
                 self.deposit.step(x0, s.x, &flux, depth);
                 for c in 0..3 {
                     let kept = flux[c] * (-depth[c]).exp();

@@ -10,7 +10,9 @@
 //! the patch midpoint before and after the step (sigma_t trilinearly from
 //! the extinction volume, n from the index field), averaged, and multiplied
 //! by the step's `dt`. Since `dt = n ds` this is `int sigma_t ds`, the
-//! optical depth. Outside the volume bounds sigma_t is zero.
+//! optical depth. Outside the volume bounds sigma_t is zero, and a step
+//! that crosses the bounds is charged for its part inside only
+//! ([`step_depth`]).
 
 use crate::patch::{area, Patches};
 use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
@@ -58,6 +60,30 @@ fn extinction_per_index(medium: &Medium, field: &Bounded, empty: &EmptySpace, p:
         return DVec3::ZERO;
     }
     medium.sample_rgb(&medium.extinction, p) / field.sample(p).0
+}
+
+/// Eq 18's optical depth `int sigma_t / n dt` over one step of `dt` from
+/// `x0` to `x1`, given `sigma_t / n` at both ends (zero outside the
+/// bounds): the trapezoid rule, except that a step crossing the bounds is
+/// charged only for its part inside, at the inside end's value. (The
+/// trapezoid would charge half the step whatever its part inside: up to
+/// `sigma_t h / 4` too much or too little for light entering obliquely.)
+pub(crate) fn step_depth(
+    grid: &GridGeometry,
+    x0: DVec3,
+    x1: DVec3,
+    before: DVec3,
+    after: DVec3,
+    dt: f64,
+) -> DVec3 {
+    let (in0, in1) = (grid.contains(x0), grid.contains(x1));
+    if in0 == in1 {
+        return (before + after) * (0.5 * dt);
+    }
+    let inside = grid
+        .clip_line(x0, x1 - x0)
+        .map_or(0.0, |(t0, t1)| (t1.min(1.0) - t0.max(0.0)).max(0.0));
+    (if in0 { before } else { after }) * (dt * inside)
 }
 
 /// Advance every patch by one equal-time step `dt` (optical path, world
@@ -113,9 +139,9 @@ pub fn propagate(
                     _ => step_rk4_on_shell(field, Form::EqualTime, s, dt),
                 }
             }
-            let after = extinction_per_index(medium, field, empty, mid([a, b, c, d]));
-            // Eq 18 over one step, trapezoid rule in t.
-            let depth = (before + after) * (0.5 * dt);
+            let m1 = mid([a, b, c, d]);
+            let after = extinction_per_index(medium, field, empty, m1);
+            let depth = step_depth(&medium.geometry, m0, m1, before, after, dt);
             for ch in 0..3 {
                 let kept = flux[ch] * (-depth[ch]).exp();
                 lost[ch] = flux[ch] - kept;
@@ -141,4 +167,32 @@ pub fn irradiance(patches: &mut Patches) {
             let ar = area(&[a.x, b.x, c.x, d.x]);
             *e = f.map(|x| if ar > 0.0 { x / ar } else { 0.0 });
         });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_step_into_the_volume_is_charged_for_its_part_inside() {
+        let g = GridGeometry::new([4, 4, 4], DVec3::ZERO, DVec3::ONE);
+        let sigma = DVec3::new(2.0, 4.0, 0.0);
+        // From x = -0.1 (outside) to x = 0.3: three quarters inside.
+        let (a, b) = (DVec3::new(-0.1, 0.5, 0.5), DVec3::new(0.3, 0.5, 0.5));
+        let d = step_depth(&g, a, b, DVec3::ZERO, sigma, 0.4);
+        assert!((d - sigma * 0.3).length() < 1e-12, "{d}");
+        // And out of it, from the inside end.
+        let d = step_depth(
+            &g,
+            b + DVec3::X * 0.6,
+            b + DVec3::X * 0.8,
+            sigma,
+            DVec3::ZERO,
+            0.2,
+        );
+        assert!((d - sigma * 0.1).length() < 1e-12, "{d}");
+        // Inside: the trapezoid.
+        let d = step_depth(&g, a + DVec3::X * 0.2, b, sigma, sigma * 3.0, 0.2);
+        assert!((d - sigma * 0.4).length() < 1e-12, "{d}");
+    }
 }
