@@ -37,6 +37,17 @@ fn write_scene(dir: &Path, name: &str, text: &str) -> PathBuf {
     p
 }
 
+/// Run, and require success (showing stderr if not).
+fn eikon_ok(args: &[&str]) -> Output {
+    let out = eikon(args);
+    assert!(
+        out.status.success(),
+        "eikon {args:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
 /// Run with bad input: must fail with exit code 1, print `error:` with every
 /// expected fragment, and never panic.
 fn expect_error(args: &[&str], fragments: &[&str]) -> String {
@@ -82,7 +93,7 @@ fn every_config_loads_and_builds() {
 fn trace_reports_exit_through_luneburg_focus() {
     // A ray at impact parameter R/2 leaves the lens at the focus (0, 0, R)
     // and then travels straight to the bounds.
-    let out = eikon(&[
+    let out = eikon_ok(&[
         "trace",
         &config("luneburg.toml"),
         "--origin",
@@ -91,11 +102,6 @@ fn trace_reports_exit_through_luneburg_focus() {
         "0,0,1",
         "--json",
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["status"], "exited");
     let p: Vec<f64> = (0..3).map(|i| v["exit"][i].as_f64().unwrap()).collect();
@@ -136,7 +142,7 @@ fn slice_writes_a_png_of_the_grid() {
     let dir = tempfile::tempdir().unwrap();
     let scene = write_scene(dir.path(), "s.toml", SMALL);
     let png = dir.path().join("n.png");
-    let out = eikon(&[
+    eikon_ok(&[
         "slice",
         scene.to_str().unwrap(),
         "--axis",
@@ -148,11 +154,6 @@ fn slice_writes_a_png_of_the_grid() {
         "--scale",
         "2",
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
     let bytes = std::fs::read(&png).unwrap();
     assert_eq!(&bytes[1..4], b"PNG");
     // 16 x 16 voxels at scale 2: the IHDR width and height are 32.
@@ -316,18 +317,13 @@ fn simulate_writes_light_volumes_that_probe_reads() {
     let dir = tempfile::tempdir().unwrap();
     let scene = write_scene(dir.path(), "lit.toml", LIT);
     let out = dir.path().join("light");
-    let run = eikon(&[
+    let run = eikon_ok(&[
         "simulate",
         scene.to_str().unwrap(),
         "-o",
         out.to_str().unwrap(),
         "--json",
     ]);
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
     let summary: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
     let energy = &summary["lights"][0]["energy_w"];
     assert!(
@@ -344,18 +340,13 @@ fn simulate_writes_light_volumes_that_probe_reads() {
     }
     // 0.5 away from the light: irradiance P / (4 pi r^2), pointing away.
     let at = [0.6, 0.05, -0.02];
-    let probe = eikon(&[
+    let probe = eikon_ok(&[
         "probe",
         out.to_str().unwrap(),
         "--at",
         &format!("{},{},{}", at[0], at[1], at[2]),
         "--json",
     ]);
-    assert!(
-        probe.status.success(),
-        "{}",
-        String::from_utf8_lossy(&probe.stderr)
-    );
     let v: serde_json::Value = serde_json::from_slice(&probe.stdout).unwrap();
     let e = v["lights"][0]["irradiance"][0].as_f64().unwrap();
     let want = 4.0 / (4.0 * std::f64::consts::PI * 0.25);
@@ -425,7 +416,7 @@ fn simulate_with_photons_agrees_with_the_wavefront_in_free_space() {
     let dir = tempfile::tempdir().unwrap();
     let scene = write_scene(dir.path(), "lit.toml", LIT);
     let out = dir.path().join("photons");
-    let run = eikon(&[
+    eikon_ok(&[
         "simulate",
         scene.to_str().unwrap(),
         "-o",
@@ -437,28 +428,18 @@ fn simulate_with_photons_agrees_with_the_wavefront_in_free_space() {
         "--seed",
         "7",
     ]);
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
     let meta: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("light_volumes.json")).unwrap())
             .unwrap();
     assert_eq!(meta["method"], "photons");
     assert!(meta["lights"][0]["direction_file"].is_null());
-    let probe = eikon(&[
+    let probe = eikon_ok(&[
         "probe",
         out.to_str().unwrap(),
         "--at",
         "-0.5,0.4,0.3",
         "--json",
     ]);
-    assert!(
-        probe.status.success(),
-        "{}",
-        String::from_utf8_lossy(&probe.stderr)
-    );
     let v: serde_json::Value = serde_json::from_slice(&probe.stdout).unwrap();
     let e = v["lights"][0]["irradiance"][0].as_f64().unwrap();
     let r2 = 0.6f64.powi(2) + 0.35f64.powi(2) + 0.32f64.powi(2);

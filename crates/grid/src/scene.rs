@@ -623,29 +623,23 @@ struct MaterialFields<'a> {
     emission: [f64; 3],
 }
 
-impl RawAmbient {
-    fn fields(&self) -> MaterialFields<'_> {
-        MaterialFields {
-            index: &self.index,
-            extinction: self.extinction,
-            albedo: self.albedo,
-            g: self.g,
-            emission: self.emission,
+/// `fields()` for the two raw types that carry a material.
+macro_rules! material_fields {
+    ($($raw:ty),*) => {$(
+        impl $raw {
+            fn fields(&self) -> MaterialFields<'_> {
+                MaterialFields {
+                    index: &self.index,
+                    extinction: self.extinction,
+                    albedo: self.albedo,
+                    g: self.g,
+                    emission: self.emission,
+                }
+            }
         }
-    }
+    )*};
 }
-
-impl RawObject {
-    fn fields(&self) -> MaterialFields<'_> {
-        MaterialFields {
-            index: &self.index,
-            extinction: self.extinction,
-            albedo: self.albedo,
-            g: self.g,
-            emission: self.emission,
-        }
-    }
-}
+material_fields!(RawAmbient, RawObject);
 
 fn check_grid(c: &Checker, g: &RawGrid) -> Result<GridSettings> {
     use Seg::Key as K;
