@@ -28,6 +28,15 @@ fn build(scene: &Scene) -> Medium {
     Medium::build(scene).expect("test scene voxelizes")
 }
 
+/// The `[grid]` and `[ambient]` tables of a scene on [-1, 1]^3 with the
+/// default smoothing, at `resolution`, in air.
+fn unit_cube_grid(resolution: u32) -> String {
+    format!(
+        "[grid]\nresolution = {resolution}\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
+         smoothing = 0.75\nsupersample = 4\n\n[ambient]\nindex = 1.0\n"
+    )
+}
+
 /// Longest edge of the grid bounds: what errors are made relative to.
 fn domain_size(geom: &GridGeometry) -> f64 {
     (geom.max - geom.min).max_element()
@@ -401,23 +410,17 @@ fn luneburg_lens_focuses_on_the_far_surface() {
     let center = DVec3::new(0.013, -0.021, 0.008);
     let radius = 0.85;
     let scene = parse(&format!(
-        r#"
-[grid]
-resolution = 128
-min = [-1, -1, -1]
-max = [1, 1, 1]
-smoothing = 0.75
-supersample = 4
-
-[ambient]
-index = 1.0
+        r#"{}
 
 [[object]]
 name = "lens"
 shape = {{ type = "sphere", center = [{}, {}, {}], radius = {radius} }}
 index = {{ type = "luneburg" }}
 "#,
-        center.x, center.y, center.z
+        unit_cube_grid(128),
+        center.x,
+        center.y,
+        center.z
     ));
     let dir = DVec3::new(1.0, 0.25, -0.15).normalize();
     let medium = build(&scene);
@@ -553,23 +556,20 @@ fn snell_failures(normal: DVec3, incidences: &[f64]) -> Vec<String> {
     const TOL_DEG: f64 = 0.5;
     let point = DVec3::new(0.02, -0.03, 0.01);
     let scene = parse(&format!(
-        r#"
-[grid]
-resolution = 96
-min = [-1, -1, -1]
-max = [1, 1, 1]
-smoothing = 0.75
-supersample = 4
-
-[ambient]
-index = 1.0
+        r#"{}
 
 [[object]]
 name = "glass"
 shape = {{ type = "half_space", point = [{}, {}, {}], normal = [{}, {}, {}] }}
 index = {N_GLASS}
 "#,
-        point.x, point.y, point.z, normal.x, normal.y, normal.z
+        unit_cube_grid(96),
+        point.x,
+        point.y,
+        point.z,
+        normal.x,
+        normal.y,
+        normal.z
     ));
     let medium = build(&scene);
     let plane = (point, normal, tangent(normal, DVec3::new(1.0, -0.2, 0.6)));
@@ -727,31 +727,22 @@ fn priority_resolves_glass_and_water_overlap() {
     // The glass (priority 2) is listed before the water (priority 1), so
     // file order alone would give the overlap to the water. The water
     // cylinder (r < 0.6) reaches half-way into the glass wall (0.3 < r < 0.8).
-    let scene = parse(
-        r#"
-[grid]
-resolution = 96
-min = [-1, -1, -1]
-max = [1, 1, 1]
-smoothing = 0.75
-supersample = 4
-
-[ambient]
-index = 1.0
-
+    let scene = parse(&format!(
+        r#"{}
 [[object]]
 name = "glass"
-shape = { type = "revolution", base = [0, -0.7, 0], profile = [[0, 0], [0.8, 0], [0.8, 1.4], [0.3, 1.4], [0.3, 0.2], [0, 0.2]] }
+shape = {{ type = "revolution", base = [0, -0.7, 0], profile = [[0, 0], [0.8, 0], [0.8, 1.4], [0.3, 1.4], [0.3, 0.2], [0, 0.2]] }}
 index = 1.5
 priority = 2
 
 [[object]]
 name = "water"
-shape = { type = "cylinder", center = [0, 0, 0], radius = 0.6, height = 1.0 }
+shape = {{ type = "cylinder", center = [0, 0, 0], radius = 0.6, height = 1.0 }}
 index = 1.33
 priority = 1
 "#,
-    );
+        unit_cube_grid(96)
+    ));
     let medium = build(&scene);
     let field = medium.field(0);
     let voxel = medium.geometry.voxel_size();
