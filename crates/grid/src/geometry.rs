@@ -54,6 +54,24 @@ impl GridGeometry {
         self.min + (DVec3::new(i as f64, j as f64, k as f64) + 0.5) * self.spacing()
     }
 
+    /// The cell containing `p`, or `None` outside the bounds (a point on
+    /// the upper faces belongs to no cell).
+    #[inline]
+    pub fn cell_of(&self, p: DVec3) -> Option<[usize; 3]> {
+        let u = (p - self.min) / self.spacing();
+        if !u.cmpge(DVec3::ZERO).all() {
+            return None;
+        }
+        let c = [u.x as usize, u.y as usize, u.z as usize];
+        (c[0] < self.dims[0] && c[1] < self.dims[1] && c[2] < self.dims[2]).then_some(c)
+    }
+
+    /// Index of cell `(i, j, k)` in a C-order (x slowest, z fastest) array.
+    #[inline]
+    pub fn flat_index(&self, i: usize, j: usize, k: usize) -> usize {
+        (i * self.dims[1] + j) * self.dims[2] + k
+    }
+
     /// Continuous voxel coordinate of a world point (cell centres are integers).
     pub fn world_to_voxel(&self, p: DVec3) -> DVec3 {
         (p - self.min) / self.spacing() - 0.5

@@ -24,6 +24,7 @@
 
 use crate::patch::{area, Patches};
 use eikon_grid::{EmptySpace, GridGeometry, Medium};
+use glam::DVec3;
 use ndarray::{Array3, Array4};
 use rayon::prelude::*;
 
@@ -42,68 +43,104 @@ struct Deposit {
     direction: [f32; 3],
 }
 
-/// Cells a patch deposits into: those holding its midpoint and its four
-/// corners (a patch spans at most a cell or so, so these cover its
-/// footprint; the midpoint alone would leave cells between neighbouring
-/// midpoints unreached when a wavefront crosses the grid obliquely).
-const CANDIDATES: usize = 5;
+/// The deposit of patch `i` into cell `(x, y, z)`: its irradiance carried
+/// to the cell centre (see the module docs); `None` where the carried
+/// patch degenerates.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn deposit_at(
+    p: &Patches,
+    i: usize,
+    grid: &GridGeometry,
+    mid: DVec3,
+    d: DVec3,
+    ext: DVec3,
+    cell: [usize; 3],
+    tier: u8,
+    group: Option<usize>,
+) -> Option<Deposit> {
+    let [x, y, z] = cell;
+    let s = d.dot(grid.voxel_center(x, y, z) - mid);
+    let moved = [0, 1, 2, 3].map(|c| {
+        let r = &p.corner[c][i];
+        r.x + r.v.normalize_or_zero() * s
+    });
+    let ar = area(&moved);
+    if ar.is_nan() || ar <= 0.0 {
+        return None;
+    }
+    let e = [0, 1, 2].map(|c| p.flux[i][c] * (-ext[c] * s).exp() / ar);
+    let key = match group {
+        None => e[0] + e[1] + e[2],
+        Some(c) => e[c],
+    };
+    Some(Deposit {
+        cell: grid.flat_index(x, y, z) as u32,
+        key: key as f32,
+        tier,
+        irradiance: e.map(|v| v as f32),
+        direction: [d.x as f32, d.y as f32, d.z as f32],
+    })
+}
 
-/// The deposits of patch `i`: its irradiance carried to the centres of
-/// the cells under its midpoint and corners (see the module docs), each
-/// cell once; `None` for repeats and cells outside the grid.
-fn deposits_of(
+/// Extinction at the patch midpoint `mid` (none in empty space).
+#[inline]
+fn extinction_at(medium: &Medium, empty: &EmptySpace, mid: DVec3) -> DVec3 {
+    if empty.index_at(mid).is_some() {
+        DVec3::ZERO
+    } else {
+        medium.sample_rgb(&medium.extinction, mid)
+    }
+}
+
+/// The deposit of patch `i` into the cell under its midpoint.
+fn midpoint_deposit(
     p: &Patches,
     i: usize,
     medium: &Medium,
     empty: &EmptySpace,
     group: Option<usize>,
-) -> [Option<Deposit>; CANDIDATES] {
-    let mut out = [None; CANDIDATES];
+) -> Option<Deposit> {
     let grid = &medium.geometry;
-    let dims = grid.dims;
     let mid = p.midpoint(i);
-    let corners = p.positions(i);
-    let points = [mid, corners[0], corners[1], corners[2], corners[3]];
-    let d = p.direction(i);
-    let unit = [0, 1, 2, 3].map(|c| p.corner[c][i].v.normalize_or_zero());
-    let ext = if empty.index_at(mid).is_some() {
-        glam::DVec3::ZERO
-    } else {
-        medium.sample_rgb(&medium.extinction, mid)
-    };
-    let mut seen = [u32::MAX; CANDIDATES];
-    for (slot, q) in points.iter().enumerate() {
-        let u = (*q - grid.min) / grid.spacing();
-        if !(u.cmpge(glam::DVec3::ZERO).all()) {
+    let cell = grid.cell_of(mid)?;
+    let ext = extinction_at(medium, empty, mid);
+    deposit_at(p, i, grid, mid, p.direction(i), ext, cell, 1, group)
+}
+
+/// The deposits of patch `i` into the cells under its corners that no
+/// midpoint has reached yet (`tier` 0; the others would refuse a corner's
+/// deposit anyway), each cell once and not the midpoint's own.
+fn corner_deposits(
+    p: &Patches,
+    i: usize,
+    medium: &Medium,
+    empty: &EmptySpace,
+    group: Option<usize>,
+    tier: &[u8],
+) -> [Option<Deposit>; 4] {
+    let mut out = [None; 4];
+    let grid = &medium.geometry;
+    let mid = p.midpoint(i);
+    let mut seen = [usize::MAX; 5];
+    if let Some([x, y, z]) = grid.cell_of(mid) {
+        seen[0] = grid.flat_index(x, y, z);
+    }
+    let mut local = None;
+    for c in 0..4 {
+        let Some(cell) = grid.cell_of(p.corner[c][i].x) else {
             continue;
-        }
-        let (x, y, z) = (u.x as usize, u.y as usize, u.z as usize);
-        if x >= dims[0] || y >= dims[1] || z >= dims[2] {
-            continue;
-        }
-        let cell = ((x * dims[1] + y) * dims[2] + z) as u32;
-        if seen[..slot].contains(&cell) {
-            continue;
-        }
-        seen[slot] = cell;
-        let s = d.dot(grid.voxel_center(x, y, z) - mid);
-        let moved = [0, 1, 2, 3].map(|c| corners[c] + unit[c] * s);
-        let ar = area(&moved);
-        if ar.is_nan() || ar <= 0.0 {
-            continue;
-        }
-        let e = [0, 1, 2].map(|c| p.flux[i][c] * (-ext[c] * s).exp() / ar);
-        let key = match group {
-            None => e[0] + e[1] + e[2],
-            Some(c) => e[c],
         };
-        out[slot] = Some(Deposit {
-            cell,
-            key: key as f32,
-            tier: u8::from(slot == 0),
-            irradiance: e.map(|v| v as f32),
-            direction: [d.x as f32, d.y as f32, d.z as f32],
-        });
+        let flat = grid.flat_index(cell[0], cell[1], cell[2]);
+        if seen.contains(&flat) || tier[flat] > 0 {
+            continue;
+        }
+        seen[c + 1] = flat;
+        // Direction and extinction only once a cell needs them: most
+        // corners land in cells a midpoint has already reached.
+        let (d, ext) =
+            *local.get_or_insert_with(|| (p.direction(i), extinction_at(medium, empty, mid)));
+        out[c] = deposit_at(p, i, grid, mid, d, ext, cell, 0, group);
     }
     out
 }
@@ -121,8 +158,10 @@ pub struct LightVolume {
     best: Vec<Array3<f32>>,
     /// Tier of the ray kept so far (see `Deposit::tier`).
     tier: Vec<Array3<u8>>,
-    /// This step's deposits, reused from step to step.
-    pending: Vec<[Option<Deposit>; CANDIDATES]>,
+    /// This step's midpoint deposits, reused from step to step.
+    pending: Vec<Option<Deposit>>,
+    /// This step's corner deposits.
+    pending_corners: Vec<[Option<Deposit>; 4]>,
 }
 
 impl LightVolume {
@@ -138,6 +177,7 @@ impl LightVolume {
             best: (0..groups).map(|_| Array3::zeros((nx, ny, nz))).collect(),
             tier: (0..groups).map(|_| Array3::zeros((nx, ny, nz))).collect(),
             pending: Vec::new(),
+            pending_corners: Vec::new(),
         }
     }
 
@@ -146,7 +186,10 @@ impl LightVolume {
     /// `None` for a wavefront carrying all three.
     ///
     /// The deposits are computed in parallel, then applied in patch order,
-    /// so the result does not depend on the number of threads.
+    /// so the result does not depend on the number of threads: first the
+    /// midpoints, then the corners, which only fill cells no midpoint has
+    /// reached (so a cell reached by a midpoint in this step or earlier
+    /// costs a corner nothing but a lookup).
     pub fn deposit(
         &mut self,
         p: &Patches,
@@ -156,14 +199,34 @@ impl LightVolume {
     ) {
         (0..p.len())
             .into_par_iter()
-            .map(|i| deposits_of(p, i, medium, empty, group))
+            .map(|i| midpoint_deposit(p, i, medium, empty, group))
             .collect_into_vec(&mut self.pending);
         let g = group.unwrap_or(0);
+        let pending = std::mem::take(&mut self.pending);
+        self.apply(g, group, pending.iter().flatten());
+        self.pending = pending;
+        let tier = self.tier[g].as_slice().expect("contiguous");
+        (0..p.len())
+            .into_par_iter()
+            .map(|i| corner_deposits(p, i, medium, empty, group, tier))
+            .collect_into_vec(&mut self.pending_corners);
+        let pending = std::mem::take(&mut self.pending_corners);
+        self.apply(g, group, pending.iter().flatten().flatten());
+        self.pending_corners = pending;
+    }
+
+    /// Apply `deposits` in order by the highest-energy rule.
+    fn apply<'a>(
+        &mut self,
+        g: usize,
+        group: Option<usize>,
+        deposits: impl Iterator<Item = &'a Deposit>,
+    ) {
         let best = self.best[g].as_slice_mut().expect("contiguous");
         let tier = self.tier[g].as_slice_mut().expect("contiguous");
         let irr = self.irradiance.as_slice_mut().expect("contiguous");
         let dir = self.direction[g].as_slice_mut().expect("contiguous");
-        for d in self.pending.iter().flatten().flatten() {
+        for d in deposits {
             let cell = d.cell as usize;
             // A midpoint beats a corner; then the highest energy; strictly
             // greater, so the first of equal rays stays.
