@@ -3,6 +3,8 @@
 mod info;
 mod output;
 mod probe;
+mod render;
+mod run;
 mod simulate;
 mod slice;
 mod trace;
@@ -30,6 +32,12 @@ enum Command {
     Simulate(simulate::Args),
     /// Print the simulated irradiance and light direction at a point.
     Probe(probe::Args),
+    /// Render an image of a scene lit by simulated light volumes.
+    Render(render::Args),
+    /// Simulate every light of a scene, then render it.
+    Run(run::Args),
+    /// Simulate and render a built-in scene (a glass sphere and its caustic): no files needed.
+    Demo(run::DemoArgs),
 }
 
 fn main() -> ExitCode {
@@ -40,6 +48,9 @@ fn main() -> ExitCode {
         Command::Slice(a) => slice::run(a),
         Command::Simulate(a) => simulate::run(a),
         Command::Probe(a) => probe::run(a),
+        Command::Render(a) => render::run(a),
+        Command::Run(a) => run::run(a),
+        Command::Demo(a) => run::demo(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -3,7 +3,7 @@
 use crate::output::{build_medium, write_atomic};
 use anyhow::{bail, Context, Result};
 use clap::ValueEnum;
-use eikon_grid::{Light, Method, Scene};
+use eikon_grid::{Light, Medium, Method, Scene};
 use eikon_wavefront::photons::simulate_photons;
 use eikon_wavefront::{check_scene, simulate_light, LightVolume, Options, Summary};
 use ndarray::{Array4, Array5, Axis};
@@ -168,30 +168,61 @@ fn write_npy<A: WriteNpyExt>(dir: &Path, name: &str, a: &A) -> Result<()> {
     })
 }
 
+impl Args {
+    /// The default settings, simulating `scene` into `output` (for
+    /// `eikon run` and `eikon demo`).
+    pub fn defaults(scene: PathBuf, output: PathBuf) -> Args {
+        use clap::Parser;
+        #[derive(Parser)]
+        struct Wrap {
+            #[command(flatten)]
+            args: Args,
+        }
+        let mut args = Wrap::parse_from(["eikon", "scene", "-o", "out"]).args;
+        args.scene = scene;
+        args.output = output;
+        args
+    }
+
+    fn options(&self) -> Result<Options> {
+        let opts = Options {
+            step: self.step,
+            method: match self.integrator {
+                Integrator::Euler => Method::Euler,
+                Integrator::Rk4 => Method::Rk4,
+            },
+            patch_size: self.patch_size,
+            split: self.split,
+            threshold: self.threshold,
+            max_patches: self.max_patches,
+            max_steps: self.max_steps,
+            ..Options::default()
+        };
+        if let Err(e) = opts.check() {
+            bail!("--{e}");
+        }
+        if self.method == SimMethod::Photons && self.count == 0 {
+            bail!("--count: need at least one photon");
+        }
+        Ok(opts)
+    }
+}
+
 /// Run `eikon simulate`.
 pub fn run(args: Args) -> Result<()> {
-    let opts = Options {
-        step: args.step,
-        method: match args.integrator {
-            Integrator::Euler => Method::Euler,
-            Integrator::Rk4 => Method::Rk4,
-        },
-        patch_size: args.patch_size,
-        split: args.split,
-        threshold: args.threshold,
-        max_patches: args.max_patches,
-        max_steps: args.max_steps,
-        ..Options::default()
-    };
-    if let Err(e) = opts.check() {
-        bail!("--{e}");
-    }
-    if args.method == SimMethod::Photons && args.count == 0 {
-        bail!("--count: need at least one photon");
-    }
+    args.options()?;
     let scene = Scene::load(&args.scene)?;
     let medium = build_medium(&scene)?;
-    check_scene(&scene, &medium, &opts)?;
+    simulate(&args, &scene, &medium)?;
+    Ok(())
+}
+
+/// Simulate every light of `scene` (built as `medium`), write the volumes
+/// and the sidecar to `args.output`, print the summary. Returns the
+/// wavefront light volumes (none for photons).
+pub fn simulate(args: &Args, scene: &Scene, medium: &Medium) -> Result<Vec<LightVolume>> {
+    let opts = args.options()?;
+    check_scene(scene, medium, &opts)?;
     if args.output.exists() && !args.output.is_dir() {
         bail!("{}: exists and is not a directory", args.output.display());
     }
@@ -207,7 +238,7 @@ pub fn run(args: Args) -> Result<()> {
         let t = Instant::now();
         let (volume, summary) = match args.method {
             SimMethod::Wavefront => {
-                let (v, s) = simulate_light(light, &medium, &opts, &|step, live| {
+                let (v, s) = simulate_light(light, medium, &opts, &|step, live| {
                     bar.set_message(format!("step {step}, {live} live patches"));
                     bar.tick();
                 })?;
@@ -216,7 +247,7 @@ pub fn run(args: Args) -> Result<()> {
             SimMethod::Photons => {
                 bar.set_message(format!("tracing {} photons", args.count));
                 bar.enable_steady_tick(std::time::Duration::from_millis(200));
-                let (v, s) = simulate_photons(light, &medium, args.count, args.seed, &opts)?;
+                let (v, s) = simulate_photons(light, medium, args.count, args.seed, &opts)?;
                 (Volumes::Photons(v.irradiance), s)
             }
         };
@@ -320,5 +351,11 @@ pub fn run(args: Args) -> Result<()> {
             args.output.display()
         );
     }
-    Ok(())
+    Ok(results
+        .into_iter()
+        .filter_map(|(v, _, _)| match v {
+            Volumes::Wavefront(v) => Some(v),
+            Volumes::Photons(_) => None,
+        })
+        .collect())
 }

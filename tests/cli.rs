@@ -293,6 +293,9 @@ fn every_command_has_help() {
         vec!["slice", "--help"],
         vec!["simulate", "--help"],
         vec!["probe", "--help"],
+        vec!["render", "--help"],
+        vec!["run", "--help"],
+        vec!["demo", "--help"],
     ] {
         let out = eikon(&cmd);
         assert!(out.status.success());
@@ -459,4 +462,164 @@ fn simulate_with_photons_agrees_with_the_wavefront_in_free_space() {
         ],
         &["--count"],
     );
+}
+
+/// A small lit scene with a camera, for the render commands.
+const VIEW: &str = r#"
+[grid]
+resolution = 24
+min = [-1, -1, -1]
+max = [1, 1, 1]
+
+[[object]]
+shape = { type = "sphere", center = [0, 0, 0], radius = 0.5 }
+index = 1.5
+extinction = [0.5, 0.5, 0.5]
+albedo = [0.5, 0.5, 0.5]
+
+[[light]]
+type = "directional"
+direction = [0, -1, 0]
+power = [1, 1, 1]
+
+[receiver]
+point = [0, -0.8, 0]
+normal = [0, 1, 0]
+albedo = [0.8, 0.8, 0.8]
+
+[camera]
+position = [0, 1, 3]
+target = [0, 0, 0]
+resolution = [32, 24]
+"#;
+
+#[test]
+fn run_simulates_and_renders_and_render_reuses_the_volumes() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_scene(dir.path(), "view.toml", VIEW);
+    let out = dir.path().join("out");
+    eikon_ok(&["run", scene.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    for f in [
+        "light_volumes.json",
+        "light0_irradiance.npy",
+        "image.exr",
+        "image.png",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let png = out.join("again.png");
+    let exr = out.join("again.exr");
+    let r = eikon_ok(&[
+        "render",
+        scene.to_str().unwrap(),
+        "--light",
+        out.to_str().unwrap(),
+        "-o",
+        png.to_str().unwrap(),
+        "-o",
+        exr.to_str().unwrap(),
+        "--json",
+    ]);
+    let v: serde_json::Value = serde_json::from_slice(&r.stdout).unwrap();
+    assert_eq!(v["width"], 32);
+    // Deterministic: the same scene renders the same image.
+    assert_eq!(
+        std::fs::read(out.join("image.exr")).unwrap(),
+        std::fs::read(&exr).unwrap()
+    );
+    assert!(std::fs::read(&png).unwrap().starts_with(b"\x89PNG"));
+}
+
+#[test]
+fn render_refuses_bad_input_without_writing() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_scene(dir.path(), "view.toml", VIEW);
+    let s = scene.to_str().unwrap();
+    let img = dir.path().join("never.png");
+    let i = img.to_str().unwrap();
+    // A missing light-volume directory.
+    let missing = dir.path().join("nothing-here");
+    expect_error(
+        &["render", s, "--light", missing.to_str().unwrap(), "-o", i],
+        &["light_volumes.json", "cannot read"],
+    );
+    // Light volumes of another grid.
+    let other = write_scene(
+        dir.path(),
+        "other.toml",
+        &VIEW.replace("resolution = 24", "resolution = 16"),
+    );
+    let vols = dir.path().join("vols16");
+    eikon_ok(&[
+        "simulate",
+        other.to_str().unwrap(),
+        "-o",
+        vols.to_str().unwrap(),
+    ]);
+    expect_error(
+        &["render", s, "--light", vols.to_str().unwrap(), "-o", i],
+        &["grid", "16x16x16", "24x24x24", "simulate this scene again"],
+    );
+    // An unreadable environment map, named with its field.
+    let bad_env = write_scene(dir.path(), "env.exr", "not an exr file");
+    let with_env = write_scene(
+        dir.path(),
+        "env.toml",
+        &format!(
+            "{VIEW}\n[background]\ntype = \"environment\"\nfile = \"{}\"\n",
+            bad_env.file_name().unwrap().to_str().unwrap()
+        ),
+    );
+    expect_error(
+        &["render", with_env.to_str().unwrap(), "-o", i],
+        &["background.file", "env.exr"],
+    );
+    let absent = write_scene(
+        dir.path(),
+        "absent.toml",
+        &format!("{VIEW}\n[background]\ntype = \"environment\"\nfile = \"gone.exr\"\n"),
+    );
+    expect_error(
+        &["render", absent.to_str().unwrap(), "-o", i],
+        &["background.file", "gone.exr"],
+    );
+    // An unknown image format, before any work.
+    expect_error(
+        &[
+            "render",
+            s,
+            "-o",
+            dir.path().join("x.jpg").to_str().unwrap(),
+        ],
+        &["x.jpg", ".exr", ".png"],
+    );
+    // A bad camera in the scene file, located.
+    let cam = write_scene(
+        dir.path(),
+        "cam.toml",
+        &VIEW.replace("target = [0, 0, 0]", "target = [0, 1, 3]"),
+    );
+    expect_error(
+        &["render", cam.to_str().unwrap(), "-o", i],
+        &["camera.target"],
+    );
+    assert!(!img.exists(), "a failed render left an image");
+}
+
+#[test]
+fn demo_needs_no_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    eikon_ok(&[
+        "demo",
+        "-o",
+        out.to_str().unwrap(),
+        "--width",
+        "64",
+        "--height",
+        "48",
+    ]);
+    for f in ["demo.toml", "demo.png", "demo.exr", "light_volumes.json"] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
 }

@@ -398,6 +398,27 @@ impl EmptySpace {
         (!n.is_nan()).then_some(n as f64)
     }
 
+    /// If `p` lies in an empty block: the block's index and the distance
+    /// along the unit direction `d` from `p` to where the line leaves the
+    /// block. A ray may cross that distance in one straight step.
+    #[inline]
+    pub fn block_exit(&self, p: DVec3, d: DVec3) -> Option<(f64, f64)> {
+        let n = self.index_at(p)?;
+        let u = (p - self.min) * self.inv_block;
+        let cell = u.floor();
+        let du = d * self.inv_block;
+        let mut t = f64::INFINITY;
+        for a in 0..3 {
+            // Distance to the block face ahead along axis a, in world units.
+            if du[a] > 0.0 {
+                t = t.min((cell[a] + 1.0 - u[a]) / du[a]);
+            } else if du[a] < 0.0 {
+                t = t.min((cell[a] - u[a]) / du[a]);
+            }
+        }
+        Some((n, t.max(0.0)))
+    }
+
     /// Fraction of blocks that are empty.
     pub fn empty_fraction(&self) -> f64 {
         self.n.iter().filter(|x| !x.is_nan()).count() as f64 / self.n.len() as f64

@@ -23,10 +23,10 @@ mod voxelize;
 
 pub use error::{Error, Location, Result};
 pub use field::{AnalyticField, EmptySpace, Medium, MemoryEstimate, VoxelField};
-pub use geometry::GridGeometry;
+pub use geometry::{GridGeometry, Trilinear};
 pub use object::{IndexProfile, Material, Object};
 pub use ray::{
     trace, trace_many, Form, IndexField, Method, RayEnd, RayState, Status, TraceOptions,
 };
-pub use scene::{Light, Receiver, Scene};
+pub use scene::{Background, CameraSettings, Light, Receiver, RenderSettings, Scene};
 pub use shape::Shape;

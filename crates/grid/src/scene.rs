@@ -28,6 +28,12 @@ struct RawScene {
     lights: Vec<RawLight>,
     #[serde(default)]
     receiver: Option<RawReceiver>,
+    #[serde(default)]
+    camera: Option<RawCamera>,
+    #[serde(default)]
+    background: Option<RawBackground>,
+    #[serde(default)]
+    render: Option<RawRender>,
 }
 
 #[derive(Deserialize)]
@@ -252,6 +258,82 @@ struct RawReceiver {
     albedo: [f64; 3],
 }
 
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawCamera {
+    position: [f64; 3],
+    target: [f64; 3],
+    #[serde(default = "default_up")]
+    up: [f64; 3],
+    #[serde(default = "default_fov")]
+    fov: f64,
+    #[serde(default = "default_image")]
+    resolution: [u32; 2],
+    #[serde(default = "default_samples")]
+    samples: u32,
+}
+
+fn default_up() -> [f64; 3] {
+    [0.0, 1.0, 0.0]
+}
+fn default_fov() -> f64 {
+    40.0
+}
+fn default_image() -> [u32; 2] {
+    [800, 600]
+}
+fn default_samples() -> u32 {
+    1
+}
+
+#[derive(Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+enum RawBackground {
+    Constant {
+        color: [f64; 3],
+    },
+    Sky {
+        #[serde(default = "default_one")]
+        intensity: f64,
+    },
+    Environment {
+        file: String,
+        #[serde(default = "default_one")]
+        intensity: f64,
+    },
+    Checker {
+        point: [f64; 3],
+        normal: [f64; 3],
+        square: f64,
+        colors: [[f64; 3]; 2],
+    },
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawRender {
+    #[serde(default = "default_render_step")]
+    step: f64,
+    #[serde(default)]
+    integrator: RawIntegrator,
+    #[serde(default)]
+    exposure: Option<f64>,
+    #[serde(default)]
+    seed: u64,
+}
+
+fn default_render_step() -> f64 {
+    0.5
+}
+
+#[derive(Deserialize, Default, Clone, Copy)]
+#[serde(rename_all = "snake_case")]
+enum RawIntegrator {
+    #[default]
+    Euler,
+    Rk4,
+}
+
 // ---------------------------------------------------------------------------
 // Validated scene.
 
@@ -313,6 +395,79 @@ pub struct Receiver {
     pub albedo: DVec3,
 }
 
+/// Where the scene is seen from: a look-at pinhole camera.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraSettings {
+    /// Eye position, world units.
+    pub position: DVec3,
+    /// Point the camera looks at.
+    pub target: DVec3,
+    /// Up direction (unit; need not be orthogonal to the view direction).
+    pub up: DVec3,
+    /// Vertical field of view, degrees.
+    pub fov: f64,
+    /// Image width and height, pixels.
+    pub resolution: [u32; 2],
+    /// Samples per pixel (stratified).
+    pub samples: u32,
+}
+
+/// What an eye ray sees once it has left the volume (and missed the
+/// receiver).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Background {
+    /// One RGB radiance in every direction.
+    Constant(DVec3),
+    /// The built-in procedural sky (no file needed), scaled.
+    Sky {
+        /// Radiance scale.
+        intensity: f64,
+    },
+    /// A lat-long HDR environment map read from an EXR file.
+    Environment {
+        /// The file, resolved against the scene file's folder.
+        file: std::path::PathBuf,
+        /// Radiance scale.
+        intensity: f64,
+    },
+    /// An emitting checkerboard plane (black beyond it): a test pattern
+    /// behind a lens.
+    Checker {
+        /// A point on the plane (a corner of a square).
+        point: DVec3,
+        /// Unit normal.
+        normal: DVec3,
+        /// Edge length of a square, world units.
+        square: f64,
+        /// RGB radiance of the two kinds of square.
+        colors: [DVec3; 2],
+    },
+}
+
+/// How eye rays are marched and the image exposed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderSettings {
+    /// Step length, voxels.
+    pub step: f64,
+    /// Integrator of the eye rays: Euler (eqs 11-12) or RK4.
+    pub integrator: crate::ray::Method,
+    /// Exposure in stops, or `None` for automatic exposure.
+    pub exposure: Option<f64>,
+    /// Seed of the pixel sample jitter.
+    pub seed: u64,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        Self {
+            step: default_render_step(),
+            integrator: crate::ray::Method::Euler,
+            exposure: None,
+            seed: 0,
+        }
+    }
+}
+
 /// A validated scene: grid, ambient medium, objects, lights, receiver.
 #[derive(Clone, Debug)]
 pub struct Scene {
@@ -331,6 +486,12 @@ pub struct Scene {
     pub lights: Vec<Light>,
     /// Optional diffuse receiver plane.
     pub receiver: Option<Receiver>,
+    /// The camera, when the file sets one (`[camera]`).
+    pub camera: Option<CameraSettings>,
+    /// The background (`[background]`; the procedural sky by default).
+    pub background: Background,
+    /// Eye-ray marching and exposure (`[render]`).
+    pub render: RenderSettings,
 }
 
 /// One step of a field path.
@@ -537,6 +698,20 @@ impl Scene {
             }),
         };
 
+        let camera = raw
+            .camera
+            .as_ref()
+            .map(|r| check_camera(c, r))
+            .transpose()?;
+        let background = match &raw.background {
+            None => Background::Sky { intensity: 1.0 },
+            Some(b) => check_background(c, b)?,
+        };
+        let render = match &raw.render {
+            None => RenderSettings::default(),
+            Some(r) => check_render(c, r)?,
+        };
+
         // Highest priority first; among equals the later object first.
         let mut precedence: Vec<usize> = (0..objects.len()).rev().collect();
         precedence.sort_by_key(|&i| std::cmp::Reverse(objects[i].priority));
@@ -550,6 +725,9 @@ impl Scene {
             precedence,
             lights,
             receiver,
+            camera,
+            background,
+            render,
         })
     }
 
@@ -814,6 +992,121 @@ fn check_material(
 }
 
 /// Light `i` of the file.
+fn check_camera(c: &Checker, r: &RawCamera) -> Result<CameraSettings> {
+    let p = |k| [Seg::Key("camera"), Seg::Key(k)];
+    let position = c.vec3(&p("position"), r.position)?;
+    let target = c.vec3(&p("target"), r.target)?;
+    if (target - position).length() == 0.0 {
+        return Err(c.err(
+            &p("target"),
+            "the camera must look somewhere: target equals position",
+        ));
+    }
+    let up = c.unit(&p("up"), r.up)?;
+    if up.cross((target - position).normalize()).length() < 1e-6 {
+        return Err(c.err(&p("up"), "up must not be parallel to the view direction"));
+    }
+    c.finite(&p("fov"), &[r.fov])?;
+    if !(r.fov > 0.0 && r.fov < 180.0) {
+        return Err(c.err(
+            &p("fov"),
+            format!("field of view must lie in (0, 180) degrees, got {}", r.fov),
+        ));
+    }
+    let [w, h] = r.resolution;
+    if w == 0 || h == 0 || w > 16384 || h > 16384 {
+        return Err(c.err(
+            &p("resolution"),
+            format!("image size must be 1 to 16384 pixels a side, got {w} x {h}"),
+        ));
+    }
+    if r.samples == 0 || r.samples > 4096 {
+        return Err(c.err(
+            &p("samples"),
+            format!("samples per pixel must lie in 1..=4096, got {}", r.samples),
+        ));
+    }
+    Ok(CameraSettings {
+        position,
+        target,
+        up,
+        fov: r.fov,
+        resolution: r.resolution,
+        samples: r.samples,
+    })
+}
+
+fn check_background(c: &Checker, b: &RawBackground) -> Result<Background> {
+    let p = |k| [Seg::Key("background"), Seg::Key(k)];
+    let scale = |v: f64| -> Result<f64> {
+        c.finite(&p("intensity"), &[v])?;
+        if v < 0.0 {
+            return Err(c.err(&p("intensity"), "intensity must be >= 0"));
+        }
+        Ok(v)
+    };
+    let radiance = |path: &[Seg], v: [f64; 3]| -> Result<DVec3> {
+        let v = c.vec3(path, v)?;
+        if v.min_element() < 0.0 {
+            return Err(c.err(path, "radiance must be >= 0"));
+        }
+        Ok(v)
+    };
+    Ok(match b {
+        RawBackground::Constant { color } => Background::Constant(radiance(&p("color"), *color)?),
+        RawBackground::Sky { intensity } => Background::Sky {
+            intensity: scale(*intensity)?,
+        },
+        RawBackground::Environment { file, intensity } => {
+            let base = Path::new(c.origin).parent().unwrap_or(Path::new(""));
+            Background::Environment {
+                file: base.join(file),
+                intensity: scale(*intensity)?,
+            }
+        }
+        RawBackground::Checker {
+            point,
+            normal,
+            square,
+            colors,
+        } => {
+            let path = |i| [Seg::Key("background"), Seg::Key("colors"), Seg::Index(i)];
+            Background::Checker {
+                point: c.vec3(&p("point"), *point)?,
+                normal: c.unit(&p("normal"), *normal)?,
+                square: c.positive(&p("square"), *square)?,
+                colors: [
+                    radiance(&path(0), colors[0])?,
+                    radiance(&path(1), colors[1])?,
+                ],
+            }
+        }
+    })
+}
+
+fn check_render(c: &Checker, r: &RawRender) -> Result<RenderSettings> {
+    let p = |k| [Seg::Key("render"), Seg::Key(k)];
+    let step = c.positive(&p("step"), r.step)?;
+    if step > 4.0 {
+        return Err(c.err(
+            &p("step"),
+            format!("step must be at most 4 voxels, got {step}"),
+        ));
+    }
+    if let Some(e) = r.exposure {
+        c.finite(&p("exposure"), &[e])?;
+    }
+    Ok(RenderSettings {
+        step,
+        integrator: match r.integrator {
+            RawIntegrator::Euler => crate::ray::Method::Euler,
+            RawIntegrator::Rk4 => crate::ray::Method::Rk4,
+        },
+        exposure: r.exposure,
+        seed: r.seed,
+    })
+}
+
 fn check_light(c: &Checker, i: usize, l: &RawLight) -> Result<Light> {
     let p = |k| [Seg::Key("light"), Seg::Index(i), Seg::Key(k)];
     let power = |v| -> Result<DVec3> {

@@ -176,8 +176,9 @@ fn triangle_solid_angle(a: DVec3, b: DVec3, c: DVec3) -> f64 {
 }
 
 /// Spot weight of direction `dir`: 1 inside the cone, a smoothstep across
-/// the `falloff` band at its edge, 0 outside.
-pub(crate) fn cone_weight(dir: DVec3, cone: Option<(DVec3, f64, f64)>) -> f64 {
+/// the `falloff` band at its edge, 0 outside. `cone` is the unit axis, the
+/// half-angle and the falloff in degrees, or `None` for a point light.
+pub fn cone_weight(dir: DVec3, cone: Option<(DVec3, f64, f64)>) -> f64 {
     let Some((axis, angle, falloff)) = cone else {
         return 1.0;
     };

@@ -181,6 +181,48 @@ impl LightVolume {
         }
     }
 
+    /// A finished light volume from its arrays (read back from disk, say):
+    /// `irradiance` `(nx, ny, nz, 3)`, and one or three `direction` arrays
+    /// of the same shape. Errors name the array whose shape is wrong.
+    pub fn from_arrays(
+        grid: &GridGeometry,
+        irradiance: Array4<f32>,
+        direction: Vec<Array4<f32>>,
+    ) -> Result<Self, String> {
+        let [nx, ny, nz] = grid.dims;
+        let want = [nx, ny, nz, 3];
+        if irradiance.shape() != want {
+            return Err(format!(
+                "irradiance has shape {:?}, the grid needs {want:?}",
+                irradiance.shape()
+            ));
+        }
+        if !(direction.len() == 1 || direction.len() == 3) {
+            return Err(format!(
+                "{} direction arrays: need 1, or 3 with dispersion",
+                direction.len()
+            ));
+        }
+        if let Some(d) = direction.iter().find(|d| d.shape() != want) {
+            return Err(format!(
+                "direction has shape {:?}, the grid needs {want:?}",
+                d.shape()
+            ));
+        }
+        let groups = direction.len();
+        Ok(Self {
+            irradiance: irradiance.as_standard_layout().into_owned(),
+            direction: direction
+                .into_iter()
+                .map(|d| d.as_standard_layout().into_owned())
+                .collect(),
+            best: (0..groups).map(|_| Array3::zeros((nx, ny, nz))).collect(),
+            tier: (0..groups).map(|_| Array3::zeros((nx, ny, nz))).collect(),
+            pending: Vec::new(),
+            pending_corners: Vec::new(),
+        })
+    }
+
     /// Deposit every patch of a wavefront. `group` is the wavefront's
     /// colour channel with dispersion (it writes that channel only), or
     /// `None` for a wavefront carrying all three.

@@ -1,0 +1,259 @@
+//! What a ray sees once it leaves the volume: `L_bg` of eq 1, and the
+//! diffuse receiver plane (the table a caustic falls on, the paper's
+//! Fig. 7, where it replaces the environment lookup by a ray-plane
+//! intersection).
+//!
+//! The receiver is lit by the light volumes where it lies inside the
+//! grid: its radiance is `albedo / pi * sum_j E_j max(0, -l_j . n)`, with
+//! `E_j` and `l_j` the differential irradiance and direction of light `j`
+//! interpolated at the hit point, and `n` the plane normal on the eye's
+//! side. Outside the grid nothing refracts or shadows, so it is lit by the
+//! lights directly: a directional light's irradiance, or a point or spot
+//! light's `P / (4 pi r^2)` (times the cone weight for a spot).
+
+use crate::environment::{Environment, EnvironmentError, LatLongMap};
+use eikon_grid::{Background, GridGeometry, Light, Receiver, Scene};
+use eikon_wavefront::LightVolume;
+use glam::DVec3;
+use std::f64::consts::PI;
+
+/// The far field of one render: environment, optional checkerboard, and
+/// the receiver plane with the lights that illuminate it.
+pub struct Surroundings<'a> {
+    environment: Environment,
+    checker: Option<Checker>,
+    receiver: Option<Receiver>,
+    lights: &'a [Light],
+    volumes: &'a [LightVolume],
+    grid: &'a GridGeometry,
+}
+
+/// An emitting checkerboard plane.
+#[derive(Clone, Copy, Debug)]
+struct Checker {
+    point: DVec3,
+    normal: DVec3,
+    u: DVec3,
+    w: DVec3,
+    square: f64,
+    colors: [DVec3; 2],
+}
+
+/// A unit vector orthogonal to the unit `n` (a fixed, documented choice:
+/// from the world axis least aligned with `n`), so that checker squares
+/// line up with the world axes where they can.
+fn tangent(n: DVec3) -> DVec3 {
+    let a = n.abs();
+    let axis = if a.x <= a.y && a.x <= a.z {
+        DVec3::X
+    } else if a.y <= a.z {
+        DVec3::Y
+    } else {
+        DVec3::Z
+    };
+    (axis - n * n.dot(axis)).normalize()
+}
+
+/// Distance along the unit `d` from `o` to the plane `(p, n)`, if ahead.
+#[inline]
+fn plane_hit(o: DVec3, d: DVec3, p: DVec3, n: DVec3) -> Option<f64> {
+    let den = d.dot(n);
+    if den == 0.0 {
+        return None;
+    }
+    let t = (p - o).dot(n) / den;
+    (t > 0.0 && t.is_finite()).then_some(t)
+}
+
+impl<'a> Surroundings<'a> {
+    /// The surroundings of `scene`, with its background already loaded as
+    /// `environment` (for [`Background::Checker`], what lies beyond the
+    /// board: black), lit by `volumes` (one per light of the scene, on
+    /// `grid`).
+    pub fn new(
+        scene: &'a Scene,
+        environment: Environment,
+        volumes: &'a [LightVolume],
+        grid: &'a GridGeometry,
+    ) -> Self {
+        let checker = match &scene.background {
+            Background::Checker {
+                point,
+                normal,
+                square,
+                colors,
+            } => {
+                let u = tangent(*normal);
+                Some(Checker {
+                    point: *point,
+                    normal: *normal,
+                    u,
+                    w: normal.cross(u),
+                    square: *square,
+                    colors: *colors,
+                })
+            }
+            _ => None,
+        };
+        Self {
+            environment,
+            checker,
+            receiver: scene.receiver.clone(),
+            lights: &scene.lights,
+            volumes,
+            grid,
+        }
+    }
+
+    /// Where a ray from `o` along the unit `d` meets the receiver, if it
+    /// does within `max_t`.
+    #[inline]
+    pub fn receiver_hit(&self, o: DVec3, d: DVec3, max_t: f64) -> Option<f64> {
+        let r = self.receiver.as_ref()?;
+        plane_hit(o, d, r.point, r.normal).filter(|&t| t <= max_t)
+    }
+
+    /// Radiance leaving the receiver at `x` towards a viewer whose ray
+    /// travels along `d`; `channel` picks the light volume's direction
+    /// array with dispersion.
+    pub fn receiver_radiance(&self, x: DVec3, d: DVec3, channel: usize) -> DVec3 {
+        let Some(r) = &self.receiver else {
+            return DVec3::ZERO;
+        };
+        // The side of the plane the viewer is on.
+        let n = if d.dot(r.normal) < 0.0 {
+            r.normal
+        } else {
+            -r.normal
+        };
+        let mut e = DVec3::ZERO;
+        if self.grid.contains(x) && !self.volumes.is_empty() {
+            let t = self.grid.trilinear(x);
+            for v in self.volumes {
+                let irr = v.irradiance.as_slice().expect("standard layout");
+                let dirs = &v.direction[channel.min(v.direction.len() - 1)];
+                let l = t.vec3(dirs.as_slice().expect("standard layout"));
+                let l = l.normalize_or_zero();
+                e += t.vec3(irr) * (-l.dot(n)).max(0.0);
+            }
+        } else {
+            for light in self.lights {
+                e += direct(light, x, n);
+            }
+        }
+        r.albedo * e / PI
+    }
+
+    /// Background radiance for a ray leaving from `o` along the unit `d`
+    /// (it no longer meets the volume): the receiver, the checkerboard, or
+    /// the environment, whichever it meets first.
+    pub fn radiance(&self, o: DVec3, d: DVec3, channel: usize) -> DVec3 {
+        let receiver = self.receiver_hit(o, d, f64::INFINITY);
+        let checker = self
+            .checker
+            .and_then(|c| plane_hit(o, d, c.point, c.normal).map(|t| (t, c)));
+        match (receiver, checker) {
+            (Some(tr), Some((tc, _))) if tr <= tc => self.receiver_radiance(o + d * tr, d, channel),
+            (Some(tr), None) => self.receiver_radiance(o + d * tr, d, channel),
+            (_, Some((tc, c))) => {
+                let q = o + d * tc - c.point;
+                let (a, b) = (
+                    (q.dot(c.u) / c.square).floor() as i64,
+                    (q.dot(c.w) / c.square).floor() as i64,
+                );
+                c.colors[(a + b).rem_euclid(2) as usize]
+            }
+            (None, None) => {
+                if self.checker.is_some() {
+                    DVec3::ZERO
+                } else {
+                    DVec3::from_array(self.environment.lookup(d))
+                }
+            }
+        }
+    }
+}
+
+/// The environment of a scene's background, loaded and scaled by its
+/// intensity ([`Background::Checker`] sees black beyond the board).
+pub fn load_environment(background: &Background) -> Result<Environment, EnvironmentError> {
+    let scale = |e: Environment, k: f64| -> Result<Environment, EnvironmentError> {
+        if k == 1.0 {
+            return Ok(e);
+        }
+        Ok(match e {
+            Environment::Constant(c) => Environment::Constant(c.map(|x| x * k as f32)),
+            Environment::LatLong(m) => {
+                let data = m.data().iter().map(|p| p.map(|x| x * k as f32)).collect();
+                Environment::LatLong(LatLongMap::new(m.width(), m.height(), data)?)
+            }
+        })
+    };
+    match background {
+        Background::Constant(c) => Ok(Environment::Constant(c.as_vec3().to_array())),
+        Background::Sky { intensity } => scale(Environment::sky(), *intensity),
+        Background::Environment { file, intensity } => {
+            scale(Environment::from_exr(file)?, *intensity)
+        }
+        Background::Checker { .. } => Ok(Environment::Constant([0.0; 3])),
+    }
+}
+
+/// Irradiance at `x` on a surface of unit normal `n` from `light`, with
+/// nothing in between.
+fn direct(light: &Light, x: DVec3, n: DVec3) -> DVec3 {
+    match light {
+        Light::Directional { direction, power } => *power * (-direction.dot(n)).max(0.0),
+        Light::Point { position, power } => point_irradiance(*position, *power, x, n, 1.0),
+        Light::Spot {
+            position,
+            direction,
+            angle,
+            falloff,
+            power,
+        } => {
+            let to = (x - *position).normalize_or_zero();
+            let w = eikon_wavefront::light::cone_weight(to, Some((*direction, *angle, *falloff)));
+            point_irradiance(*position, *power, x, n, w)
+        }
+    }
+}
+
+fn point_irradiance(position: DVec3, power: DVec3, x: DVec3, n: DVec3, weight: f64) -> DVec3 {
+    let r = x - position;
+    let r2 = r.length_squared();
+    if r2 == 0.0 {
+        return DVec3::ZERO;
+    }
+    let cos = (-r.normalize().dot(n)).max(0.0);
+    power * (weight * cos / (4.0 * PI * r2))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tangent_is_orthogonal_and_unit() {
+        for n in [DVec3::X, DVec3::Y, DVec3::new(0.3, -0.4, 0.87).normalize()] {
+            let t = tangent(n);
+            assert!(t.dot(n).abs() < 1e-12);
+            assert!((t.length() - 1.0).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn a_point_light_lights_a_plane_by_the_inverse_square_and_cosine() {
+        let p = DVec3::new(0.0, 2.0, 0.0);
+        let power = DVec3::splat(4.0 * PI);
+        // Straight below at distance 2: E = 4 pi / (4 pi 4) = 0.25.
+        let e = point_irradiance(p, power, DVec3::ZERO, DVec3::Y, 1.0);
+        assert!((e.x - 0.25).abs() < 1e-12);
+        // At 45 degrees: distance^2 = 8, cos = 1/sqrt 2.
+        let e = point_irradiance(p, power, DVec3::new(2.0, 0.0, 0.0), DVec3::Y, 1.0);
+        assert!((e.x - 1.0 / 8.0 / 2f64.sqrt()).abs() < 1e-12);
+        // From below the plane: nothing.
+        let e = point_irradiance(p, power, DVec3::ZERO, -DVec3::Y, 1.0);
+        assert_eq!(e, DVec3::ZERO);
+    }
+}

@@ -1,0 +1,17 @@
+//! The view renderer (Ihrke et al. 2007, sections 3 and 5.3).
+
+pub mod camera;
+pub mod environment;
+pub mod fresnel;
+pub mod image;
+pub mod phase;
+
+pub use camera::{Camera, CameraError};
+pub use environment::{Environment, EnvironmentError, LatLongMap, Sky};
+pub use image::{encode_exr, encode_png, tonemapped, Exposure, Image, ImageError, ToneMap};
+pub use phase::hg;
+pub mod background;
+pub mod render;
+
+pub use background::Surroundings;
+pub use render::{Options, Renderer, Stats};

@@ -1,0 +1,350 @@
+//! `eikon render`: an image of a scene, lit by light volumes written by
+//! `eikon simulate`.
+
+use crate::output::{build_medium, write_atomic};
+use crate::simulate::SIDECAR;
+use anyhow::{bail, Context, Result};
+use clap::ValueEnum;
+use eikon_grid::{Medium, Method, Scene};
+use eikon_view::{
+    encode_exr, encode_png, Camera, Exposure, Image, Options, Renderer, Stats, Surroundings,
+    ToneMap,
+};
+use eikon_wavefront::LightVolume;
+use glam::DVec3;
+use ndarray::{Array4, Array5, ArrayD, Axis, Ix4, Ix5};
+use ndarray_npy::read_npy;
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Integrator {
+    /// Forward Euler (eqs 11-12), the paper's choice.
+    Euler,
+    /// Classical fourth-order Runge-Kutta.
+    Rk4,
+}
+
+/// Settings of a render that override the scene's `[camera]` and
+/// `[render]` (shared by `render`, `run` and `demo`).
+#[derive(clap::Args, Clone, Default)]
+pub struct Overrides {
+    /// Image width, pixels.
+    #[arg(long)]
+    width: Option<u32>,
+    /// Image height, pixels.
+    #[arg(long)]
+    height: Option<u32>,
+    /// Samples per pixel.
+    #[arg(long)]
+    samples: Option<u32>,
+    /// Exposure in stops (default: the scene's, else automatic from the
+    /// log-average luminance).
+    #[arg(long, allow_hyphen_values = true)]
+    exposure: Option<f64>,
+    /// Eye-ray step, voxels.
+    #[arg(long)]
+    step: Option<f64>,
+    /// Eye-ray integrator.
+    #[arg(long, value_enum)]
+    integrator: Option<Integrator>,
+    /// March through empty space step by step instead of skipping it (to
+    /// measure what skipping saves).
+    #[arg(long)]
+    no_skip: bool,
+    /// Seed of the pixel sample jitter.
+    #[arg(long)]
+    seed: Option<u64>,
+}
+
+/// Arguments of `eikon render`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Scene file (TOML).
+    scene: PathBuf,
+    /// Light volumes written by `eikon simulate` (without them in-scatter
+    /// and the receiver are dark).
+    #[arg(long)]
+    light: Option<PathBuf>,
+    /// Output image: `.exr` (linear HDR) or `.png` (tone-mapped); repeat
+    /// for both.
+    #[arg(short, long, required = true)]
+    output: Vec<PathBuf>,
+    #[command(flatten)]
+    overrides: Overrides,
+    /// Print the render's statistics as JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Run `eikon render`.
+pub fn run(args: Args) -> Result<()> {
+    check_outputs(&args.output)?;
+    let scene = Scene::load(&args.scene)?;
+    let medium = build_medium(&scene)?;
+    let volumes = match &args.light {
+        Some(dir) => load_light_volumes(dir, &scene, &medium)?,
+        None => Vec::new(),
+    };
+    render_scene(
+        &scene,
+        &medium,
+        &volumes,
+        &args.overrides,
+        &args.output,
+        args.json,
+    )
+}
+
+/// Refuse output paths whose format is unknown before any work is done.
+pub fn check_outputs(outputs: &[PathBuf]) -> Result<()> {
+    for o in outputs {
+        match extension(o).as_deref() {
+            Some("exr") | Some("png") => {}
+            _ => bail!(
+                "{}: -o: unknown image format: use a .exr (linear HDR) or .png (tone-mapped) file name",
+                o.display()
+            ),
+        }
+    }
+    Ok(())
+}
+
+fn extension(p: &Path) -> Option<String> {
+    p.extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+}
+
+/// Render `scene` lit by `volumes` and write every image of `outputs`.
+pub fn render_scene(
+    scene: &Scene,
+    medium: &Medium,
+    volumes: &[LightVolume],
+    overrides: &Overrides,
+    outputs: &[PathBuf],
+    json: bool,
+) -> Result<()> {
+    let mut cs = eikon_view::render::camera_settings(scene);
+    if let Some(w) = overrides.width {
+        cs.resolution[0] = w;
+    }
+    if let Some(h) = overrides.height {
+        cs.resolution[1] = h;
+    }
+    if let Some(s) = overrides.samples {
+        cs.samples = s;
+    }
+    let camera = Camera::new(
+        cs.position,
+        cs.target,
+        cs.up,
+        cs.fov,
+        cs.resolution[0],
+        cs.resolution[1],
+        cs.samples,
+    )
+    .with_context(|| format!("{}: camera", scene.origin))?;
+    let r = &scene.render;
+    let opts = Options {
+        step: overrides.step.unwrap_or(r.step),
+        method: match overrides.integrator {
+            Some(Integrator::Euler) => Method::Euler,
+            Some(Integrator::Rk4) => Method::Rk4,
+            None => r.integrator,
+        },
+        skip_empty: !overrides.no_skip,
+        seed: overrides.seed.unwrap_or(r.seed),
+        ..Options::default()
+    };
+    if !(opts.step > 0.0 && opts.step <= 4.0) {
+        bail!("--step: must lie in (0, 4] voxels, got {}", opts.step);
+    }
+    let env = eikon_view::background::load_environment(&scene.background)
+        .with_context(|| format!("{}: background.file", scene.origin))?;
+    if volumes.is_empty() && !scene.lights.is_empty() {
+        eprintln!(
+            "warning: no --light volumes given: in-scatter and the receiver are dark (run `eikon simulate` first, or `eikon run`)"
+        );
+    }
+    let surroundings = Surroundings::new(scene, env, volumes, &medium.geometry);
+    let renderer = Renderer::new(medium, volumes, &surroundings, &camera, opts);
+
+    let bar = indicatif::ProgressBar::new(0);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "rendering {bar:40} {pos}/{len} tiles ({elapsed}, {eta} left)",
+        )
+        .expect("valid template"),
+    );
+    let started = Instant::now();
+    let (image, stats) = renderer.render(&|done, total| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    });
+    let seconds = started.elapsed().as_secs_f64();
+    bar.finish_and_clear();
+
+    let tone = ToneMap {
+        exposure: match overrides.exposure.or(r.exposure) {
+            Some(stops) => Exposure::Fixed(stops),
+            None => Exposure::Auto,
+        },
+        ..ToneMap::default()
+    };
+    for o in outputs {
+        write_image(o, &image, &tone)?;
+    }
+    report(&image, &stats, seconds, outputs, json)
+}
+
+fn write_image(path: &Path, image: &Image, tone: &ToneMap) -> Result<()> {
+    let bytes = match extension(path).as_deref() {
+        Some("exr") => encode_exr(image),
+        _ => encode_png(image, tone),
+    }
+    .with_context(|| format!("{}: encoding the image", path.display()))?;
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create the folder", dir.display()))?;
+    }
+    write_atomic(path, |w| {
+        w.write_all(&bytes)
+            .with_context(|| format!("{}: write failed", path.display()))
+    })
+}
+
+fn report(
+    image: &Image,
+    stats: &Stats,
+    seconds: f64,
+    outputs: &[PathBuf],
+    json: bool,
+) -> Result<()> {
+    let names: Vec<String> = outputs.iter().map(|p| p.display().to_string()).collect();
+    if json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&json!({
+                "outputs": names,
+                "width": image.width,
+                "height": image.height,
+                "seconds": seconds,
+                "ray_steps": stats.steps,
+                "empty_skips": stats.skips,
+            }))?
+        );
+    } else {
+        println!(
+            "rendered {} x {} in {seconds:.3} s ({} ray steps, {} empty-space skips); wrote {}",
+            image.width,
+            image.height,
+            stats.steps,
+            stats.skips,
+            names.join(", ")
+        );
+    }
+    Ok(())
+}
+
+/// Read the light volumes of `dir` (written by `eikon simulate`) for
+/// `scene`, checking that they belong to its grid and lights.
+pub fn load_light_volumes(dir: &Path, scene: &Scene, medium: &Medium) -> Result<Vec<LightVolume>> {
+    let sidecar = dir.join(SIDECAR);
+    let text = std::fs::read_to_string(&sidecar).with_context(|| {
+        format!(
+            "{}: cannot read the light-volume description (is {} an `eikon simulate` output?)",
+            sidecar.display(),
+            dir.display()
+        )
+    })?;
+    let meta: Value = serde_json::from_str(&text)
+        .with_context(|| format!("{}: not valid JSON", sidecar.display()))?;
+    if meta["format"] != "eikon-light-volumes" {
+        bail!(
+            "{}: format: not an eikon light-volume description",
+            sidecar.display()
+        );
+    }
+    let g = &medium.geometry;
+    let dims: [usize; 3] = serde_json::from_value(meta["grid"]["dims"].clone())
+        .with_context(|| format!("{}: grid.dims", sidecar.display()))?;
+    let bound = |k: &str| -> Result<DVec3> {
+        let v: [f64; 3] = serde_json::from_value(meta["grid"][k].clone())
+            .with_context(|| format!("{}: grid.{k}", sidecar.display()))?;
+        Ok(DVec3::from_array(v))
+    };
+    let (min, max) = (bound("min")?, bound("max")?);
+    let tol = 1e-9 * g.diagonal();
+    if dims != g.dims
+        || (min - g.min).abs().max_element() > tol
+        || (max - g.max).abs().max_element() > tol
+    {
+        bail!(
+            "{}: grid: the light volumes are {}x{}x{} over {:?} .. {:?}, but {} is {}x{}x{} over {:?} .. {:?}: simulate this scene again",
+            sidecar.display(),
+            dims[0], dims[1], dims[2], min.to_array(), max.to_array(),
+            scene.origin,
+            g.dims[0], g.dims[1], g.dims[2], g.min.to_array(), g.max.to_array()
+        );
+    }
+    let lights = meta["lights"]
+        .as_array()
+        .with_context(|| format!("{}: lights", sidecar.display()))?;
+    if lights.len() != scene.lights.len() {
+        bail!(
+            "{}: lights: {} light volume(s), but {} has {} light(s): simulate this scene again",
+            sidecar.display(),
+            lights.len(),
+            scene.origin,
+            scene.lights.len()
+        );
+    }
+    let mut out = Vec::new();
+    for (i, l) in lights.iter().enumerate() {
+        let file = |key: &str| -> Result<(PathBuf, ArrayD<f32>)> {
+            let name = l[key].as_str().with_context(|| {
+                if key == "direction_file" {
+                    format!(
+                        "{}: lights[{i}]: no direction volume (photon volumes cannot be rendered: the phase function needs the light's direction)",
+                        sidecar.display()
+                    )
+                } else {
+                    format!("{}: lights[{i}].{key}", sidecar.display())
+                }
+            })?;
+            let path = dir.join(name);
+            let a: ArrayD<f32> =
+                read_npy(&path).with_context(|| format!("{}: cannot read", path.display()))?;
+            Ok((path, a))
+        };
+        let (irr_path, irr) = file("irradiance_file")?;
+        let (dir_path, d) = file("direction_file")?;
+        let irr: Array4<f32> = irr.into_dimensionality::<Ix4>().map_err(|_| {
+            anyhow::anyhow!("{}: not a 4-D (nx, ny, nz, 3) array", irr_path.display())
+        })?;
+        let direction = match d.ndim() {
+            4 => vec![d.into_dimensionality::<Ix4>().expect("4-D")],
+            5 => {
+                let d: Array5<f32> = d.into_dimensionality::<Ix5>().expect("5-D");
+                d.axis_iter(Axis(0)).map(|a| a.to_owned()).collect()
+            }
+            _ => bail!(
+                "{}: not a (nx, ny, nz, 3) or (3, nx, ny, nz, 3) array",
+                dir_path.display()
+            ),
+        };
+        if direction.len() != medium.channels() {
+            bail!(
+                "{}: {} direction volume(s) but the scene has {} index field(s) (dispersion differs): simulate this scene again",
+                dir_path.display(),
+                direction.len(),
+                medium.channels()
+            );
+        }
+        let v = LightVolume::from_arrays(g, irr, direction)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
+        out.push(v);
+    }
+    Ok(out)
+}
