@@ -76,7 +76,7 @@ const PHOTON_CAP_S: f64 = 120.0;
 /// Photon count (as a power of two, at most the last run's) timed side by
 /// side with the wavefront for the cost per photon.
 const SIDE_LOG2: u32 = 19;
-/// Photon runs fitted when the cap comes first.
+/// Photon runs fitted when the sweep ends above the target error.
 const FIT_POINTS: usize = 3;
 /// Cells closer to the light than this many voxels are not scored.
 const EXCLUDE_VOXELS: f64 = 3.0;
@@ -417,7 +417,8 @@ fn run_case(case: &Case) -> Outcome {
         }
     }
     println!(
-        "   (* = the score used: each method against what it estimates; dark = cell-channels at 0)"
+        "   (* = the score used: each method against what it estimates; dark = cell-channels \
+         at 0; times of single runs, the ratio uses the side-by-side ones below)"
     );
     if wf_centre.dark > 0 {
         println!(

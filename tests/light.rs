@@ -58,6 +58,43 @@ fn point_light_falls_off_as_inverse_square() {
     assert!((e(1) / e(0) - 0.5).abs() < 1e-6 && (e(2) / e(0) - 0.25).abs() < 1e-6);
 }
 
+/// A point light inside absorbing matter: `P exp(-sigma r) / (4 pi r^2)`.
+/// The light's own voxel absorbs too (the wavefront starts one voxel out).
+#[test]
+fn point_light_in_absorbing_matter_decays_by_inverse_square_and_beer_lambert() {
+    let p = DVec3::new(0.013, -0.021, 0.007);
+    let sigma = 1.5;
+    let (scene, m) = medium(&format!(
+        "[grid]\nresolution = 64\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
+         [ambient]\nextinction = [{sigma}, {sigma}, {sigma}]\n\
+         [[light]]\ntype = \"point\"\nposition = [{}, {}, {}]\npower = [2, 2, 2]\n",
+        p.x, p.y, p.z
+    ));
+    let (vol, summary) = run(&scene, &m, 0);
+    let g = &m.geometry;
+    let h = g.voxel_size();
+    let mut errs = Vec::new();
+    for ((i, j, k), e) in vol
+        .irradiance
+        .slice(ndarray::s![.., .., .., 0])
+        .indexed_iter()
+    {
+        let r = (g.voxel_center(i, j, k) - p).length();
+        if r < 3.0 * h {
+            continue;
+        }
+        let want = 2.0 * (-sigma * r).exp() / (4.0 * PI * r * r);
+        errs.push((*e as f64 / want - 1.0).abs());
+    }
+    let med = median(errs.clone());
+    println!(
+        "point light, sigma {sigma}: median relative error {med:.2e}; energy imbalance {:.1e}",
+        summary.energy_imbalance()
+    );
+    assert!(med <= 0.01, "median relative error {med}");
+    assert!(summary.energy_imbalance() < 1e-9);
+}
+
 #[test]
 fn plane_wave_decays_by_beer_lambert() {
     let sigma = 1.5;

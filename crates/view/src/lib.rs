@@ -11,6 +11,7 @@ pub use environment::{Environment, EnvironmentError, LatLongMap, Sky};
 pub use image::{encode_exr, encode_png, tonemapped, Exposure, Image, ImageError, ToneMap};
 pub use phase::hg;
 pub mod background;
+pub mod macrocell;
 pub mod render;
 
 pub use background::Surroundings;

@@ -30,19 +30,19 @@
 //! there. With three index fields (dispersion) every colour channel
 //! traces its own ray.
 //!
-//! Empty space is skipped: in a block of [`EmptySpace`] (constant index,
-//! no gradient, nothing absorbs, scatters or emits) a ray goes straight to
-//! the block's far side in one step.
+//! Empty space is skipped: in a uniform macro-cell ([`MacroCells`]:
+//! constant index, no gradient, nothing scatters, emits or reflects,
+//! constant extinction) a ray goes straight to the block's far side in one
+//! step, attenuated exactly by `exp(-sigma_t length)`.
 
 use crate::background::Surroundings;
 use crate::camera::Camera;
 use crate::fresnel;
 use crate::image::Image;
+use crate::macrocell::MacroCells;
 use crate::phase::hg;
 use eikon_grid::ray::{step_euler, step_rk4};
-use eikon_grid::{
-    CameraSettings, EmptySpace, Form, IndexField, Medium, Method, RayState, Scene, VoxelField,
-};
+use eikon_grid::{CameraSettings, Form, IndexField, Medium, Method, RayState, Scene, VoxelField};
 use eikon_wavefront::LightVolume;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -120,7 +120,7 @@ pub struct Renderer<'a> {
     surroundings: &'a Surroundings<'a>,
     camera: &'a Camera,
     opts: Options,
-    empty: Vec<EmptySpace>,
+    cells: Vec<MacroCells>,
     /// Distance from a point in an interface's band at which the index on
     /// either side is read for Fresnel, world units: far enough to clear
     /// the band (smoothing plus voxelization, about 3 voxels either side of
@@ -147,9 +147,9 @@ impl<'a> Renderer<'a> {
         camera: &'a Camera,
         opts: Options,
     ) -> Self {
-        let empty = if opts.skip_empty {
+        let cells = if opts.skip_empty {
             (0..medium.channels())
-                .map(|c| EmptySpace::new(medium, c))
+                .map(|c| MacroCells::new(medium, c))
                 .collect()
         } else {
             Vec::new()
@@ -161,7 +161,7 @@ impl<'a> Renderer<'a> {
             surroundings,
             camera,
             opts,
-            empty,
+            cells,
             probe: (6.0 * medium.smoothing + 0.5).max(1.5) * h,
         }
     }
@@ -275,21 +275,19 @@ impl<'a> Renderer<'a> {
             if walk.alpha.max_element() < self.opts.min_transmittance {
                 return (walk.radiance, walk.stats);
             }
-            if let Some((n, t)) = self
-                .empty
-                .get(ch)
-                .and_then(|e| e.block_exit(walk.ray.x, dir))
-            {
+            if let Some((u, t)) = self.cells.get(ch).and_then(|c| c.crossing(walk.ray.x, dir)) {
                 // Just past the block's face, so that the next lookup
                 // lands in the next block.
                 let t = (t + 1e-6 * h).min(exit);
                 if let Some(tr) = env.receiver_hit(walk.ray.x, dir, t) {
                     let hit = walk.ray.x + dir * tr;
+                    walk.alpha *= (-u.sigma * tr).exp();
                     walk.radiance += walk.alpha * env.receiver_radiance(hit, dir, ch);
                     return (walk.radiance, walk.stats);
                 }
+                walk.alpha *= (-u.sigma * t).exp();
                 walk.ray.x += dir * t;
-                walk.ray.v = dir * n;
+                walk.ray.v = dir * u.n;
                 walk.stats.skips += 1;
                 continue;
             }

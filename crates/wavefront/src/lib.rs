@@ -279,6 +279,22 @@ pub fn simulate_light(
         p.clear();
         let entered = light::emit(light, grid, &field, opts.patch_size * h, mask, &mut p);
         add(&mut summary.entered, &entered);
+        // A light inside the volume emits from a sphere one voxel across
+        // (a patch needs an area): what the medium absorbs within it, eq 18
+        // over that radius at the light's extinction, never reaches it.
+        if let Light::Point { position, .. } | Light::Spot { position, .. } = light {
+            if grid.contains(*position) {
+                let sigma = medium.sample_rgb(&medium.extinction, *position);
+                let kept = (-sigma * light::INNER_RADIUS_VOXELS * h).exp();
+                for (f, e) in p.flux.iter_mut().zip(p.irradiance.iter_mut()) {
+                    for c in 0..3 {
+                        summary.absorbed_power[c] += f[c] * (1.0 - kept[c]);
+                        f[c] *= kept[c];
+                        e[c] *= kept[c];
+                    }
+                }
+            }
+        }
         summary.emitted += p.len();
         // Step 3 (and its book-keeping): tessellation analysis and the new
         // patch list.

@@ -379,12 +379,16 @@ impl Source {
                 if weight == 0.0 {
                     return None;
                 }
-                let inner = light::INNER_RADIUS_VOXELS * h;
+                // A photon, unlike a patch, needs no area: one from a light
+                // inside the volume starts at the light itself, and is
+                // attenuated (and deposits) from there on.
                 let start = if grid.contains(p) {
-                    inner
+                    0.0
                 } else {
                     match grid.clip_line(p, dir) {
-                        Some((t0, t1)) if t1 > 0.0 => (t0 - margin).max(inner),
+                        Some((t0, t1)) if t1 > 0.0 => {
+                            (t0 - margin).max(light::INNER_RADIUS_VOXELS * h)
+                        }
                         _ => return None,
                     }
                 };
