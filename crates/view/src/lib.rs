@@ -12,6 +12,7 @@ pub use image::{encode_exr, encode_png, tonemapped, Exposure, Image, ImageError,
 pub use phase::hg;
 pub mod background;
 pub mod macrocell;
+pub mod properties;
 pub mod render;
 
 pub use background::Surroundings;

@@ -41,6 +41,7 @@ use crate::fresnel;
 use crate::image::Image;
 use crate::macrocell::MacroCells;
 use crate::phase::hg;
+use crate::properties::Properties;
 use eikon_grid::ray::{step_euler, step_rk4};
 use eikon_grid::{CameraSettings, Form, IndexField, Medium, Method, RayState, Scene, VoxelField};
 use eikon_wavefront::LightVolume;
@@ -121,6 +122,7 @@ pub struct Renderer<'a> {
     camera: &'a Camera,
     opts: Options,
     cells: Vec<MacroCells>,
+    properties: Properties,
     /// Distance from a point in an interface's band at which the index on
     /// either side is read for Fresnel, world units: far enough to clear
     /// the band (smoothing plus voxelization, about 3 voxels either side of
@@ -135,6 +137,9 @@ struct Walk {
     radiance: DVec3,
     alpha: DVec3,
     stats: Stats,
+    /// Radiance seen in the mirror direction in the interface band being
+    /// crossed, once looked up.
+    mirrored: Option<DVec3>,
 }
 
 impl<'a> Renderer<'a> {
@@ -162,6 +167,8 @@ impl<'a> Renderer<'a> {
             camera,
             opts,
             cells,
+            properties: Properties::new(medium),
+
             probe: (6.0 * medium.smoothing + 0.5).max(1.5) * h,
         }
     }
@@ -260,15 +267,24 @@ impl<'a> Renderer<'a> {
             radiance: DVec3::ZERO,
             alpha: DVec3::ONE,
             stats: Stats::default(),
+            mirrored: None,
         };
         // A ray caught by total internal reflection may circle for long;
         // after this many volume diagonals it is given up as absorbed.
         let budget = (64.0 * grid.diagonal() / ds) as u64 + 16;
         while walk.stats.steps < budget {
             let dir = walk.ray.v.normalize_or_zero();
-            let exit = grid
-                .clip_line(walk.ray.x, dir)
-                .map_or(0.0, |(_, t1)| t1.max(0.0));
+            // Distance to the bounds along the ray: the slab test only
+            // within two steps of them (farther, a step cannot leave).
+            let clearance = (walk.ray.x - grid.min)
+                .min(grid.max - walk.ray.x)
+                .min_element();
+            let exit = if clearance > 2.0 * ds {
+                f64::INFINITY
+            } else {
+                grid.clip_line(walk.ray.x, dir)
+                    .map_or(0.0, |(_, t1)| t1.max(0.0))
+            };
             if exit <= 0.0 || dir == DVec3::ZERO {
                 break;
             }
@@ -321,29 +337,24 @@ impl<'a> Renderer<'a> {
     /// in-scatter, emission, attenuation and Fresnel at boundaries (see
     /// the module docs).
     fn gather(&self, field: &VoxelField, x: DVec3, d: DVec3, step: f64, ch: usize, w: &mut Walk) {
-        let m = self.medium;
-        let tri = m.geometry.trilinear(x);
-        let slice = |a: &'a ndarray::Array4<f32>| a.as_slice().expect("standard layout");
-        let sigma = tri.vec3(slice(&m.extinction));
-        let mut source = tri.vec3(slice(&m.emission));
-        if sigma.max_element() > 0.0 && !self.volumes.is_empty() {
-            let scatter = tri.vec3(slice(&m.albedo)) * sigma;
-            if scatter.max_element() > 0.0 {
-                let g = tri.scalar(m.g.as_slice().expect("standard layout"));
-                for v in self.volumes {
-                    let e = tri.vec3(v.irradiance.as_slice().expect("standard layout"));
-                    if e.max_element() <= 0.0 {
-                        continue;
-                    }
-                    let dirs = &v.direction[ch.min(v.direction.len() - 1)];
-                    let l = tri
-                        .vec3(dirs.as_slice().expect("standard layout"))
-                        .normalize_or_zero();
-                    if l != DVec3::ZERO {
-                        // Eq 6: the phase between the light's direction of
-                        // travel and the direction towards the eye.
-                        source += scatter * e * hg(l.dot(-d), g);
-                    }
+        let tri = self.medium.geometry.trilinear(x);
+        let here = self.properties.sample_at(&tri);
+        let sigma = here.sigma;
+        let mut source = here.emission;
+        if here.scatter.max_element() > 0.0 {
+            for v in self.volumes {
+                let e = tri.vec3(v.irradiance.as_slice().expect("standard layout"));
+                if e.max_element() <= 0.0 {
+                    continue;
+                }
+                let dirs = &v.direction[ch.min(v.direction.len() - 1)];
+                let l = tri
+                    .vec3(dirs.as_slice().expect("standard layout"))
+                    .normalize_or_zero();
+                if l != DVec3::ZERO {
+                    // Eq 6: the phase between the light's direction of
+                    // travel and the direction towards the eye.
+                    source += here.scatter * e * hg(l.dot(-d), here.g);
                 }
             }
         }
@@ -360,8 +371,10 @@ impl<'a> Renderer<'a> {
         w.radiance += w.alpha * source * weight;
         w.alpha *= att;
 
-        let delta = tri.scalar(m.boundary.as_slice().expect("standard layout"));
-        if delta > 0.0 {
+        let delta = here.delta;
+        if delta <= 0.0 {
+            w.mirrored = None;
+        } else {
             let (_, grad) = field.sample(x);
             let len = grad.length();
             if len > 0.0 {
@@ -377,8 +390,13 @@ impl<'a> Renderer<'a> {
                 if sin_t < 1.0 {
                     let rho = fresnel::reflectance(cos.abs(), n1, n2);
                     if rho > 0.0 {
-                        let mirror = fresnel::reflect(d, normal);
-                        let l_r = self.surroundings.radiance(x, mirror, ch);
+                        // What the mirror direction sees, looked up once per
+                        // crossing of an interface's band (where the mirror
+                        // direction hardly changes).
+                        let l_r = *w.mirrored.get_or_insert_with(|| {
+                            self.surroundings
+                                .radiance(x, fresnel::reflect(d, normal), ch)
+                        });
                         w.radiance += w.alpha * l_r * (part * rho);
                         w.alpha *= (1.0 - rho).powf(part);
                     }
