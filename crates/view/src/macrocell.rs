@@ -26,12 +26,23 @@ pub struct Uniform {
     pub sigma: DVec3,
 }
 
-/// The macro-cell grid of one index channel of a medium.
+/// Largest clear distance stored, voxels.
+const CLEAR_CAP: u8 = 16;
+
+/// The macro-cell grid of one index channel of a medium, and a finer
+/// clear-distance field for the non-uniform blocks.
 #[derive(Clone, Debug)]
 pub struct MacroCells {
     dims: [usize; 3],
     min: DVec3,
     inv_block: DVec3,
+    /// Voxel grid size, and per voxel the Chebyshev distance (in voxels,
+    /// capped) to the nearest voxel that is not clear: within it the medium
+    /// is one uniform constant (see [`MacroCells::clear_step`]).
+    voxel_dims: [usize; 3],
+    inv_spacing: DVec3,
+    voxel: f64,
+    clear: Vec<u8>,
     /// Per block: `[n, sigma_r, sigma_g, sigma_b]`, with `n` NaN where the
     /// block is not uniform.
     cells: Vec<[f32; 4]>,
@@ -88,7 +99,31 @@ impl MacroCells {
             min: g.min,
             inv_block: 1.0 / (g.spacing() * BLOCK as f64),
             cells,
+            voxel_dims: g.dims,
+            inv_spacing: 1.0 / g.spacing(),
+            voxel: g.voxel_size(),
+            clear: clear_distance(medium, channel, tiny),
         }
+    }
+
+    /// A straight step from `p` that stays in one uniform region: if the
+    /// voxel holding `p` is at least 4 voxels (Chebyshev) from anything not
+    /// clear, its length `(distance - 3)` voxels keeps every trilinear
+    /// sample along it (one voxel of footprint, one of rounding the start
+    /// down to its voxel) among clear voxels, which all hold one value.
+    #[inline]
+    pub fn clear_step(&self, p: DVec3) -> Option<f64> {
+        let u = (p - self.min) * self.inv_spacing;
+        if !(u.x >= 0.0 && u.y >= 0.0 && u.z >= 0.0) {
+            return None;
+        }
+        let (i, j, k) = (u.x as usize, u.y as usize, u.z as usize);
+        let [nx, ny, nz] = self.voxel_dims;
+        if i >= nx || j >= ny || k >= nz {
+            return None;
+        }
+        let d = self.clear[(i * ny + j) * nz + k];
+        (d >= 4).then(|| (d - 3) as f64 * self.voxel)
     }
 
     /// If `p` lies in a uniform block: the block's medium and the distance
@@ -124,11 +159,86 @@ impl MacroCells {
         Some((uniform, t.max(0.0)))
     }
 
+    /// Fraction of voxels from which [`Self::clear_step`] moves.
+    pub fn clear_fraction(&self) -> f64 {
+        self.clear.iter().filter(|&&d| d >= 4).count() as f64 / self.clear.len() as f64
+    }
+
     /// Fraction of blocks that are uniform.
     pub fn uniform_fraction(&self) -> f64 {
         let n = self.cells.iter().filter(|c| !c[0].is_nan()).count();
         n as f64 / self.cells.len() as f64
     }
+}
+
+/// Per voxel, the Chebyshev distance (capped at [`CLEAR_CAP`]) to the
+/// nearest voxel that is not clear. A voxel is clear when nothing in it
+/// bends, reflects, scatters or emits (gradient and boundary under `tiny`)
+/// and its index and extinction equal those of its six neighbours, so that
+/// clear voxels connected through clear voxels share one value. The
+/// transform is separable for the Chebyshev metric: a 1-D distance along
+/// x, then `min max(|dy|, d)` along y, then along z.
+fn clear_distance(medium: &Medium, channel: usize, tiny: f32) -> Vec<u8> {
+    let [nx, ny, nz] = medium.geometry.dims;
+    let idx = &medium.index[channel];
+    let ext = &medium.extinction;
+    let same = |a: f32, b: f32| (a - b).abs() <= 4.0 * f32::EPSILON * b.abs();
+    let mut d = vec![0u8; nx * ny * nz];
+    d.par_iter_mut().enumerate().for_each(|(f, out)| {
+        let (i, j, k) = (f / (ny * nz), (f / nz) % ny, f % nz);
+        let here = |i: usize, j: usize, k: usize| {
+            (idx[[i, j, k, 0]], [0, 1, 2].map(|c| ext[[i, j, k, c]]))
+        };
+        let (n0, s0) = here(i, j, k);
+        let mut clear = (1..4).all(|c| idx[[i, j, k, c]].abs() <= tiny)
+            && medium.boundary[[i, j, k]] <= tiny
+            && (0..3).all(|c| {
+                medium.emission[[i, j, k, c]] == 0.0 && s0[c] * medium.albedo[[i, j, k, c]] == 0.0
+            });
+        let neighbours = [
+            (i.wrapping_sub(1), j, k),
+            (i + 1, j, k),
+            (i, j.wrapping_sub(1), k),
+            (i, j + 1, k),
+            (i, j, k.wrapping_sub(1)),
+            (i, j, k + 1),
+        ];
+        for (a, b, c) in neighbours {
+            if clear && a < nx && b < ny && c < nz {
+                let (n1, s1) = here(a, b, c);
+                clear = same(n1, n0) && (0..3).all(|ch| same(s1[ch], s0[ch]));
+            }
+        }
+        *out = if clear { CLEAR_CAP } else { 0 };
+    });
+    // One axis at a time: out[x] = min over |dx| <= cap of max(|dx|, in[x + dx]).
+    let pass = |d: &mut Vec<u8>, axis: usize| {
+        let len = [nx, ny, nz][axis];
+        let stride = [ny * nz, nz, 1][axis];
+        let src = d.clone();
+        d.par_iter_mut().enumerate().for_each(|(f, out)| {
+            let pos = (f / stride) % len;
+            let mut best = src[f];
+            for r in 1..=CLEAR_CAP as usize {
+                if r as u8 >= best {
+                    break;
+                }
+                for q in [pos.wrapping_sub(r), pos + r] {
+                    if q < len {
+                        let v = src[f - pos * stride + q * stride].max(r as u8);
+                        best = best.min(v);
+                    }
+                }
+            }
+            *out = best;
+        });
+    };
+    // Outside the grid counts as clear: a ray leaving the grid stops at its
+    // bounds anyway. The first pass turns 0/cap into 1-D distances.
+    for axis in 0..3 {
+        pass(&mut d, axis);
+    }
+    d
 }
 
 #[cfg(test)]
@@ -174,5 +284,34 @@ extinction = [0.5, 1, 2]
         // At 32^3 the band of a surface (about 4.5 voxels either side, plus
         // the block and its margin) takes most blocks.
         assert!(f > 0.05 && f < 0.5, "{f}");
+        // The clear distance: deep inside the glass and in the far corner
+        // of the air a ray may step straight; at the surface it may not.
+        let deep = cells.clear_step(DVec3::new(0.01, 0.01, 0.01)).unwrap();
+        assert!(deep >= 0.0625, "{deep}");
+        assert!(cells.clear_step(DVec3::new(0.85, 0.0, 0.0)).is_none());
+        // Brute force: from every clear start, every voxel the step can
+        // reach (and its trilinear footprint) is clear.
+        let h = 0.0625;
+        for (i, j, k) in [(16, 16, 16), (1, 1, 1), (30, 2, 29), (12, 20, 16)] {
+            let p = m.geometry.voxel_center(i, j, k);
+            if let Some(s) = cells.clear_step(p) {
+                let r = (s / h).ceil() as i64 + 2;
+                for a in -r..=r {
+                    for b in -r..=r {
+                        for c in -r..=r {
+                            let (x, y, z) = (i as i64 + a, j as i64 + b, k as i64 + c);
+                            if [x, y, z].iter().all(|&v| (0..32).contains(&v)) {
+                                let (x, y, z) = (x as usize, y as usize, z as usize);
+                                assert!(
+                                    m.boundary[[x, y, z]] <= 4e-4
+                                        && m.index[0][[x, y, z, 0]] == m.index[0][[i, j, k, 0]],
+                                    "{i} {j} {k} reaches {x} {y} {z}"
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+        }
     }
 }

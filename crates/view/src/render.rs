@@ -33,7 +33,9 @@
 //! Empty space is skipped: in a uniform macro-cell ([`MacroCells`]:
 //! constant index, no gradient, nothing scatters, emits or reflects,
 //! constant extinction) a ray goes straight to the block's far side in one
-//! step, attenuated exactly by `exp(-sigma_t length)`.
+//! step, attenuated exactly by `exp(-sigma_t length)`; elsewhere a
+//! per-voxel clear distance lets it step straight as far as such a medium
+//! is known to extend around it.
 
 use crate::background::Surroundings;
 use crate::camera::Camera;
@@ -304,6 +306,25 @@ impl<'a> Renderer<'a> {
                 walk.alpha *= (-u.sigma * t).exp();
                 walk.ray.x += dir * t;
                 walk.ray.v = dir * u.n;
+                walk.stats.skips += 1;
+                continue;
+            }
+            if let Some(s) = self.cells.get(ch).and_then(|c| c.clear_step(walk.ray.x)) {
+                // Clear of anything that bends, scatters, emits or reflects
+                // for `s`: one straight step in the local constant medium.
+                let t = s.min(exit);
+                let n = field.sample(walk.ray.x).0;
+                let sigma = self.properties.sample(walk.ray.x).sigma;
+                if let Some(tr) = env.receiver_hit(walk.ray.x, dir, t) {
+                    let hit = walk.ray.x + dir * tr;
+                    walk.alpha *= (-sigma * tr).exp();
+                    walk.radiance += walk.alpha * env.receiver_radiance(hit, dir, ch);
+                    return (walk.radiance, walk.stats);
+                }
+                walk.alpha *= (-sigma * t).exp();
+                walk.ray.x += dir * t;
+                walk.ray.v = dir * n;
+                walk.mirrored = None;
                 walk.stats.skips += 1;
                 continue;
             }
