@@ -7,9 +7,14 @@
 //! * `[sigma_s r, g, b, g]`: scattering `albedo * sigma_t` and the
 //!   Henyey-Greenstein asymmetry (eqs 2, 6);
 //! * `[L_e r, g, b, 0]`: emitted radiance per unit length, stored only
-//!   when the medium emits anywhere.
+//!   when the medium emits anywhere;
+//! * per index channel, `[n_lo, n_hi]`: the index on the low and the high
+//!   side of the interface a boundary voxel belongs to, read along the
+//!   gradient a probe length either way from its centre (beyond the
+//!   smoothing), for Fresnel's n1 and n2; elsewhere the voxel's own index
+//!   twice (no jump).
 
-use eikon_grid::{GridGeometry, Medium, Trilinear};
+use eikon_grid::{GridGeometry, IndexField, Medium, Trilinear};
 use glam::{DVec3, Vec4};
 use rayon::prelude::*;
 
@@ -28,16 +33,27 @@ pub struct Sample {
     pub emission: DVec3,
 }
 
+/// The two sides of an interface at a point, for Fresnel.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Sides {
+    /// Index on the side the gradient points away from.
+    pub lo: f64,
+    /// Index on the side the gradient points to.
+    pub hi: f64,
+}
+
 /// Packed optical properties of a medium (see the module docs).
 pub struct Properties {
     texels: Vec<[Vec4; 2]>,
+    sides: Vec<Vec<[f32; 2]>>,
     emission: Option<Vec<Vec4>>,
     geometry: GridGeometry,
 }
 
 impl Properties {
-    /// Pack `medium`.
-    pub fn new(medium: &Medium) -> Self {
+    /// Pack `medium`; interface sides are read `probe` world units either
+    /// side of each boundary voxel.
+    pub fn new(medium: &Medium, probe: f64) -> Self {
         let g = medium.geometry.clone();
         let count = g.voxel_count();
         let ext = medium.extinction.as_slice().expect("standard layout");
@@ -62,8 +78,37 @@ impl Properties {
                 .map(|i| Vec4::new(em[3 * i], em[3 * i + 1], em[3 * i + 2], 0.0))
                 .collect()
         });
+        let sides = (0..medium.channels())
+            .map(|ch| {
+                let field = medium.field(ch);
+                let idx = medium.index[ch].as_slice().expect("standard layout");
+                (0..count)
+                    .into_par_iter()
+                    .map(|f| {
+                        let n = idx[4 * f];
+                        let grad = DVec3::new(
+                            idx[4 * f + 1] as f64,
+                            idx[4 * f + 2] as f64,
+                            idx[4 * f + 3] as f64,
+                        );
+                        if bnd[f] <= 0.0 || grad.length() == 0.0 {
+                            return [n, n];
+                        }
+                        let [nx, ny, nz] = g.dims;
+                        let (i, j, k) = (f / (ny * nz), (f / nz) % ny, f % nz);
+                        debug_assert!(i < nx);
+                        let c = g.voxel_center(i, j, k);
+                        let normal = grad.normalize();
+                        let lo = field.sample(c - normal * probe).0 as f32;
+                        let hi = field.sample(c + normal * probe).0 as f32;
+                        [lo, hi]
+                    })
+                    .collect()
+            })
+            .collect();
         Self {
             texels,
+            sides,
             emission,
             geometry: g,
         }
@@ -101,6 +146,23 @@ impl Properties {
     }
 }
 
+impl Properties {
+    /// The interface sides of index channel `ch` with trilinear weights
+    /// already computed.
+    #[inline]
+    pub fn sides_at(&self, t: &Trilinear, ch: usize) -> Sides {
+        let s = &self.sides[ch];
+        let (mut lo, mut hi) = (0.0, 0.0);
+        for k in 0..8 {
+            let w = t.weight[k];
+            let v = s[t.cell[k]];
+            lo += w * v[0] as f64;
+            hi += w * v[1] as f64;
+        }
+        Sides { lo, hi }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -127,7 +189,7 @@ emission = [0.1, 0.2, 0.3]
         )
         .unwrap();
         let m = Medium::build(&scene).unwrap();
-        let props = Properties::new(&m);
+        let props = Properties::new(&m, 0.5);
         for p in [
             DVec3::new(0.1, 0.05, -0.02),
             DVec3::new(0.68, 0.1, 0.0),
@@ -141,6 +203,13 @@ emission = [0.1, 0.2, 0.3]
             assert!((s.delta - t.scalar(m.boundary.as_slice().unwrap())).abs() < 1e-4);
             assert!((s.g - t.scalar(m.g.as_slice().unwrap())).abs() < 1e-6);
         }
+        // At the surface, the sides read the two plateaus.
+        let surface = DVec3::new(0.7, 0.0, 0.0);
+        let sides = props.sides_at(&m.geometry.trilinear(surface), 0);
+        assert!(
+            (sides.lo - 1.0).abs() < 1e-3 && (sides.hi - 1.4).abs() < 1e-3,
+            "{sides:?}"
+        );
         // Deep inside: sigma_s = albedo sigma_t.
         let s = props.sample(DVec3::new(0.1, 0.0, 0.0));
         assert!((s.scatter - DVec3::new(0.1, 0.4, 1.6)).length() < 1e-5);

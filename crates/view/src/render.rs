@@ -44,8 +44,8 @@ use crate::image::Image;
 use crate::macrocell::MacroCells;
 use crate::phase::hg;
 use crate::properties::Properties;
-use eikon_grid::ray::{step_euler, step_rk4};
-use eikon_grid::{CameraSettings, Form, IndexField, Medium, Method, RayState, Scene, VoxelField};
+use eikon_grid::ray::step_rk4;
+use eikon_grid::{CameraSettings, Form, IndexField, Medium, Method, RayState, Scene};
 use eikon_wavefront::LightVolume;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -104,6 +104,10 @@ pub fn camera_settings(scene: &Scene) -> CameraSettings {
 /// Render progress: `(tiles done, tiles in all)`.
 pub type Progress<'a> = &'a (dyn Fn(usize, usize) + Sync);
 
+/// Mirror directions closer than this cosine (a quarter degree) share one
+/// lookup of the surroundings.
+const MIRROR_COS: f64 = 0.99999;
+
 /// Edge of a square tile of pixels, the unit of parallel work.
 pub const TILE: u32 = 16;
 
@@ -125,12 +129,6 @@ pub struct Renderer<'a> {
     opts: Options,
     cells: Vec<MacroCells>,
     properties: Properties,
-    /// Distance from a point in an interface's band at which the index on
-    /// either side is read for Fresnel, world units: far enough to clear
-    /// the band (smoothing plus voxelization, about 3 voxels either side of
-    /// the surface) from anywhere inside it. Walls thinner than this read
-    /// too small a jump.
-    probe: f64,
 }
 
 /// Where a ray is, and what it has gathered.
@@ -139,9 +137,9 @@ struct Walk {
     radiance: DVec3,
     alpha: DVec3,
     stats: Stats,
-    /// Radiance seen in the mirror direction in the interface band being
-    /// crossed, once looked up.
-    mirrored: Option<DVec3>,
+    /// The last mirror direction looked up in the interface band being
+    /// crossed, and the radiance seen along it.
+    mirrored: Option<(DVec3, DVec3)>,
 }
 
 impl<'a> Renderer<'a> {
@@ -169,9 +167,10 @@ impl<'a> Renderer<'a> {
             camera,
             opts,
             cells,
-            properties: Properties::new(medium),
-
-            probe: (6.0 * medium.smoothing + 0.5).max(1.5) * h,
+            // Interface sides are read far enough out to clear the band
+            // (smoothing plus voxelization, about 4.5 voxels either side of
+            // the surface): walls thinner than this read too small a jump.
+            properties: Properties::new(medium, (6.0 * medium.smoothing + 0.5).max(1.5) * h),
         }
     }
 
@@ -306,6 +305,7 @@ impl<'a> Renderer<'a> {
                 walk.alpha *= (-u.sigma * t).exp();
                 walk.ray.x += dir * t;
                 walk.ray.v = dir * u.n;
+                walk.mirrored = None;
                 walk.stats.skips += 1;
                 continue;
             }
@@ -330,9 +330,16 @@ impl<'a> Renderer<'a> {
             }
             let step = ds.min(exit.max(1e-6 * h));
             let x0 = walk.ray.x;
-            self.gather(&field, x0, dir, step, ch, &mut walk);
+            let (n, grad) = field.sample(x0);
+            self.gather(x0, grad, dir, step, ch, &mut walk);
             match self.opts.method {
-                Method::Euler => step_euler(&field, Form::EqualDistance, &mut walk.ray, step),
+                Method::Euler => {
+                    // Eqs 11-12 with the sample already taken.
+                    let r = &mut walk.ray;
+                    r.x += r.v * (step / n);
+                    r.v += grad * step;
+                    r.opl += n * step;
+                }
                 _ => step_rk4(&field, Form::EqualDistance, &mut walk.ray, step),
             }
             walk.stats.steps += 1;
@@ -357,7 +364,8 @@ impl<'a> Renderer<'a> {
     /// Eq 1 over one step of length `step` from `x` along the unit `d`:
     /// in-scatter, emission, attenuation and Fresnel at boundaries (see
     /// the module docs).
-    fn gather(&self, field: &VoxelField, x: DVec3, d: DVec3, step: f64, ch: usize, w: &mut Walk) {
+    #[allow(clippy::too_many_arguments)]
+    fn gather(&self, x: DVec3, grad: DVec3, d: DVec3, step: f64, ch: usize, w: &mut Walk) {
         let tri = self.medium.geometry.trilinear(x);
         let here = self.properties.sample_at(&tri);
         let sigma = here.sigma;
@@ -381,47 +389,61 @@ impl<'a> Renderer<'a> {
         }
         // Exact for constant sigma and S over the step:
         // int_0^ds exp(-sigma s) ds = (1 - exp(-sigma ds)) / sigma.
-        let att = (-sigma * step).exp();
-        let weight = DVec3::from_array([0, 1, 2].map(|c| {
-            if sigma[c] > 1e-12 {
-                (1.0 - att[c]) / sigma[c]
-            } else {
-                step
+        if sigma.max_element() > 0.0 {
+            let att = (-sigma * step).exp();
+            if source != DVec3::ZERO {
+                let weight = DVec3::from_array([0, 1, 2].map(|c| {
+                    if sigma[c] > 1e-12 {
+                        (1.0 - att[c]) / sigma[c]
+                    } else {
+                        step
+                    }
+                }));
+                w.radiance += w.alpha * source * weight;
             }
-        }));
-        w.radiance += w.alpha * source * weight;
-        w.alpha *= att;
+            w.alpha *= att;
+        } else if source != DVec3::ZERO {
+            w.radiance += w.alpha * source * step;
+        }
 
         let delta = here.delta;
         if delta <= 0.0 {
             w.mirrored = None;
+            return;
+        }
+        let len = grad.length();
+        if len == 0.0 {
+            return;
+        }
+        let normal = grad / len;
+        let cos = d.dot(normal);
+        let part = (delta * step * cos.abs()).min(1.0);
+        // n increases along `normal`; the two sides were read beyond the
+        // smoothed interface (`Properties`).
+        let sides = self.properties.sides_at(&tri, ch);
+        let (n1, n2) = if cos > 0.0 {
+            (sides.lo, sides.hi)
         } else {
-            let (_, grad) = field.sample(x);
-            let len = grad.length();
-            if len > 0.0 {
-                let normal = grad / len;
-                let cos = d.dot(normal);
-                let part = (delta * step * cos.abs()).min(1.0);
-                // n increases along `normal`: read either side beyond the
-                // smoothed interface.
-                let lo = field.sample(x - normal * self.probe).0;
-                let hi = field.sample(x + normal * self.probe).0;
-                let (n1, n2) = if cos > 0.0 { (lo, hi) } else { (hi, lo) };
-                let sin_t = n1 / n2 * (1.0 - cos * cos).max(0.0).sqrt();
-                if sin_t < 1.0 {
-                    let rho = fresnel::reflectance(cos.abs(), n1, n2);
-                    if rho > 0.0 {
-                        // What the mirror direction sees, looked up once per
-                        // crossing of an interface's band (where the mirror
-                        // direction hardly changes).
-                        let l_r = *w.mirrored.get_or_insert_with(|| {
-                            self.surroundings
-                                .radiance(x, fresnel::reflect(d, normal), ch)
-                        });
-                        w.radiance += w.alpha * l_r * (part * rho);
-                        w.alpha *= (1.0 - rho).powf(part);
+            (sides.hi, sides.lo)
+        };
+        let sin_t = n1 / n2 * (1.0 - cos * cos).max(0.0).sqrt();
+        if sin_t < 1.0 {
+            let rho = fresnel::reflectance(cos.abs(), n1, n2);
+            if rho > 0.0 {
+                // What the mirror direction sees, looked up again only
+                // when the mirror direction has turned (across one band it
+                // hardly does).
+                let mirror = fresnel::reflect(d, normal);
+                let l_r = match w.mirrored {
+                    Some((m, l)) if m.dot(mirror) > MIRROR_COS => l,
+                    _ => {
+                        let l = self.surroundings.radiance(x, mirror, ch);
+                        w.mirrored = Some((mirror, l));
+                        l
                     }
-                }
+                };
+                w.radiance += w.alpha * l_r * (part * rho);
+                w.alpha *= (1.0 - rho).powf(part);
             }
         }
     }
