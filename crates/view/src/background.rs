@@ -54,7 +54,13 @@ fn tangent(n: DVec3) -> DVec3 {
     (axis - n * n.dot(axis)).normalize()
 }
 
-/// Distance along the unit `d` from `o` to the plane `(p, n)`, if ahead.
+/// Rounding allowance of a plane hit, relative to the scene's scale: a ray
+/// that leaves the grid exactly on a plane lying on the grid's face must
+/// still meet it.
+const PLANE_EPS: f64 = 1e-9;
+
+/// Distance along the unit `d` from `o` to the plane `(p, n)`, if ahead
+/// (or within rounding of `o`, then 0).
 #[inline]
 fn plane_hit(o: DVec3, d: DVec3, p: DVec3, n: DVec3) -> Option<f64> {
     let den = d.dot(n);
@@ -62,7 +68,8 @@ fn plane_hit(o: DVec3, d: DVec3, p: DVec3, n: DVec3) -> Option<f64> {
         return None;
     }
     let t = (p - o).dot(n) / den;
-    (t > 0.0 && t.is_finite()).then_some(t)
+    let eps = PLANE_EPS * (1.0 + o.abs().max_element() + p.abs().max_element());
+    (t > -eps && t.is_finite()).then_some(t.max(0.0))
 }
 
 impl<'a> Surroundings<'a> {
@@ -110,7 +117,8 @@ impl<'a> Surroundings<'a> {
     #[inline]
     pub fn receiver_hit(&self, o: DVec3, d: DVec3, max_t: f64) -> Option<f64> {
         let r = self.receiver.as_ref()?;
-        plane_hit(o, d, r.point, r.normal).filter(|&t| t <= max_t)
+        let eps = PLANE_EPS * (1.0 + o.abs().max_element());
+        plane_hit(o, d, r.point, r.normal).filter(|&t| t <= max_t + eps)
     }
 
     /// Radiance leaving the receiver at `x` towards a viewer whose ray
@@ -240,6 +248,20 @@ mod tests {
             assert!(t.dot(n).abs() < 1e-12);
             assert!((t.length() - 1.0).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn a_ray_leaving_from_a_plane_meets_it() {
+        // A receiver on the grid's face: the eye ray stops on it, give or
+        // take rounding, and must still see it.
+        let (p, n) = (DVec3::new(0.0, -0.7, 0.0), DVec3::Y);
+        let d = DVec3::new(0.3, -1.0, 0.2).normalize();
+        for o in [p, p + DVec3::Y * 1e-12, p - DVec3::Y * 1e-12] {
+            let t = plane_hit(o + DVec3::new(0.2, 0.0, 0.1), d, p, n);
+            assert!(t.is_some_and(|t| t < 2e-12), "{o}: {t:?}");
+        }
+        // Clearly behind: no hit.
+        assert_eq!(plane_hit(p - DVec3::Y * 1e-3, d, p, n), None);
     }
 
     #[test]

@@ -11,7 +11,8 @@
 //! * per index channel, `[n_lo, n_hi]`: the index on the low and the high
 //!   side of the interface a boundary voxel belongs to, read along the
 //!   gradient a probe length either way from its centre (beyond the
-//!   smoothing), for Fresnel's n1 and n2; elsewhere the voxel's own index
+//!   smoothing) and extrapolated back to the surface where the index is
+//!   graded, for Fresnel's n1 and n2; elsewhere the voxel's own index
 //!   twice (no jump).
 
 use eikon_grid::{GridGeometry, IndexField, Medium, Trilinear};
@@ -99,9 +100,23 @@ impl Properties {
                         debug_assert!(i < nx);
                         let c = g.voxel_center(i, j, k);
                         let normal = grad.normalize();
-                        let lo = field.sample(c - normal * probe).0 as f32;
-                        let hi = field.sample(c + normal * probe).0 as f32;
-                        [lo, hi]
+                        // Read a probe length out, and extrapolate back
+                        // linearly from twice as far where the index keeps
+                        // changing the same way (a graded index, like a
+                        // Luneburg lens or a heated layer, ends at an
+                        // object's surface without a jump); a plateau
+                        // reads as it is.
+                        let side = |s: f64| {
+                            let near = field.sample(c + normal * (s * probe)).0;
+                            let far = field.sample(c + normal * (2.0 * s * probe)).0;
+                            let here = n as f64;
+                            if (far - near) * (near - here) > 0.0 {
+                                (2.0 * near - far) as f32
+                            } else {
+                                near as f32
+                            }
+                        };
+                        [side(-1.0), side(1.0)]
                     })
                     .collect()
             })
