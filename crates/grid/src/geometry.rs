@@ -77,28 +77,28 @@ impl GridGeometry {
     /// fields on this grid with one weight computation.
     #[inline]
     pub fn trilinear(&self, p: DVec3) -> Trilinear {
-        let hi = DVec3::new(
-            self.dims[0] as f64,
-            self.dims[1] as f64,
-            self.dims[2] as f64,
-        ) - 1.0;
+        let [nx, ny, nz] = self.dims;
+        let hi = DVec3::new(nx as f64, ny as f64, nz as f64) - 1.0;
         let u = self.world_to_voxel(p).clamp(DVec3::ZERO, hi);
-        let i0 = [0, 1, 2].map(|a| (u[a] as usize).min(self.dims[a].saturating_sub(2)));
-        let f = [0, 1, 2].map(|a| u[a] - i0[a] as f64);
+        // u >= 0, so truncation is floor. The lower corner stops one short
+        // of the last cell; an axis of one cell has stride 0.
+        let i = (u.x as usize).min(nx.saturating_sub(2));
+        let j = (u.y as usize).min(ny.saturating_sub(2));
+        let k = (u.z as usize).min(nz.saturating_sub(2));
+        let f = u - DVec3::new(i as f64, j as f64, k as f64);
+        let sx = if nx > 1 { ny * nz } else { 0 };
+        let sy = if ny > 1 { nz } else { 0 };
+        let sz = usize::from(nz > 1);
+        let base = self.flat_index(i, j, k);
+        let (wx, wy, wz) = ([1.0 - f.x, f.x], [1.0 - f.y, f.y], [1.0 - f.z, f.z]);
         let mut t = Trilinear {
             cell: [0; 8],
             weight: [0.0; 8],
         };
         for corner in 0..8 {
-            let d = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
-            let mut w = 1.0;
-            let mut idx = [0usize; 3];
-            for a in 0..3 {
-                idx[a] = (i0[a] + d[a]).min(self.dims[a] - 1);
-                w *= if d[a] == 1 { f[a] } else { 1.0 - f[a] };
-            }
-            t.cell[corner] = self.flat_index(idx[0], idx[1], idx[2]);
-            t.weight[corner] = w;
+            let (dx, dy, dz) = (corner & 1, (corner >> 1) & 1, (corner >> 2) & 1);
+            t.cell[corner] = base + dx * sx + dy * sy + dz * sz;
+            t.weight[corner] = wx[dx] * wy[dy] * wz[dz];
         }
         t
     }
