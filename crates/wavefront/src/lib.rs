@@ -19,6 +19,7 @@
 //! Everything is deterministic: the same scene gives the same volumes
 //! whatever the number of threads.
 
+pub mod gpu;
 pub mod histopyramid;
 pub mod light;
 pub mod patch;

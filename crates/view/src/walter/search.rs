@@ -1,0 +1,381 @@
+//! Split-and-prune searches over a triangle with interpolated normals
+//! (§3.3.1 and §3.3.2): where to start the 2-D Newton iteration.
+
+use super::func::Problem;
+use super::interval::{Interval, V3};
+use super::newton::{newton2, pinv};
+use super::{dedup, finish, Options, Solution, Stats, Triangle};
+use glam::{DVec2, DVec3};
+use std::f64::consts::FRAC_PI_2;
+
+/// Solutions closer than this in barycentric units are the same one.
+const DEDUP_TOL: f64 = 1e-8;
+
+/// Newton steps allowed per run.
+const MAX_NEWTON: u32 = 60;
+
+/// A cone of directions with apex at the origin: unit `axis`, semi-angle
+/// `angle < π/2` (wider sets are represented by `None`: "anything").
+#[derive(Debug, Clone, Copy)]
+struct Cone {
+    axis: DVec3,
+    angle: f64,
+}
+
+impl Cone {
+    /// A cone containing the spherical triangle spanned by three unit
+    /// vectors. The cone `{x : ∠(x, axis) <= θ}` is convex for `θ < π/2`, so
+    /// containing the three corners means containing every normalized
+    /// positive combination of them.
+    fn of_units(w: [DVec3; 3]) -> Option<Cone> {
+        let axis = (w[0] + w[1] + w[2]).normalize_or_zero();
+        if axis == DVec3::ZERO {
+            return None;
+        }
+        let angle = w
+            .iter()
+            .map(|x| x.dot(axis).clamp(-1.0, 1.0).acos())
+            .fold(0.0, f64::max);
+        (angle < FRAC_PI_2).then_some(Cone { axis, angle })
+    }
+
+    /// The axis-aligned box of the unit vectors in the cone: the component
+    /// along `e_k` of a unit vector at angle `<= θ` from the axis is a
+    /// cosine of an angle in `[α_k − θ, α_k + θ]`, `α_k = ∠(axis, e_k)`.
+    fn bbox(&self) -> (DVec3, DVec3) {
+        let range = |a: f64| {
+            let alpha = a.clamp(-1.0, 1.0).acos();
+            (
+                (alpha + self.angle).min(std::f64::consts::PI).cos(),
+                (alpha - self.angle).max(0.0).cos(),
+            )
+        };
+        let (x, y, z) = (range(self.axis.x), range(self.axis.y), range(self.axis.z));
+        (DVec3::new(x.0, y.0, z.0), DVec3::new(x.1, y.1, z.1))
+    }
+
+    /// A cone containing the box `[lo, hi]` (as a set of vectors), `None`
+    /// when the box contains the origin or needs a semi-angle of 90° or more.
+    fn of_box(lo: DVec3, hi: DVec3) -> Option<Cone> {
+        if lo.cmple(DVec3::ZERO).all() && hi.cmpge(DVec3::ZERO).all() {
+            return None;
+        }
+        let axis = (0.5 * (lo + hi)).normalize_or_zero();
+        if axis == DVec3::ZERO {
+            return None;
+        }
+        let mut angle: f64 = 0.0;
+        for i in 0..8 {
+            let c = DVec3::new(
+                if i & 1 == 0 { lo.x } else { hi.x },
+                if i & 2 == 0 { lo.y } else { hi.y },
+                if i & 4 == 0 { lo.z } else { hi.z },
+            );
+            let c = c.normalize_or_zero();
+            if c == DVec3::ZERO {
+                return None;
+            }
+            angle = angle.max(c.dot(axis).clamp(-1.0, 1.0).acos());
+        }
+        (angle < FRAC_PI_2).then_some(Cone { axis, angle })
+    }
+
+    /// Two cones overlap if the angle between their axes is at most the sum
+    /// of their semi-angles (§3.3.1).
+    fn overlaps(&self, o: &Cone) -> bool {
+        self.axis.dot(o.axis).clamp(-1.0, 1.0).acos() <= self.angle + o.angle + 1e-12
+    }
+}
+
+/// Bounding cones on `−σ Ĥ` and `N̂_s` over the sub-triangle with
+/// barycentric corners `q` (§3.3.1): the directions to `V` and to `L` from
+/// the sub-triangle form spherical triangles; their boxes, the `V` one
+/// scaled by `η`, are added (Minkowski sum) to bound the unnormalized
+/// half-vector, which is bounded in turn by a cone. A solution has
+/// `N̂_s = −σ Ĥ`. `None` stands for "anything".
+fn cones(
+    tri: &Triangle,
+    v: DVec3,
+    l: DVec3,
+    eta: f64,
+    q: &[DVec2; 3],
+) -> (Option<Cone>, Option<Cone>) {
+    let pts = q.map(|x| tri.point(x));
+    let ncone = Cone::of_units(q.map(|x| tri.shading_normal(x)));
+    let vcone = Cone::of_units(pts.map(|p| (v - p).normalize()));
+    let lcone = Cone::of_units(pts.map(|p| (l - p).normalize()));
+    let hcone = match (vcone, lcone) {
+        (Some(a), Some(b)) => {
+            let (alo, ahi) = a.bbox();
+            let (blo, bhi) = b.bbox();
+            let (lo, hi) = (eta * alo + blo, eta * ahi + bhi);
+            if eta > 1.0 {
+                Cone::of_box(-hi, -lo)
+            } else {
+                Cone::of_box(lo, hi)
+            }
+        }
+        _ => None,
+    };
+    (hcone, ncone)
+}
+
+/// Runs Newton from `start` and keeps a converged physical solution.
+fn try_start(
+    tri: &Triangle,
+    prob: &Problem<f64>,
+    (v, l, eta): (DVec3, DVec3, f64),
+    start: DVec2,
+    certified: bool,
+    stats: &mut Stats,
+) -> Option<Solution> {
+    let out = newton2(prob, start, MAX_NEWTON);
+    stats.newton_runs += 1;
+    stats.newton_iterations += out.iterations as usize;
+    if !out.converged() {
+        return None;
+    }
+    finish(tri, v, l, eta, out.uv, out.iterations, certified)
+}
+
+/// The projection of `V` onto the triangle's plane along the mean vertex
+/// normal, in barycentric coordinates (a start point of §3.3).
+fn projected_v(tri: &Triangle, v: DVec3) -> Option<DVec2> {
+    let navg = tri.n[0].normalize() + tri.n[1].normalize() + tri.n[2].normalize();
+    let ng = tri.geometric_normal();
+    let t = (tri.p[0] - v).dot(ng) / navg.dot(ng);
+    t.is_finite().then(|| tri.barycentric(v + t * navg))
+}
+
+/// §3.3.1 with the cone-angle stopping heuristic: split the triangle 4 ways
+/// while the cones of `−σĤ` and `N̂_s` overlap, until their semi-angles sum
+/// to less than `opts.cone_angle_deg`; then run Newton in each remaining
+/// sub-triangle. Start points: see [`Options::paper_starts`].
+pub(crate) fn heuristic(
+    tri: &Triangle,
+    v: DVec3,
+    l: DVec3,
+    eta: f64,
+    opts: &Options,
+    stats: &mut Stats,
+) -> Vec<Solution> {
+    let prob = Problem::<f64>::new(tri, v, l, eta);
+    let limit = opts.cone_angle_deg.to_radians();
+    let vproj = projected_v(tri, v);
+    let query = (v, l, eta);
+    let mut found = Vec::new();
+    let mut stack = vec![([DVec2::ZERO, DVec2::X, DVec2::Y], 0u32)];
+    let mut any_leaf = false;
+    while let Some((q, depth)) = stack.pop() {
+        stats.regions += 1;
+        let (hcone, ncone) = cones(tri, v, l, eta, &q);
+        let (stop, overlap) = match (hcone, ncone) {
+            (Some(h), Some(n)) => (h.angle + n.angle < limit, h.overlaps(&n)),
+            _ => (false, true),
+        };
+        if !overlap {
+            stats.pruned += 1;
+            continue;
+        }
+        let m = [
+            0.5 * (q[0] + q[1]),
+            0.5 * (q[1] + q[2]),
+            0.5 * (q[2] + q[0]),
+        ];
+        if stop || depth >= opts.max_depth {
+            any_leaf = true;
+            let c = (q[0] + q[1] + q[2]) / 3.0;
+            if opts.paper_starts {
+                // The centroid, unless ‖f‖ > 1 there: then the best of the
+                // centroid, the corners and the projection of V.
+                let norm = |x: DVec2| prob.f(x.x, x.y).to_dvec().length();
+                let mut best = (norm(c), c);
+                if best.0 > 1.0 {
+                    for s in [q[0], q[1], q[2]].into_iter().chain(vproj) {
+                        let r = norm(s);
+                        if r < best.0 {
+                            best = (r, s);
+                        }
+                    }
+                }
+                found.extend(try_start(tri, &prob, query, best.1, false, stats));
+            } else {
+                for s in [c, q[0], q[1], q[2], m[0], m[1], m[2]] {
+                    found.extend(try_start(tri, &prob, query, s, false, stats));
+                }
+            }
+        } else {
+            for sub in [
+                [q[0], m[0], m[2]],
+                [m[0], q[1], m[1]],
+                [m[2], m[1], q[2]],
+                [m[0], m[1], m[2]],
+            ] {
+                stack.push((sub, depth + 1));
+            }
+        }
+    }
+    if any_leaf && !opts.paper_starts {
+        if let Some(s) = vproj {
+            found.extend(try_start(tri, &prob, query, s, false, stats));
+        }
+    }
+    dedup(found, DEDUP_TOL)
+}
+
+/// Whether some component's interval excludes zero (eq 12 proves there is
+/// no solution then; the paper prints "∅ ∉ F(X)" for "0 ∉ F(X)").
+fn excludes_zero(f: V3<Interval>) -> bool {
+    !(f.x.contains(0.0) && f.y.contains(0.0) && f.z.contains(0.0))
+}
+
+fn mid3(v: V3<Interval>) -> DVec3 {
+    DVec3::new(v.x.mid(), v.y.mid(), v.z.mid())
+}
+
+/// `row · col` for a float row and an interval column.
+fn dot_fi(row: DVec3, col: V3<Interval>) -> Interval {
+    col.x * row.x + col.y * row.y + col.z * row.z
+}
+
+/// Outcome of the Krawczyk test on one box.
+pub(crate) enum Krawczyk {
+    /// Eq 12 or eq 13: no solution in the box.
+    Empty,
+    /// Eqs 14 and 15: at most one solution, the unique fixed point of
+    /// `g(x) = x − M⁺ f(x)`, reachable by the chord iteration with `M⁺`.
+    Unique { m_plus: [DVec3; 2] },
+    /// Undecided; a solution, if any, lies in the contracted box `K ∩ X`.
+    Split([Interval; 2]),
+}
+
+/// The Krawczyk operator of eq 11 on the barycentric box `x`:
+/// `K(X) = m₀ − M⁺ f(m₀) + [I − M⁺ F'(X)](X − m₀)` with `m₀ = m(X)`,
+/// `M = m(F'(X))` and `M⁺` its pseudo-inverse.
+///
+/// `g(x) = x − M⁺ f(x)` maps `X` into `K(X)` (mean-value form), and every
+/// zero of `f` is a fixed point of `g`. Hence `K ∩ X = ∅` excludes
+/// solutions (eq 13); `K ⊆ X` (Brouwer) with `‖I − M⁺F'(X)‖∞ < 1`
+/// (contraction, eq 15) gives a unique fixed point of `g` in `X`, so at most
+/// one zero of `f` (with a 3×2 Jacobian a fixed point of `g` need only make
+/// `f` orthogonal to the range of `M`; the caller checks `‖f‖` there).
+pub(crate) fn krawczyk(pi: &Problem<Interval>, x: [Interval; 2]) -> Krawczyk {
+    // Eq 12, the cheaper test, first.
+    if excludes_zero(pi.f(x[0], x[1])) {
+        return Krawczyk::Empty;
+    }
+    let e = pi.eval(x[0], x[1]);
+    let m0 = [x[0].mid(), x[1].mid()];
+    let Some(mp) = pinv(mid3(e.fu), mid3(e.fv)) else {
+        return Krawczyk::Split(x);
+    };
+    let fm = pi.f(Interval::point(m0[0]), Interval::point(m0[1]));
+    let cols = [e.fu, e.fv];
+    let mut k = [Interval::ENTIRE; 2];
+    let mut norm: f64 = 0.0;
+    for i in 0..2 {
+        let mut row_sum = Interval::point(0.0);
+        let mut ki = Interval::point(m0[i]) - dot_fi(mp[i], fm);
+        for j in 0..2 {
+            let delta = if i == j { 1.0 } else { 0.0 };
+            let a = Interval::point(delta) - dot_fi(mp[i], cols[j]);
+            row_sum = row_sum + Interval::point(a.mag());
+            ki = ki + a * (x[j] - m0[j]);
+        }
+        norm = norm.max(row_sum.hi());
+        k[i] = ki;
+    }
+    let (Some(c0), Some(c1)) = (k[0].intersect(x[0]), k[1].intersect(x[1])) else {
+        return Krawczyk::Empty; // eq 13
+    };
+    if k[0].subset_of(x[0]) && k[1].subset_of(x[1]) && norm < 1.0 {
+        return Krawczyk::Unique { m_plus: mp }; // eqs 14-15
+    }
+    Krawczyk::Split([c0, c1])
+}
+
+fn near_box(uv: DVec2, x: &[Interval; 2], tol: f64) -> bool {
+    uv.x >= x[0].lo() - tol
+        && uv.x <= x[0].hi() + tol
+        && uv.y >= x[1].lo() - tol
+        && uv.y <= x[1].hi() + tol
+}
+
+/// §3.3.2: split-and-prune on boxes of barycentric coordinates, starting
+/// from `[0, 1]²`, with the Krawczyk test deciding each box. Boxes entirely
+/// beyond the hypotenuse `u + v = 1` are dropped. Undecided boxes are
+/// contracted to `K ∩ X` (sound: every solution in `X` lies in `K(X)`),
+/// and bisected across their wider side unless that shrank their
+/// semi-perimeter by a quarter (either way it shrinks geometrically, so the
+/// search terminates).
+pub(crate) fn guaranteed(
+    tri: &Triangle,
+    v: DVec3,
+    l: DVec3,
+    eta: f64,
+    opts: &Options,
+    stats: &mut Stats,
+) -> Vec<Solution> {
+    let pf = Problem::<f64>::new(tri, v, l, eta);
+    let pi = Problem::<Interval>::new(tri, v, l, eta);
+    let unit = Interval::new(0.0, 1.0);
+    let mut stack = vec![[unit, unit]];
+    let mut found = Vec::new();
+    let query = (v, l, eta);
+    while let Some(x) = stack.pop() {
+        if x[0].lo() + x[1].lo() > 1.0 + 1e-12 {
+            continue;
+        }
+        stats.regions += 1;
+        let center = DVec2::new(x[0].mid(), x[1].mid());
+        if stats.regions > opts.max_boxes {
+            stats.unresolved += 1;
+            found.extend(try_start(tri, &pf, query, center, false, stats));
+            continue;
+        }
+        match krawczyk(&pi, x) {
+            Krawczyk::Empty => stats.pruned += 1,
+            Krawczyk::Unique { m_plus } => {
+                stats.certified += 1;
+                // Chord iteration with the fixed M⁺: a contraction of X.
+                let mut y = center;
+                for _ in 0..100 {
+                    let f = pf.f(y.x, y.y).to_dvec();
+                    let d = DVec2::new(m_plus[0].dot(f), m_plus[1].dot(f));
+                    y = DVec2::new(
+                        (y.x - d.x).clamp(x[0].lo(), x[0].hi()),
+                        (y.y - d.y).clamp(x[1].lo(), x[1].hi()),
+                    );
+                    if d.length() <= 1e-15 {
+                        break;
+                    }
+                }
+                let out = newton2(&pf, y, MAX_NEWTON);
+                stats.newton_runs += 1;
+                stats.newton_iterations += out.iterations as usize;
+                if out.converged() && near_box(out.uv, &x, 1e-9) {
+                    found.extend(finish(tri, v, l, eta, out.uv, out.iterations, true));
+                }
+            }
+            Krawczyk::Split(c) => {
+                let (w0, w1) = (c[0].width(), c[1].width());
+                if w0.max(w1) < opts.min_box_width {
+                    stats.unresolved += 1;
+                    let mid = DVec2::new(c[0].mid(), c[1].mid());
+                    found.extend(try_start(tri, &pf, query, mid, false, stats));
+                } else if w0 + w1 <= 0.75 * (x[0].width() + x[1].width()) {
+                    stack.push(c);
+                } else if w0 >= w1 {
+                    let m = c[0].mid();
+                    stack.push([Interval::new(c[0].lo(), m), c[1]]);
+                    stack.push([Interval::new(m, c[0].hi()), c[1]]);
+                } else {
+                    let m = c[1].mid();
+                    stack.push([c[0], Interval::new(c[1].lo(), m)]);
+                    stack.push([c[0], Interval::new(m, c[1].hi())]);
+                }
+            }
+        }
+    }
+    dedup(found, DEDUP_TOL)
+}
