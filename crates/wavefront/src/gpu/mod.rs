@@ -71,20 +71,7 @@ impl<'a> GpuHistoPyramid<'a> {
                 })
                 .collect();
             for (l, u) in (1..depth).zip(&uniforms) {
-                let bind = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                    label: Some("histopyramid reduce"),
-                    layout: &self.reduce.get_bind_group_layout(0),
-                    entries: &[
-                        wgpu::BindGroupEntry {
-                            binding: 0,
-                            resource: levels.as_entire_binding(),
-                        },
-                        wgpu::BindGroupEntry {
-                            binding: 1,
-                            resource: u.as_entire_binding(),
-                        },
-                    ],
-                });
+                let bind = gpu.bind(&self.reduce, &[&levels, u]);
                 let mut pass = enc.begin_compute_pass(&Default::default());
                 pass.set_pipeline(&self.reduce);
                 pass.set_bind_group(0, &bind, &[]);
@@ -107,28 +94,7 @@ impl<'a> GpuHistoPyramid<'a> {
         let source = gpu.storage_empty("histopyramid source", total as u64 * 4);
         let part = gpu.storage_empty("histopyramid part", total as u64 * 4);
         gpu.checked("histopyramid expand", || {
-            let bind = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("histopyramid expand"),
-                layout: &self.expand.get_bind_group_layout(0),
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: levels.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: info_buf.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: source.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 3,
-                        resource: part.as_entire_binding(),
-                    },
-                ],
-            });
+            let bind = gpu.bind(&self.expand, &[&levels, &info_buf, &source, &part]);
             let mut enc = gpu.device.create_command_encoder(&Default::default());
             {
                 let mut pass = enc.begin_compute_pass(&Default::default());
