@@ -1,5 +1,6 @@
 //! `eikon`: light transport in refractive volumes, from the command line.
 
+mod export;
 mod info;
 mod output;
 mod probe;
@@ -38,6 +39,8 @@ enum Command {
     Run(run::Args),
     /// Simulate and render a built-in scene (a glass sphere and its caustic): no files needed.
     Demo(run::DemoArgs),
+    /// Write a scene's volumes (index, gradient, extinction, light) as OpenVDB grids and/or NumPy arrays.
+    Export(export::Args),
 }
 
 fn main() -> ExitCode {
@@ -51,6 +54,7 @@ fn main() -> ExitCode {
         Command::Render(a) => render::run(a),
         Command::Run(a) => run::run(a),
         Command::Demo(a) => run::demo(a),
+        Command::Export(a) => export::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -10,6 +10,7 @@
 //!   rasterization, Gaussian smoothing, gradient, boundary indicator, and
 //!   trilinear or exact analytic sampling.
 //! * [`ray`]: eqs 9-10 and 14-15 with Euler, RK4 and Dormand-Prince.
+//! * [`vdb`]: OpenVDB export (our own writer) and import of float grids.
 
 pub mod error;
 pub mod field;
@@ -19,12 +20,13 @@ pub mod ray;
 pub mod scene;
 pub mod shape;
 mod smooth;
+pub mod vdb;
 mod voxelize;
 
 pub use error::{Error, Location, Result};
 pub use field::{AnalyticField, EmptySpace, Medium, MemoryEstimate, VoxelField};
 pub use geometry::{GridGeometry, Trilinear};
-pub use object::{IndexProfile, Material, Object};
+pub use object::{GridExtinction, GridIndex, IndexProfile, Material, Object};
 pub use ray::{
     trace, trace_many, Form, IndexField, Method, RayEnd, RayState, Status, TraceOptions,
 };

@@ -1,7 +1,9 @@
 //! Scene objects: a shape, its optical material and a priority.
 
 use crate::shape::Shape;
+use crate::vdb::FloatVolume;
 use glam::DVec3;
+use std::sync::Arc;
 
 /// How the refractive index varies inside an object.
 #[derive(Clone, Debug)]
@@ -73,6 +75,43 @@ pub struct Material {
     pub g: f64,
     /// RGB emitted radiance per world unit of path (W / (m^2 sr) per unit length).
     pub emission: DVec3,
+    /// The index read from a VDB float grid instead of `index` (which then
+    /// holds the largest index of the grid, for listings).
+    pub index_grid: Option<GridIndex>,
+    /// The extinction read from a VDB float grid instead of `extinction`
+    /// (which then holds the largest extinction of the grid).
+    pub extinction_grid: Option<GridExtinction>,
+}
+
+/// Refractive index from a VDB float grid (trilinear between voxel centres).
+#[derive(Clone, Debug)]
+pub struct GridIndex {
+    /// The grid.
+    pub volume: Arc<FloatVolume>,
+    /// `None`: the grid holds n itself; `Some(k)`: n = 1 + k * value (a
+    /// density grid).
+    pub scale: Option<f64>,
+}
+
+impl GridIndex {
+    /// The index at `p`.
+    #[inline]
+    pub fn value(&self, p: DVec3) -> f64 {
+        let v = self.volume.sample(p);
+        match self.scale {
+            None => v,
+            Some(k) => 1.0 + k * v,
+        }
+    }
+}
+
+/// RGB extinction `scale * value` from a VDB float grid (a density grid).
+#[derive(Clone, Debug)]
+pub struct GridExtinction {
+    /// The grid.
+    pub volume: Arc<FloatVolume>,
+    /// sigma_t per unit of the grid's value, RGB, per world unit.
+    pub scale: DVec3,
 }
 
 impl Material {
@@ -84,6 +123,27 @@ impl Material {
             albedo: DVec3::ZERO,
             g: 0.0,
             emission: DVec3::ZERO,
+            index_grid: None,
+            extinction_grid: None,
+        }
+    }
+
+    /// Refractive index at `p` for colour `channel`: the profile's, or the
+    /// VDB grid's when the index comes from one.
+    #[inline]
+    pub fn index_at(&self, p: DVec3, channel: usize) -> f64 {
+        match &self.index_grid {
+            Some(g) => g.value(p),
+            None => self.index.value(p, channel),
+        }
+    }
+
+    /// RGB extinction at `p`.
+    #[inline]
+    pub fn extinction_at(&self, p: DVec3) -> DVec3 {
+        match &self.extinction_grid {
+            Some(g) => g.scale * g.volume.sample(p),
+            None => self.extinction,
         }
     }
 }

@@ -5,13 +5,17 @@
 
 use crate::error::{Error, Location, Result};
 use crate::geometry::GridGeometry;
+use crate::object::{GridExtinction, GridIndex};
 use crate::object::{IndexProfile, Material, Object};
 use crate::shape::{rotation_from_degrees, Shape};
+use crate::vdb::{FloatVolume, VdbError, VdbSolid};
 use glam::{DVec2, DVec3};
 use serde::de::{self, Deserializer, MapAccess, SeqAccess, Visitor};
 use serde::Deserialize;
+use std::collections::HashMap;
 use std::fmt;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 // ---------------------------------------------------------------------------
 // Raw file format (serde).
@@ -105,7 +109,7 @@ struct RawObject {
     shape: RawShape,
     index: RawIndex,
     #[serde(default)]
-    extinction: [f64; 3],
+    extinction: RawExtinction,
     #[serde(default)]
     albedo: [f64; 3],
     #[serde(default)]
@@ -167,6 +171,12 @@ enum RawShape {
         point: [f64; 3],
         normal: [f64; 3],
     },
+    Vdb {
+        file: String,
+        grid: String,
+        #[serde(default)]
+        threshold: Option<f64>,
+    },
 }
 
 /// `index = 1.5`, `index = [1.51, 1.52, 1.53]` or `index = { type = ... }`.
@@ -195,6 +205,86 @@ enum RawProfile {
         #[serde(default)]
         origin: [f64; 3],
     },
+    Vdb {
+        #[serde(default)]
+        file: Option<String>,
+        #[serde(default)]
+        grid: Option<String>,
+        #[serde(default)]
+        scale: Option<f64>,
+    },
+}
+
+/// An object's `extinction = [r, g, b]`, or `{ type = "vdb", ... }` from a
+/// density grid.
+enum RawExtinction {
+    Rgb([f64; 3]),
+    Grid(RawGridMap),
+}
+
+impl Default for RawExtinction {
+    fn default() -> Self {
+        RawExtinction::Rgb([0.0; 3])
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+enum RawGridMap {
+    Vdb {
+        #[serde(default)]
+        file: Option<String>,
+        #[serde(default)]
+        grid: Option<String>,
+        scale: [f64; 3],
+    },
+}
+
+impl<'de> Deserialize<'de> for RawExtinction {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = RawExtinction;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("an [r, g, b] array, or a table with type = \"vdb\"")
+            }
+            fn visit_seq<A: SeqAccess<'de>>(
+                self,
+                s: A,
+            ) -> std::result::Result<Self::Value, A::Error> {
+                Deserialize::deserialize(de::value::SeqAccessDeserializer::new(s))
+                    .map(RawExtinction::Rgb)
+            }
+            fn visit_map<A: MapAccess<'de>>(
+                self,
+                m: A,
+            ) -> std::result::Result<Self::Value, A::Error> {
+                Deserialize::deserialize(de::value::MapAccessDeserializer::new(m))
+                    .map(RawExtinction::Grid)
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+/// The constant RGB of a material field (the placeholder of a grid mapping).
+trait ConstantRgb {
+    fn rgb(&self) -> [f64; 3];
+}
+
+impl ConstantRgb for [f64; 3] {
+    fn rgb(&self) -> [f64; 3] {
+        *self
+    }
+}
+
+impl ConstantRgb for RawExtinction {
+    fn rgb(&self) -> [f64; 3] {
+        match self {
+            RawExtinction::Rgb(v) => *v,
+            RawExtinction::Grid(_) => [0.0; 3],
+        }
+    }
 }
 
 impl<'de> Deserialize<'de> for RawIndex {
@@ -204,7 +294,7 @@ impl<'de> Deserialize<'de> for RawIndex {
             type Value = RawIndex;
             fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
                 f.write_str(
-                    "a number, an [r, g, b] array, or a table with type = \"luneburg\" or \"linear\"",
+                    "a number, an [r, g, b] array, or a table with type = \"luneburg\", \"linear\" or \"vdb\"",
                 )
             }
             fn visit_f64<E: de::Error>(self, v: f64) -> std::result::Result<RawIndex, E> {
@@ -675,10 +765,12 @@ impl Scene {
         }
         let ambient = check_material(c, &grid, &[K("ambient")], a.fields(), None)?;
         let mut objects = Vec::with_capacity(raw.objects.len());
+        let mut volumes = Volumes::default();
         for (i, o) in raw.objects.iter().enumerate() {
-            let shape = check_shape(c, &[K("object"), I(i), K("shape")], &o.shape)?;
-            let material =
+            let shape = check_shape(c, &[K("object"), I(i), K("shape")], &o.shape, &mut volumes)?;
+            let mut material =
                 check_material(c, &grid, &[K("object"), I(i)], o.fields(), Some(&shape))?;
+            attach_grids(c, &mut volumes, i, o, &mut material)?;
             objects.push(Object {
                 name: o.name.clone().unwrap_or_else(|| format!("object{i}")),
                 shape,
@@ -808,7 +900,7 @@ macro_rules! material_fields {
             fn fields(&self) -> MaterialFields<'_> {
                 MaterialFields {
                     index: &self.index,
-                    extinction: self.extinction,
+                    extinction: ConstantRgb::rgb(&self.extinction),
                     albedo: self.albedo,
                     g: self.g,
                     emission: self.emission,
@@ -953,6 +1045,8 @@ fn check_index(
             }
             prof
         }
+        // Filled in from the grid by `attach_grids`.
+        RawIndex::Profile(RawProfile::Vdb { .. }) => IndexProfile::Constant([1.0; 3]),
     })
 }
 
@@ -988,6 +1082,8 @@ fn check_material(
         albedo,
         g: m.g,
         emission,
+        index_grid: None,
+        extinction_grid: None,
     })
 }
 
@@ -1157,7 +1253,7 @@ fn check_light(c: &Checker, i: usize, l: &RawLight) -> Result<Light> {
     })
 }
 
-fn check_shape(c: &Checker, sp: &[Seg], s: &RawShape) -> Result<Shape> {
+fn check_shape(c: &Checker, sp: &[Seg], s: &RawShape, volumes: &mut Volumes) -> Result<Shape> {
     let f = |k: &'static str| [sp, &[Seg::Key(k)]].concat();
     let rot = |r: [f64; 3]| -> Result<glam::DMat3> {
         c.finite(&f("rotation"), &r)?;
@@ -1288,7 +1384,156 @@ fn check_shape(c: &Checker, sp: &[Seg], s: &RawShape) -> Result<Shape> {
             point: c.vec3(&f("point"), *point)?,
             normal: c.unit(&f("normal"), *normal)?,
         },
+        RawShape::Vdb {
+            file,
+            grid,
+            threshold,
+        } => {
+            let volume = volumes.load(c, sp, file, grid)?;
+            let t = match threshold {
+                Some(t) => {
+                    c.finite(&f("threshold"), &[*t])?;
+                    *t
+                }
+                None => volume.background as f64,
+            };
+            let solid = VdbSolid::new(volume.clone(), t);
+            if solid.inside_voxels() == 0 && volume.background as f64 <= t {
+                let (lo, hi) = volume.range();
+                return Err(c.err(
+                    &f("threshold"),
+                    format!(
+                        "no voxel of grid `{grid}` exceeds {t} (its values span {lo} to {hi}): the solid would be empty"
+                    ),
+                ));
+            }
+            Shape::Vdb(Arc::new(solid))
+        }
     })
+}
+
+/// VDB float grids read while checking a scene, shared by the fields that
+/// name the same file and grid.
+#[derive(Default)]
+struct Volumes(HashMap<(PathBuf, String), Arc<FloatVolume>>);
+
+impl Volumes {
+    /// Grid `grid` of `file` (relative to the scene file); errors are
+    /// located at `at.file` or `at.grid`.
+    fn load(
+        &mut self,
+        c: &Checker,
+        at: &[Seg],
+        file: &str,
+        grid: &str,
+    ) -> Result<Arc<FloatVolume>> {
+        let base = Path::new(c.origin).parent().unwrap_or(Path::new(""));
+        let path = base.join(file);
+        let key = (path.clone(), grid.to_string());
+        if let Some(v) = self.0.get(&key) {
+            return Ok(v.clone());
+        }
+        let v = crate::vdb::read_float_grid(&path, grid).map_err(|e| {
+            let field = match e {
+                VdbError::NoSuchGrid { .. } | VdbError::WrongType { .. } => "grid",
+                _ => "file",
+            };
+            c.err(&[at, &[Seg::Key(field)]].concat(), e.to_string())
+        })?;
+        if !v.is_finite() {
+            return Err(c.err(
+                &[at, &[Seg::Key("grid")]].concat(),
+                format!(
+                    "{}: grid `{grid}` holds NaN or infinite values",
+                    path.display()
+                ),
+            ));
+        }
+        let v = Arc::new(v);
+        self.0.insert(key, v.clone());
+        Ok(v)
+    }
+}
+
+/// Index and extinction of object `i` from VDB grids, where the file asks
+/// for them (`index = { type = "vdb", ... }`, `extinction = { type = "vdb",
+/// ... }`). `file` and `grid` default to those of a VDB shape.
+fn attach_grids(
+    c: &Checker,
+    volumes: &mut Volumes,
+    i: usize,
+    o: &RawObject,
+    m: &mut Material,
+) -> Result<()> {
+    use Seg::{Index as I, Key as K};
+    let from_shape = match &o.shape {
+        RawShape::Vdb { file, grid, .. } => Some((file, grid)),
+        _ => None,
+    };
+    let source =
+        |at: &[Seg], file: &Option<String>, grid: &Option<String>| -> Result<(String, String)> {
+            let pick = |own: &Option<String>, shape: Option<&String>, key: &'static str| {
+                own.clone().or_else(|| shape.cloned()).ok_or_else(|| {
+                    c.err(
+                        at,
+                        format!("`{key}` is required (or a shape of type \"vdb\" to take it from)"),
+                    )
+                })
+            };
+            Ok((
+                pick(file, from_shape.map(|s| s.0), "file")?,
+                pick(grid, from_shape.map(|s| s.1), "grid")?,
+            ))
+        };
+    if let RawIndex::Profile(RawProfile::Vdb { file, grid, scale }) = &o.index {
+        let at = [K("object"), I(i), K("index")];
+        let (file, grid) = source(&at, file, grid)?;
+        let volume = volumes.load(c, &at, &file, &grid)?;
+        if let Some(k) = scale {
+            c.finite(&[&at[..], &[K("scale")]].concat(), &[*k])?;
+        }
+        let map = |v: f32| match scale {
+            None => v as f64,
+            Some(k) => 1.0 + k * v as f64,
+        };
+        let (lo, hi) = volume.range();
+        let (n_lo, n_hi) = (map(lo).min(map(hi)), map(lo).max(map(hi)));
+        if n_lo <= 0.0 {
+            return Err(c.err(
+                &at,
+                format!(
+                    "the index from grid `{grid}` reaches {n_lo} <= 0 (grid values {lo} to {hi}); the refractive index must be > 0"
+                ),
+            ));
+        }
+        m.index = IndexProfile::Constant([n_hi; 3]);
+        m.index_grid = Some(GridIndex {
+            volume,
+            scale: *scale,
+        });
+    }
+    if let RawExtinction::Grid(RawGridMap::Vdb { file, grid, scale }) = &o.extinction {
+        let at = [K("object"), I(i), K("extinction")];
+        let (file, grid) = source(&at, file, grid)?;
+        let volume = volumes.load(c, &at, &file, &grid)?;
+        let sp = [&at[..], &[K("scale")]].concat();
+        let scale = c.vec3(&sp, *scale)?;
+        if scale.min_element() < 0.0 {
+            return Err(c.err(&sp, "extinction scale must be >= 0"));
+        }
+        let (lo, hi) = volume.range();
+        if lo < 0.0 && scale.max_element() > 0.0 {
+            return Err(c.err(
+                &at,
+                format!(
+                    "grid `{grid}` holds negative values (down to {lo}): extinction would be < 0"
+                ),
+            ));
+        }
+        m.extinction = scale * hi as f64;
+        m.extinction_grid = Some(GridExtinction { volume, scale });
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -6,7 +6,9 @@
 //! voxelizer uses that bound to find the cells a surface may cross, and only
 //! those cells are supersampled.
 
+use crate::vdb::VdbSolid;
 use glam::{DMat3, DVec2, DVec3};
+use std::sync::Arc;
 
 /// A closed solid. Local frames are rotated about the shape's own centre.
 #[derive(Clone, Debug)]
@@ -52,6 +54,8 @@ pub enum Shape {
     },
     /// Everything on the side of the plane opposite to its unit `normal`.
     HalfSpace { point: DVec3, normal: DVec3 },
+    /// Where a float grid of a VDB file exceeds a threshold.
+    Vdb(Arc<VdbSolid>),
 }
 
 /// Rotation from Euler angles in degrees, applied about x, then y, then z.
@@ -128,12 +132,16 @@ impl Shape {
                 (f.powf(e1 / 2.0) - 1.0) * radii.min_element() * 0.5
             }
             Shape::HalfSpace { point, normal } => (p - *point).dot(*normal),
+            Shape::Vdb(solid) => solid.distance(p),
         }
     }
 
     /// Whether `p` is inside the solid.
     pub fn contains(&self, p: DVec3) -> bool {
-        self.distance(p) < 0.0
+        match self {
+            Shape::Vdb(solid) => solid.contains(p),
+            _ => self.distance(p) < 0.0,
+        }
     }
 
     /// World-space axis-aligned bounding box, or `None` when unbounded.
@@ -185,6 +193,7 @@ impl Shape {
                 center, radii, rot, ..
             } => Some(rotated_box(*center, *radii, rot)),
             Shape::HalfSpace { .. } => None,
+            Shape::Vdb(solid) => solid.aabb(),
         }
     }
 
@@ -199,6 +208,7 @@ impl Shape {
             Shape::Torus { .. } => "torus",
             Shape::Superquadric { .. } => "superquadric",
             Shape::HalfSpace { .. } => "half-space",
+            Shape::Vdb(_) => "VDB grid",
         }
     }
 }

@@ -43,11 +43,12 @@ pub(crate) fn stride(channels: usize, objects: usize) -> usize {
 
 fn accumulate(cell: &mut [f32], m: &Material, p: DVec3, channels: usize, w: f32, cov: usize) {
     for (c, slot) in cell.iter_mut().enumerate().take(channels) {
-        *slot += w * m.index.value(p, c) as f32;
+        *slot += w * m.index_at(p, c) as f32;
     }
     let b = channels;
+    let extinction = m.extinction_at(p);
     for a in 0..3 {
-        cell[b + Raster::EXT + a] += w * m.extinction[a] as f32;
+        cell[b + Raster::EXT + a] += w * extinction[a] as f32;
         cell[b + Raster::ALB + a] += w * m.albedo[a] as f32;
         cell[b + Raster::EMI + a] += w * m.emission[a] as f32;
     }

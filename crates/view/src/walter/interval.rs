@@ -405,7 +405,11 @@ mod tests {
                 1 => (self.unit() - 0.5) * 2.0,
                 _ => {
                     let e = (self.next() % 41) as i32 - 20;
-                    let s = if self.next() % 2 == 0 { 1.0 } else { -1.0 };
+                    let s = if self.next().is_multiple_of(2) {
+                        1.0
+                    } else {
+                        -1.0
+                    };
                     s * (1.0 + self.unit()) * 2f64.powi(e)
                 }
             }
