@@ -292,23 +292,6 @@ impl<'a> Renderer<'a> {
             if walk.alpha.max_element() < self.opts.min_transmittance {
                 return (walk.radiance, walk.stats);
             }
-            if let Some((u, t)) = self.cells.get(ch).and_then(|c| c.crossing(walk.ray.x, dir)) {
-                // Just past the block's face, so that the next lookup
-                // lands in the next block.
-                let t = (t + 1e-6 * h).min(exit);
-                if let Some(tr) = env.receiver_hit(walk.ray.x, dir, t) {
-                    let hit = walk.ray.x + dir * tr;
-                    walk.alpha *= (-u.sigma * tr).exp();
-                    walk.radiance += walk.alpha * env.receiver_radiance(hit, dir, ch);
-                    return (walk.radiance, walk.stats);
-                }
-                walk.alpha *= (-u.sigma * t).exp();
-                walk.ray.x += dir * t;
-                walk.ray.v = dir * u.n;
-                walk.mirrored = None;
-                walk.stats.skips += 1;
-                continue;
-            }
             if let Some(s) = self.cells.get(ch).and_then(|c| c.clear_step(walk.ray.x)) {
                 // Clear of anything that bends, scatters, emits or reflects
                 // for `s`: one straight step in the local constant medium.
@@ -324,6 +307,23 @@ impl<'a> Renderer<'a> {
                 walk.alpha *= (-sigma * t).exp();
                 walk.ray.x += dir * t;
                 walk.ray.v = dir * n;
+                walk.mirrored = None;
+                walk.stats.skips += 1;
+                continue;
+            }
+            if let Some((u, t)) = self.cells.get(ch).and_then(|c| c.crossing(walk.ray.x, dir)) {
+                // Just past the block's face, so that the next lookup
+                // lands in the next block.
+                let t = (t + 1e-6 * h).min(exit);
+                if let Some(tr) = env.receiver_hit(walk.ray.x, dir, t) {
+                    let hit = walk.ray.x + dir * tr;
+                    walk.alpha *= (-u.sigma * tr).exp();
+                    walk.radiance += walk.alpha * env.receiver_radiance(hit, dir, ch);
+                    return (walk.radiance, walk.stats);
+                }
+                walk.alpha *= (-u.sigma * t).exp();
+                walk.ray.x += dir * t;
+                walk.ray.v = dir * u.n;
                 walk.mirrored = None;
                 walk.stats.skips += 1;
                 continue;
