@@ -95,6 +95,55 @@ fn point_light_in_absorbing_matter_decays_by_inverse_square_and_beer_lambert() {
     assert!(summary.energy_imbalance() < 1e-9);
 }
 
+/// A spot light's cone: on a plane below it, a cell is lit (at least half
+/// the point light's `P / (4 pi r^2)`) when its centre is inside the cone.
+/// Cells may disagree only within one cell diagonal of the cone's surface:
+/// the edge is resolved by the emitted patches (a point light's are 5.6
+/// degrees wide, about 2 cells here), and the deposit rule fills cells under
+/// a patch's corners up to a cell beyond the edge.
+#[test]
+fn a_spot_light_lights_its_cone() {
+    let p = DVec3::new(0.01, 0.9, -0.02);
+    let angle: f64 = 20.0;
+    let (scene, m) = medium(&format!(
+        "[grid]\nresolution = 64\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
+         [[light]]\ntype = \"spot\"\nposition = [{}, {}, {}]\ndirection = [0, -1, 0]\n\
+         angle = {angle}\npower = [1, 1, 1]\n",
+        p.x, p.y, p.z
+    ));
+    let (vol, _) = run(&scene, &m, 0);
+    let g = &m.geometry;
+    let h = g.voxel_size();
+    let j = 16; // y = -0.484
+    let (mut lit, mut inside, mut wrong) = (0, 0, 0);
+    let mut farthest: f64 = 0.0;
+    for i in 0..64 {
+        for k in 0..64 {
+            let c = g.voxel_center(i, j, k);
+            let d = c - p;
+            let theta = d.normalize().dot(-DVec3::Y).acos().to_degrees();
+            let want = 1.0 / (4.0 * PI * d.length_squared());
+            let on = vol.irradiance[[i, j, k, 0]] as f64 > 0.5 * want;
+            let cone = theta < angle;
+            lit += usize::from(on);
+            inside += usize::from(cone);
+            if on != cone {
+                wrong += 1;
+                // Distance of the cell centre from the cone's surface.
+                let off = d.length() * (theta - angle).abs().to_radians().sin();
+                farthest = farthest.max(off / h);
+            }
+        }
+    }
+    println!(
+        "spot cone: {lit} cells lit, {inside} inside the cone, {wrong} differ, the farthest {farthest:.2} cells from the edge"
+    );
+    assert!(
+        farthest <= 2f64.sqrt(),
+        "a cell {farthest:.2} cells from the cone's edge is wrong"
+    );
+}
+
 #[test]
 fn plane_wave_decays_by_beer_lambert() {
     let sigma = 1.5;

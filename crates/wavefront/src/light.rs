@@ -217,7 +217,20 @@ fn spherical<F: IndexField + ?Sized>(
     .max(INNER_RADIUS_VOXELS * h);
     // At least 16 patches along a cube face (5.6 degrees each): a patch is
     // flat, and must stay close to the sphere it stands for.
-    let n = ((0.5 * PI * nearest / size).ceil() as usize).clamp(MIN_FACE_PATCHES, 4096);
+    let mut n = ((0.5 * PI * nearest / size).ceil() as usize).clamp(MIN_FACE_PATCHES, 4096);
+    // A spot's edge is only as sharp as the emitted patches: each is in or
+    // out of the cone by its centre, and its children share its weight.
+    // Resolve the cone with at least 32 patches across its half-angle (and
+    // 4 across a soft edge).
+    if let Some((_, angle, falloff)) = cone {
+        let soft = if falloff > 0.0 {
+            falloff / 4.0
+        } else {
+            f64::INFINITY
+        };
+        let step = (angle / 32.0).min(soft).max(0.05).to_radians();
+        n = n.max(((0.5 * PI / step).ceil() as usize).min(2048));
+    }
     let margin = MARGIN_VOXELS * h;
     let axes = [DVec3::X, DVec3::Y, DVec3::Z];
     for face in 0..6 {
