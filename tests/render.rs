@@ -140,6 +140,43 @@ colors = [[1, 1, 1], [1, 1, 1]]
     assert!((img.pixel(2, 2).unwrap()[1] - 1.0).abs() < 1e-6);
 }
 
+/// Oblique reflection: looking down at 45 degrees onto a flat glass
+/// surface (n = 1.5) under an emitting board high above, with nothing
+/// below: the pixel is the board's radiance times the unpolarized Fresnel
+/// reflectance at 45 degrees, looked up in the mirror direction.
+#[test]
+fn a_glass_surface_reflects_the_fresnel_fraction_at_45_degrees() {
+    let text = r#"
+[grid]
+resolution = 48
+min = [-1, -1, -1]
+max = [1, 1, 1]
+
+[[object]]
+shape = { type = "box", center = [0, -1, 0], size = [4, 2, 4] }
+index = 1.5
+
+[camera]
+position = [0, 20, 20]
+target = [0, 0, 0]
+fov = 0.5
+resolution = [5, 5]
+
+[background]
+type = "checker"
+point = [-50, 8, -50]
+normal = [0, -1, 0]
+square = 100
+colors = [[1, 1, 1], [1, 1, 1]]
+"#;
+    let (scene, medium, volumes) = setup(text);
+    let (img, _) = render(&scene, &medium, &volumes, Options::default());
+    let want = eikon_view::fresnel::reflectance(45f64.to_radians().cos(), 1.0, 1.5);
+    let got = img.pixel(2, 2).unwrap()[1] as f64;
+    println!("reflection at 45 degrees: {got:.5}, Fresnel R = {want:.5}");
+    assert!((got / want - 1.0).abs() < 0.01, "{got} vs {want}");
+}
+
 /// A homogeneous scattering medium filling the volume, lit from above by
 /// a directional light, seen from the side: single scattering in closed
 /// form, `L = int sigma_s p(l . -d) E0 exp(-sigma depth(x)) exp(-sigma t) dt`

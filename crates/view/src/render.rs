@@ -140,6 +140,9 @@ struct Walk {
     /// The last mirror direction looked up in the interface band being
     /// crossed, and the radiance seen along it.
     mirrored: Option<(DVec3, DVec3)>,
+    /// The ray's direction where it entered the interface band being
+    /// crossed.
+    incident: Option<DVec3>,
 }
 
 impl<'a> Renderer<'a> {
@@ -269,6 +272,7 @@ impl<'a> Renderer<'a> {
             alpha: DVec3::ONE,
             stats: Stats::default(),
             mirrored: None,
+            incident: None,
         };
         // A ray caught by total internal reflection may circle for long;
         // after this many volume diagonals it is given up as absorbed.
@@ -308,6 +312,7 @@ impl<'a> Renderer<'a> {
                 walk.ray.x += dir * t;
                 walk.ray.v = dir * n;
                 walk.mirrored = None;
+                walk.incident = None;
                 walk.stats.skips += 1;
                 continue;
             }
@@ -325,13 +330,14 @@ impl<'a> Renderer<'a> {
                 walk.ray.x += dir * t;
                 walk.ray.v = dir * u.n;
                 walk.mirrored = None;
+                walk.incident = None;
                 walk.stats.skips += 1;
                 continue;
             }
             let step = ds.min(exit.max(1e-6 * h));
             let x0 = walk.ray.x;
             let (n, grad) = field.sample(x0);
-            self.gather(x0, grad, dir, step, ch, &mut walk);
+            self.gather(x0, (n, grad), dir, step, ch, &mut walk);
             match self.opts.method {
                 Method::Euler => {
                     // Eqs 11-12 with the sample already taken.
@@ -365,7 +371,15 @@ impl<'a> Renderer<'a> {
     /// in-scatter, emission, attenuation and Fresnel at boundaries (see
     /// the module docs).
     #[allow(clippy::too_many_arguments)]
-    fn gather(&self, x: DVec3, grad: DVec3, d: DVec3, step: f64, ch: usize, w: &mut Walk) {
+    fn gather(
+        &self,
+        x: DVec3,
+        (_n, grad): (f64, DVec3),
+        d: DVec3,
+        step: f64,
+        ch: usize,
+        w: &mut Walk,
+    ) {
         let tri = self.medium.geometry.trilinear(x);
         let here = self.properties.sample_at(&tri);
         let sigma = here.sigma;
@@ -409,6 +423,7 @@ impl<'a> Renderer<'a> {
         let delta = here.delta;
         if delta <= 0.0 {
             w.mirrored = None;
+            w.incident = None;
             return;
         }
         let len = grad.length();
@@ -421,19 +436,27 @@ impl<'a> Renderer<'a> {
         // n increases along `normal`; the two sides were read beyond the
         // smoothed interface (`Properties`).
         let sides = self.properties.sides_at(&tri, ch);
-        let (n1, n2) = if cos > 0.0 {
+        // Within the band the ray is already partly refracted; Fresnel
+        // wants the angle it met the interface at, in the medium it came
+        // from: its direction where it entered the band (the smoothing's
+        // tail bends nothing), kept until it leaves the band.
+        let incident = *w.incident.get_or_insert(d);
+        let cos_in = incident.dot(normal);
+        let tangent = incident - normal * cos_in;
+        let sin_i = tangent.length().min(1.0);
+        let cos_i = cos_in.abs();
+        let (n1, n2) = if cos_in > 0.0 {
             (sides.lo, sides.hi)
         } else {
             (sides.hi, sides.lo)
         };
-        let sin_t = n1 / n2 * (1.0 - cos * cos).max(0.0).sqrt();
-        if sin_t < 1.0 {
-            let rho = fresnel::reflectance(cos.abs(), n1, n2);
+        if n1 / n2 * sin_i < 1.0 {
+            let rho = fresnel::reflectance(cos_i, n1, n2);
             if rho > 0.0 {
-                // What the mirror direction sees, looked up again only
-                // when the mirror direction has turned (across one band it
-                // hardly does).
-                let mirror = fresnel::reflect(d, normal);
+                // The incident direction's mirror image. What it sees is
+                // looked up again only when it has turned (across one band
+                // it hardly does).
+                let mirror = fresnel::reflect(incident, normal);
                 let l_r = match w.mirrored {
                     Some((m, l)) if m.dot(mirror) > MIRROR_COS => l,
                     _ => {
