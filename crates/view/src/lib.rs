@@ -14,6 +14,7 @@ pub mod background;
 pub mod macrocell;
 pub mod properties;
 pub mod render;
+pub mod snell;
 pub mod walter;
 
 pub use background::Surroundings;
