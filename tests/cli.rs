@@ -2,14 +2,9 @@
 //! a clear located error, a non-zero exit, no panic and no partial output.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod binary;
 
-fn eikon(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_eikon"))
-        .args(args)
-        .output()
-        .expect("run eikon")
-}
+use binary::{eikon, eikon_ok, expect_error};
 
 fn config(name: &str) -> String {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -35,31 +30,6 @@ fn write_scene(dir: &Path, name: &str, text: &str) -> PathBuf {
     let p = dir.join(name);
     std::fs::write(&p, text).unwrap();
     p
-}
-
-/// Run, and require success (showing stderr if not).
-fn eikon_ok(args: &[&str]) -> Output {
-    let out = eikon(args);
-    assert!(
-        out.status.success(),
-        "eikon {args:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
-
-/// Run with bad input: must fail with exit code 1, print `error:` with every
-/// expected fragment, and never panic.
-fn expect_error(args: &[&str], fragments: &[&str]) -> String {
-    let out = eikon(args);
-    let err = String::from_utf8_lossy(&out.stderr).to_string();
-    assert_eq!(out.status.code(), Some(1), "args {args:?}\nstderr: {err}");
-    assert!(!err.contains("panicked"), "panic: {err}");
-    assert!(err.starts_with("error: "), "{err}");
-    for f in fragments {
-        assert!(err.contains(f), "missing `{f}` in: {err}");
-    }
-    err
 }
 
 #[test]

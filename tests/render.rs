@@ -177,6 +177,62 @@ colors = [[1, 1, 1], [1, 1, 1]]
     assert!((got / want - 1.0).abs() < 0.01, "{got} vs {want}");
 }
 
+/// The diffuse receiver, lit through the light volume by a directional
+/// light in clear air, is a Lambertian plane: radiance
+/// `albedo / pi * E cos(theta)` with `E` the beam's irradiance. One part of
+/// the view sees the plane inside the grid (light volume), another outside
+/// it (direct lighting): both must agree with the formula.
+#[test]
+fn the_receiver_is_lambertian_inside_and_outside_the_grid() {
+    let text = r#"
+[grid]
+resolution = 32
+min = [-1, -1, -1]
+max = [1, 1, 1]
+
+[[light]]
+type = "directional"
+direction = [0.3, -1, 0.2]
+power = [2, 2, 2]
+
+[receiver]
+point = [0, -0.5, 0]
+normal = [0, 1, 0]
+albedo = [0.6, 0.6, 0.6]
+
+[camera]
+position = [0, 3, 0.01]
+target = [0, -0.5, 0]
+fov = 50
+resolution = [21, 21]
+
+[background]
+type = "constant"
+color = [0, 0, 0]
+"#;
+    let (scene, medium, volumes) = setup(text);
+    let (img, cam) = render(&scene, &medium, &volumes, Options::default());
+    let l = DVec3::new(0.3, -1.0, 0.2).normalize();
+    let want = 0.6 / std::f64::consts::PI * 2.0 * (-l.y);
+    let (mut inside, mut outside, mut worst) = (0, 0, 0.0f64);
+    for y in 0..cam.height() {
+        for x in 0..cam.width() {
+            let (o, d) = cam.ray(x, y, 0, 0);
+            let hit = o + d * ((-0.5 - o.y) / d.y);
+            if medium.geometry.contains(hit) {
+                inside += 1;
+            } else {
+                outside += 1;
+            }
+            let got = img.pixel(x, y).unwrap()[0] as f64;
+            worst = worst.max((got / want - 1.0).abs());
+        }
+    }
+    println!("receiver: {inside} pixels inside the grid, {outside} outside, worst relative error {worst:.2e}");
+    assert!(inside > 50 && outside > 50);
+    assert!(worst < 1e-3, "{worst}");
+}
+
 /// A homogeneous scattering medium filling the volume, lit from above by
 /// a directional light, seen from the side: single scattering in closed
 /// form, `L = int sigma_s p(l . -d) E0 exp(-sigma depth(x)) exp(-sigma t) dt`

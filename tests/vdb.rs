@@ -14,37 +14,10 @@ use glam::DVec3;
 use ndarray::{Array3, Array4};
 use ndarray_npy::read_npy;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod binary;
 
-fn eikon(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_eikon"))
-        .args(args)
-        .output()
-        .expect("run eikon")
-}
-
-fn eikon_ok(args: &[&str]) -> Output {
-    let out = eikon(args);
-    assert!(
-        out.status.success(),
-        "eikon {args:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
-
-/// Bad input: exit code 1, `error:` and every fragment, no panic.
-fn expect_error(args: &[&str], fragments: &[&str]) -> String {
-    let out = eikon(args);
-    let err = String::from_utf8_lossy(&out.stderr).to_string();
-    assert_eq!(out.status.code(), Some(1), "args {args:?}\nstderr: {err}");
-    assert!(!err.contains("panicked"), "panic: {err}");
-    assert!(err.starts_with("error: "), "{err}");
-    for f in fragments {
-        assert!(err.contains(f), "missing `{f}` in: {err}");
-    }
-    err
-}
+use binary::{eikon_ok, expect_error};
+use std::process::Command;
 
 fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -279,27 +279,8 @@ impl Medium {
     /// (`extinction`, `albedo` or `emission`), with the cell-centre
     /// convention and clamping of [`VoxelField`].
     pub fn sample_rgb(&self, field: &Array4<f32>, p: DVec3) -> DVec3 {
-        let g = &self.geometry;
-        let hi = DVec3::new(g.dims[0] as f64, g.dims[1] as f64, g.dims[2] as f64) - 1.0;
-        let u = g.world_to_voxel(p).clamp(DVec3::ZERO, hi);
-        let i0 = [0, 1, 2].map(|a| (u[a] as usize).min(g.dims[a].saturating_sub(2)));
-        let f = [0, 1, 2].map(|a| u[a] - i0[a] as f64);
-        let mut out = DVec3::ZERO;
-        for corner in 0..8 {
-            let d = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
-            let mut w = 1.0;
-            let mut idx = [0usize; 3];
-            for a in 0..3 {
-                idx[a] = (i0[a] + d[a]).min(g.dims[a] - 1);
-                w *= if d[a] == 1 { f[a] } else { 1.0 - f[a] };
-            }
-            if w != 0.0 {
-                for c in 0..3 {
-                    out[c] += w * field[[idx[0], idx[1], idx[2], c]] as f64;
-                }
-            }
-        }
-        out
+        let data = field.as_slice().expect("medium fields are contiguous");
+        self.geometry.trilinear(p).vec3(data)
     }
 
     /// Gradient of n (per world unit) at cell `(i, j, k)` of `channel`.
@@ -396,27 +377,6 @@ impl EmptySpace {
         }
         let n = self.n[(i * self.dims[1] + j) * self.dims[2] + k];
         (!n.is_nan()).then_some(n as f64)
-    }
-
-    /// If `p` lies in an empty block: the block's index and the distance
-    /// along the unit direction `d` from `p` to where the line leaves the
-    /// block. A ray may cross that distance in one straight step.
-    #[inline]
-    pub fn block_exit(&self, p: DVec3, d: DVec3) -> Option<(f64, f64)> {
-        let n = self.index_at(p)?;
-        let u = (p - self.min) * self.inv_block;
-        let cell = u.floor();
-        let du = d * self.inv_block;
-        let mut t = f64::INFINITY;
-        for a in 0..3 {
-            // Distance to the block face ahead along axis a, in world units.
-            if du[a] > 0.0 {
-                t = t.min((cell[a] + 1.0 - u[a]) / du[a]);
-            } else if du[a] < 0.0 {
-                t = t.min((cell[a] - u[a]) / du[a]);
-            }
-        }
-        Some((n, t.max(0.0)))
     }
 
     /// Fraction of blocks that are empty.
