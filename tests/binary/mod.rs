@@ -1,4 +1,5 @@
 //! Running the `eikon` binary from the end-to-end tests (`cli`, `vdb`).
+#![allow(dead_code)] // each test binary uses some of these helpers
 
 use std::process::{Command, Output};
 

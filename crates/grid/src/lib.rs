@@ -15,6 +15,7 @@
 pub mod error;
 pub mod field;
 pub mod geometry;
+pub mod mesh;
 pub mod object;
 pub mod ray;
 pub mod scene;
@@ -26,6 +27,7 @@ mod voxelize;
 pub use error::{Error, Location, Result};
 pub use field::{AnalyticField, EmptySpace, Medium, MemoryEstimate, VoxelField};
 pub use geometry::{GridGeometry, Trilinear};
+pub use mesh::MeshSolid;
 pub use object::{GridExtinction, GridIndex, IndexProfile, Material, Object};
 pub use ray::{
     trace, trace_many, Form, IndexField, Method, RayEnd, RayState, Status, TraceOptions,

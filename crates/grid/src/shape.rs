@@ -6,6 +6,7 @@
 //! voxelizer uses that bound to find the cells a surface may cross, and only
 //! those cells are supersampled.
 
+use crate::mesh::MeshSolid;
 use crate::vdb::VdbSolid;
 use glam::{DMat3, DVec2, DVec3};
 use std::sync::Arc;
@@ -56,6 +57,8 @@ pub enum Shape {
     HalfSpace { point: DVec3, normal: DVec3 },
     /// Where a float grid of a VDB file exceeds a threshold.
     Vdb(Arc<VdbSolid>),
+    /// Inside a closed triangle mesh.
+    Mesh(Arc<MeshSolid>),
 }
 
 /// Rotation from Euler angles in degrees, applied about x, then y, then z.
@@ -133,6 +136,7 @@ impl Shape {
             }
             Shape::HalfSpace { point, normal } => (p - *point).dot(*normal),
             Shape::Vdb(solid) => solid.distance(p),
+            Shape::Mesh(solid) => solid.distance(p),
         }
     }
 
@@ -140,6 +144,7 @@ impl Shape {
     pub fn contains(&self, p: DVec3) -> bool {
         match self {
             Shape::Vdb(solid) => solid.contains(p),
+            Shape::Mesh(solid) => solid.contains(p),
             _ => self.distance(p) < 0.0,
         }
     }
@@ -194,6 +199,7 @@ impl Shape {
             } => Some(rotated_box(*center, *radii, rot)),
             Shape::HalfSpace { .. } => None,
             Shape::Vdb(solid) => solid.aabb(),
+            Shape::Mesh(solid) => Some(solid.aabb()),
         }
     }
 
@@ -209,6 +215,7 @@ impl Shape {
             Shape::Superquadric { .. } => "superquadric",
             Shape::HalfSpace { .. } => "half-space",
             Shape::Vdb(_) => "VDB grid",
+            Shape::Mesh(_) => "triangle mesh",
         }
     }
 }

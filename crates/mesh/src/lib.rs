@@ -22,11 +22,13 @@
 pub mod bvh;
 pub mod load;
 pub mod mesh;
+pub mod polyhedron;
 pub mod procedural;
 
 pub use bvh::{Bvh, Hit, Ray};
 pub use load::{load, load_obj, load_ply, save, write_obj, write_ply, PlyEncoding};
 pub use mesh::{CheckReport, Mesh, WeldSummary};
+pub use polyhedron::cuboctahedron;
 pub use procedural::{
     cuboid, geodesic_sphere, icosphere, revolution, revolution_open, Bump, BumpySphere,
 };
