@@ -11,9 +11,11 @@ pub use environment::{Environment, EnvironmentError, LatLongMap, Sky};
 pub use image::{encode_exr, encode_png, tonemapped, Exposure, Image, ImageError, ToneMap};
 pub use phase::hg;
 pub mod background;
+pub mod holzschuch;
 pub mod macrocell;
 pub mod properties;
 pub mod render;
+pub mod single;
 pub mod snell;
 pub mod walter;
 

@@ -86,6 +86,12 @@ pub struct Options {
     /// Hits closer than this to a ray's origin are ignored, so a ray leaving
     /// a surface does not hit it again.
     pub epsilon: f64,
+    /// Hits on different bodies closer than this along the ray are one
+    /// interface (coincident faces of split geometry): the interior list is
+    /// updated for all of them at once and the from/to indices are those of
+    /// the media before and after. Negative: no merging (every hit on its
+    /// own, as in the paper; for comparison).
+    pub merge: f64,
     /// Use the interpolated vertex normals for Fresnel and Snell instead of
     /// the flat triangle normals. Off by default: faceted bodies (boxes) have
     /// vertex normals along corner diagonals.
@@ -99,6 +105,7 @@ impl Default for Options {
             min_weight: 1e-12,
             max_false: 64,
             epsilon: 1e-9,
+            merge: 1e-9,
             shading_normals: false,
         }
     }
@@ -200,19 +207,34 @@ impl Scene {
             .map_or(self.ambient, |b| self.bodies[b].index)
     }
 
-    /// The nearest hit on any body beyond `epsilon`, ties to the lower body.
-    fn closest(&self, origin: DVec3, dir: DVec3, epsilon: f64) -> Option<(usize, Hit)> {
+    /// The nearest hit on any body beyond `epsilon`, ties to the lower body,
+    /// and the hits of other bodies within `merge` of it (coincident
+    /// surfaces of split geometry), at most one per body, in body order.
+    fn closest(&self, origin: DVec3, dir: DVec3, epsilon: f64, merge: f64) -> Vec<(usize, Hit)> {
         let mut best: Option<(usize, Hit)> = None;
+        let mut all: Vec<(usize, Hit)> = Vec::new();
         for (i, body) in self.bodies.iter().enumerate() {
-            let t_max = best.map_or(f64::INFINITY, |(_, h)| h.t);
+            let t_max = best.map_or(f64::INFINITY, |(_, h)| h.t + merge.max(0.0));
             if let Some(h) = body
                 .bvh
                 .closest_hit(&Ray::segment(origin, dir, epsilon, t_max))
             {
-                best = Some((i, h));
+                all.push((i, h));
+                if best.is_none_or(|(_, b)| h.t < b.t) {
+                    best = Some((i, h));
+                }
             }
         }
-        best
+        let Some((first, b)) = best else {
+            return Vec::new();
+        };
+        all.retain(|&(i, h)| i == first || (merge >= 0.0 && h.t <= b.t + merge));
+        // The nearest first; the rest keep body order.
+        if let Some(k) = all.iter().position(|&(i, _)| i == first) {
+            let f = all.remove(k);
+            all.insert(0, f);
+        }
+        all
     }
 }
 
@@ -245,7 +267,8 @@ pub fn trace_from(
     while let Some(mut br) = stack.pop() {
         let mut falses_in_row = 0;
         loop {
-            let Some((b, hit)) = scene.closest(br.origin, br.dir, opts.epsilon) else {
+            let hits = scene.closest(br.origin, br.dir, opts.epsilon, opts.merge);
+            let Some(&(_, hit)) = hits.first() else {
                 if br.interior.is_empty() {
                     path.exits.push(Exit {
                         origin: br.origin,
@@ -266,12 +289,18 @@ pub fn trace_from(
                 let k = scene.bodies[m].extinction * hit.t;
                 br.weight *= DVec3::new((-k.x).exp(), (-k.y).exp(), (-k.z).exp());
             }
-            let entering = hit.entering(br.dir);
-            let body = &scene.bodies[b];
-            let top_priority = scene.top(&br.interior).map(|m| scene.bodies[m].priority);
-            if top_priority.is_some_and(|p| body.priority < p) {
-                // Section 2.1: a false intersection only updates the list.
-                toggle(&mut br.interior, b, entering);
+            // The list beyond the interface: every coincident hit toggles
+            // its body.
+            let mut inside = br.interior.clone();
+            for (b, h) in &hits {
+                toggle(&mut inside, *b, h.entering(br.dir));
+            }
+            let before = scene.top(&br.interior);
+            let after = scene.top(&inside);
+            if before == after {
+                // Section 2.1: a false intersection only updates the list
+                // (the medium on both sides is the same body).
+                br.interior = inside;
                 br.origin = hit.point;
                 br.false_hits += 1;
                 path.false_hits += 1;
@@ -282,21 +311,24 @@ pub fn trace_from(
                 }
                 continue;
             }
-            // Section 2.2: a true intersection.
+            // Section 2.2: a true intersection. The body reported is the
+            // one whose boundary it is: the medium entered, else the one
+            // left.
             if br.depth >= opts.max_depth {
                 path.lost += br.weight;
                 break;
             }
-            let mut inside = br.interior.clone();
-            toggle(&mut inside, b, entering);
-            // From/to indices (section 2.2): entering, from the parent's
-            // medium to the body hit; leaving, from the body hit to the
-            // medium of the refracted ray's list.
-            let (n1, n2) = if entering {
-                (scene.index_of(&br.interior), body.index)
-            } else {
-                (body.index, scene.index_of(&inside))
+            let b = match (before, after) {
+                (_, Some(a)) if hits.iter().any(|(x, _)| *x == a) => a,
+                (Some(p), _) => p,
+                (None, Some(a)) => a,
+                (None, None) => hits[0].0,
             };
+            let hit = hits.iter().find(|(x, _)| *x == b).map_or(hit, |(_, h)| *h);
+            let entering = hit.entering(br.dir);
+            // From/to indices (section 2.2): the media of the lists on
+            // either side.
+            let (n1, n2) = (scene.index_of(&br.interior), scene.index_of(&inside));
             let normal = if opts.shading_normals {
                 hit.normal
             } else {

@@ -90,10 +90,12 @@
 //! On a caustic `D = 0` and eq 17 is infinite; the paper clamps `D` from
 //! below for such scenes (§5). That is left to the caller.
 //!
-//! # Not here yet
+//! # Meshes
 //!
-//! Meshes, the position-normal tree and its spindle, sidedness and cone
-//! tests (§3.4), occlusion, area lights.
+//! [`PnTree`] is the position-normal tree of §3.4 with its spindle (eq 16),
+//! sidedness and cone-overlap tests; [`solve_mesh`] runs the solver on the
+//! triangles the tree keeps. Occlusion and lights are the renderer's
+//! business ([`crate::single`]).
 
 mod distance;
 mod func;
@@ -102,12 +104,14 @@ mod newton;
 mod search;
 #[cfg(test)]
 mod tests;
+mod tree;
 
 pub use distance::{
     contribution, distance_factor, distance_factor_flat, distance_factor_general, Contribution,
     Medium,
 };
 pub use interval::Interval;
+pub use tree::{NormalCone, PnTree, TreeStats};
 
 use glam::{DVec2, DVec3};
 
@@ -406,4 +410,40 @@ pub(crate) fn dedup(mut sols: Vec<Solution>, tol: f64) -> Vec<Solution> {
         }
     }
     out
+}
+
+/// The [`Triangle`]s of a mesh, in its triangle order (outward vertex
+/// normals as stored in the mesh).
+pub fn mesh_triangles(mesh: &eikon_mesh::Mesh) -> Vec<Triangle> {
+    let (p, n) = (mesh.positions(), mesh.normals());
+    mesh.triangles()
+        .iter()
+        .map(|t| {
+            let i = t.map(|k| k as usize);
+            Triangle::new([p[i[0]], p[i[1]], p[i[2]]], [n[i[0]], n[i[1]], n[i[2]]])
+        })
+        .collect()
+}
+
+/// All refracted paths from `l` to `v` through the triangles of `tree`
+/// that survive its pruning (§3.4), as `(triangle index, solution)`, in
+/// triangle order. `scratch` is reused for the candidate list.
+pub fn solve_mesh(
+    tree: &PnTree,
+    v: DVec3,
+    l: DVec3,
+    eta: f64,
+    opts: &Options,
+    scratch: &mut Vec<u32>,
+) -> (Vec<(u32, Solution)>, TreeStats) {
+    scratch.clear();
+    let stats = tree.query_point(v, l, eta, scratch);
+    scratch.sort_unstable();
+    let mut out = Vec::new();
+    for &t in scratch.iter() {
+        for s in solve_with(&tree.triangles()[t as usize], v, l, eta, opts).0 {
+            out.push((t, s));
+        }
+    }
+    (out, stats)
 }
