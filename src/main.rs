@@ -1,6 +1,7 @@
 //! `eikon`: light transport in refractive volumes, from the command line.
 
 mod export;
+mod exact;
 mod info;
 mod output;
 mod probe;

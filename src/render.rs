@@ -58,19 +58,69 @@ pub struct Overrides {
     seed: Option<u64>,
 }
 
+/// How `eikon render` forms the image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum RenderMethod {
+    /// The paper's pipeline: the voxelized scene, curved eye rays, light
+    /// volumes from `eikon simulate`.
+    Eikonal,
+    /// Exact single scattering in a mesh-bounded medium, point samples
+    /// along each refracted camera ray connected to the lights through the
+    /// boundary (Walter et al. 2009).
+    Walter,
+    /// Exact single scattering, integrated per boundary triangle along the
+    /// refracted camera ray (Holzschuch 2015).
+    Holzschuch,
+    /// Single scattering with straight shadow rays: refraction on the light
+    /// side ignored (the approximation the exact methods improve on).
+    Straight,
+}
+
+impl RenderMethod {
+    /// The name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            RenderMethod::Eikonal => "eikonal",
+            RenderMethod::Walter => "walter",
+            RenderMethod::Holzschuch => "holzschuch",
+            RenderMethod::Straight => "straight",
+        }
+    }
+}
+
+/// Settings of the exact mesh methods.
+#[derive(clap::Args, Clone, Default)]
+pub struct ExactOptions {
+    /// Scatter points per refracted camera segment (walter, straight;
+    /// default 32) or per piece of a triangle's interval (holzschuch;
+    /// default 1).
+    #[arg(long)]
+    pub scatter_samples: Option<usize>,
+    /// Find every refracted connection on smooth triangles with the
+    /// interval (Krawczyk) test instead of the 30-degree cone heuristic.
+    #[arg(long)]
+    pub guaranteed: bool,
+}
+
 /// Arguments of `eikon render`.
 #[derive(clap::Args)]
 pub struct Args {
     /// Scene file (TOML).
     scene: PathBuf,
     /// Light volumes written by `eikon simulate` (without them in-scatter
-    /// and the receiver are dark).
+    /// and the receiver are dark). Only for `--method eikonal`.
     #[arg(long)]
     light: Option<PathBuf>,
     /// Output image: `.exr` (linear HDR) or `.png` (tone-mapped); repeat
     /// for both.
     #[arg(short, long, required = true)]
     output: Vec<PathBuf>,
+    /// How to form the image. The exact methods need a scene whose one
+    /// object is a mesh (type = "mesh", "bumpy_sphere", "cuboctahedron").
+    #[arg(long, value_enum, default_value = "eikonal")]
+    method: RenderMethod,
+    #[command(flatten)]
+    exact: ExactOptions,
     #[command(flatten)]
     overrides: Overrides,
     /// Print the render's statistics as JSON.
@@ -82,6 +132,50 @@ pub struct Args {
 pub fn run(args: Args) -> Result<()> {
     check_outputs(&args.output)?;
     let scene = Scene::load(&args.scene)?;
+    if args.method != RenderMethod::Eikonal {
+        if args.light.is_some() {
+            bail!("--light: light volumes are for --method eikonal; the exact methods connect to the lights themselves");
+        }
+        let camera = camera(&scene, &args.overrides)?;
+        let method = crate::exact::method(args.method.name(), args.exact.scatter_samples)?;
+        let seed = args.overrides.seed.unwrap_or(scene.render.seed);
+        let started = Instant::now();
+        let (image, stats) =
+            crate::exact::render(&scene, &camera, method, args.exact.guaranteed, seed)?;
+        let seconds = started.elapsed().as_secs_f64();
+        let tone = tone(&scene, &args.overrides);
+        for o in &args.output {
+            write_image(o, &image, &tone)?;
+        }
+        let names: Vec<String> = args.output.iter().map(|p| p.display().to_string()).collect();
+        if args.json {
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&json!({
+                    "method": args.method.name(),
+                    "outputs": names,
+                    "width": image.width,
+                    "height": image.height,
+                    "seconds": seconds,
+                    "scatter_points": stats.scatter_points,
+                    "paths": stats.paths,
+                    "occluded": stats.occluded,
+                }))?
+            );
+        } else {
+            println!(
+                "rendered {} x {} with {} in {seconds:.3} s ({} scatter points, {} refracted paths to the lights, {} occluded); wrote {}",
+                image.width,
+                image.height,
+                args.method.name(),
+                stats.scatter_points,
+                stats.paths,
+                stats.occluded,
+                names.join(", ")
+            );
+        }
+        return Ok(());
+    }
     let medium = build_medium(&scene)?;
     let volumes = match &args.light {
         Some(dir) => load_light_volumes(dir, &scene, &medium)?,
@@ -95,6 +189,41 @@ pub fn run(args: Args) -> Result<()> {
         &args.output,
         args.json,
     )
+}
+
+/// The camera of `scene` with the command line's overrides.
+pub fn camera(scene: &Scene, overrides: &Overrides) -> Result<Camera> {
+    let mut cs = eikon_view::render::camera_settings(scene);
+    if let Some(w) = overrides.width {
+        cs.resolution[0] = w;
+    }
+    if let Some(h) = overrides.height {
+        cs.resolution[1] = h;
+    }
+    if let Some(s) = overrides.samples {
+        cs.samples = s;
+    }
+    Camera::new(
+        cs.position,
+        cs.target,
+        cs.up,
+        cs.fov,
+        cs.resolution[0],
+        cs.resolution[1],
+        cs.samples,
+    )
+    .with_context(|| format!("{}: camera", scene.origin))
+}
+
+/// The tone mapping of `scene` with the command line's exposure.
+pub fn tone(scene: &Scene, overrides: &Overrides) -> ToneMap {
+    ToneMap {
+        exposure: match overrides.exposure.or(scene.render.exposure) {
+            Some(stops) => Exposure::Fixed(stops),
+            None => Exposure::Auto,
+        },
+        ..ToneMap::default()
+    }
 }
 
 /// Refuse output paths whose format is unknown before any work is done.
@@ -125,26 +254,23 @@ pub fn render_scene(
     outputs: &[PathBuf],
     json: bool,
 ) -> Result<()> {
-    let mut cs = eikon_view::render::camera_settings(scene);
-    if let Some(w) = overrides.width {
-        cs.resolution[0] = w;
+    let (image, stats, seconds) = render_image(scene, medium, volumes, overrides)?;
+    let tone = tone(scene, overrides);
+    for o in outputs {
+        write_image(o, &image, &tone)?;
     }
-    if let Some(h) = overrides.height {
-        cs.resolution[1] = h;
-    }
-    if let Some(s) = overrides.samples {
-        cs.samples = s;
-    }
-    let camera = Camera::new(
-        cs.position,
-        cs.target,
-        cs.up,
-        cs.fov,
-        cs.resolution[0],
-        cs.resolution[1],
-        cs.samples,
-    )
-    .with_context(|| format!("{}: camera", scene.origin))?;
+    report(&image, &stats, seconds, outputs, json)
+}
+
+/// Render `scene` (built as `medium`, lit by `volumes`) with the eikonal
+/// pipeline: the image, its statistics and the seconds it took.
+pub fn render_image(
+    scene: &Scene,
+    medium: &Medium,
+    volumes: &[LightVolume],
+    overrides: &Overrides,
+) -> Result<(Image, Stats, f64)> {
+    let camera = camera(scene, overrides)?;
     let r = &scene.render;
     let opts = Options {
         step: overrides.step.unwrap_or(r.step),
@@ -184,21 +310,12 @@ pub fn render_scene(
     });
     let seconds = started.elapsed().as_secs_f64();
     bar.finish_and_clear();
-
-    let tone = ToneMap {
-        exposure: match overrides.exposure.or(r.exposure) {
-            Some(stops) => Exposure::Fixed(stops),
-            None => Exposure::Auto,
-        },
-        ..ToneMap::default()
-    };
-    for o in outputs {
-        write_image(o, &image, &tone)?;
-    }
-    report(&image, &stats, seconds, outputs, json)
+    Ok((image, stats, seconds))
 }
 
-fn write_image(path: &Path, image: &Image, tone: &ToneMap) -> Result<()> {
+/// Write `image` to `path`: EXR (linear) or PNG (tone-mapped by `tone`),
+/// through a temporary file.
+pub fn write_image(path: &Path, image: &Image, tone: &ToneMap) -> Result<()> {
     let bytes = match extension(path).as_deref() {
         Some("exr") => encode_exr(image),
         _ => encode_png(image, tone),
