@@ -53,22 +53,18 @@ pub fn mesh_medium(scene: &Scene) -> Result<MeshMedium> {
     let m = &o.material;
     let at = |k: &str| format!("object[{i}].{k}");
     let inside = match m.index {
-        IndexProfile::Constant(n) if n[0] == n[1] && n[1] == n[2] && m.index_grid.is_none() => {
-            n[0]
-        }
+        IndexProfile::Constant(n) if n[0] == n[1] && n[1] == n[2] && m.index_grid.is_none() => n[0],
         IndexProfile::Constant(_) => {
             return Err(err(
                 &at("index"),
                 "the exact methods take one index; dispersion needs --method eikonal".into(),
             ))
         }
-        _ => {
-            return Err(err(
-                &at("index"),
-                "the exact methods need a homogeneous medium; a graded index needs --method eikonal"
-                    .into(),
-            ))
-        }
+        _ => return Err(err(
+            &at("index"),
+            "the exact methods need a homogeneous medium; a graded index needs --method eikonal"
+                .into(),
+        )),
     };
     if m.extinction_grid.is_some() {
         return Err(err(
@@ -157,8 +153,10 @@ pub fn render(
     };
     let bar = indicatif::ProgressBar::new(camera.height() as u64);
     bar.set_style(
-        indicatif::ProgressStyle::with_template("rendering {bar:40} {pos}/{len} rows ({elapsed}, {eta} left)")
-            .expect("valid template"),
+        indicatif::ProgressStyle::with_template(
+            "rendering {bar:40} {pos}/{len} rows ({elapsed}, {eta} left)",
+        )
+        .expect("valid template"),
     );
     let out = single::render_with(
         &medium,

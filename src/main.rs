@@ -1,7 +1,8 @@
 //! `eikon`: light transport in refractive volumes, from the command line.
 
-mod export;
+mod compare;
 mod exact;
+mod export;
 mod info;
 mod output;
 mod probe;
@@ -40,6 +41,8 @@ enum Command {
     Run(run::Args),
     /// Simulate and render a built-in scene (a glass sphere and its caustic): no files needed.
     Demo(run::DemoArgs),
+    /// Render a scene with a mesh-bounded medium by every method (eikonal, walter, holzschuch, straight), side by side, with errors and times.
+    Compare(compare::Args),
     /// Write a scene's volumes (index, gradient, extinction, light) as OpenVDB grids and/or NumPy arrays.
     Export(export::Args),
 }
@@ -56,6 +59,7 @@ fn main() -> ExitCode {
         Command::Run(a) => run::run(a),
         Command::Demo(a) => run::demo(a),
         Command::Export(a) => export::run(a),
+        Command::Compare(a) => compare::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -55,7 +55,7 @@ pub struct Overrides {
     no_skip: bool,
     /// Seed of the pixel sample jitter.
     #[arg(long)]
-    seed: Option<u64>,
+    pub seed: Option<u64>,
 }
 
 /// How `eikon render` forms the image.
@@ -147,7 +147,11 @@ pub fn run(args: Args) -> Result<()> {
         for o in &args.output {
             write_image(o, &image, &tone)?;
         }
-        let names: Vec<String> = args.output.iter().map(|p| p.display().to_string()).collect();
+        let names: Vec<String> = args
+            .output
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect();
         if args.json {
             println!(
                 "{}",
@@ -349,6 +353,7 @@ fn report(
                 "seconds": seconds,
                 "ray_steps": stats.steps,
                 "empty_skips": stats.skips,
+                "mean_luminance": image.data.iter().map(|&p| eikon_view::image::luminance(p)).sum::<f64>() / image.data.len().max(1) as f64,
             }))?
         );
     } else {

@@ -84,6 +84,9 @@ pub struct Args {
     /// Print the summary as JSON.
     #[arg(long)]
     json: bool,
+    /// Print nothing (for commands that simulate on the way to something else).
+    #[arg(skip)]
+    quiet: bool,
 }
 
 fn light_json(l: &Light) -> Value {
@@ -217,6 +220,17 @@ pub fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
+/// [`simulate`] without printing the summary.
+pub fn simulate_quiet(args: &Args, scene: &Scene, medium: &Medium) -> Result<Vec<LightVolume>> {
+    let quiet = Args {
+        scene: args.scene.clone(),
+        output: args.output.clone(),
+        quiet: true,
+        ..*args
+    };
+    simulate(&quiet, scene, medium)
+}
+
 /// Simulate every light of `scene` (built as `medium`), write the volumes
 /// and the sidecar to `args.output`, print the summary. Returns the
 /// wavefront light volumes (none for photons).
@@ -328,7 +342,8 @@ pub fn simulate(args: &Args, scene: &Scene, medium: &Medium) -> Result<Vec<Light
         w.write_all(b"\n")?;
         Ok(())
     })?;
-    if args.json {
+    if args.quiet {
+    } else if args.json {
         let summaries: Vec<Value> = results
             .iter()
             .map(|(_, s, secs)| summary_json(s, *secs))

@@ -16,7 +16,7 @@ fn lattice(n: usize, h: f64) -> impl Iterator<Item = DVec3> {
     let cell = 2.0 * h / n as f64;
     (0..n * n * n).map(move |i| {
         let ijk = DVec3::new((i % n) as f64, (i / n % n) as f64, (i / (n * n)) as f64);
-        (ijk + DVec3::new(0.318, 0.577, 0.707)) * cell - h
+        (ijk + DVec3::new(0.29, 0.53, 0.71)) * cell - h
     })
 }
 

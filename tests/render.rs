@@ -140,6 +140,54 @@ colors = [[1, 1, 1], [1, 1, 1]]
     assert!((img.pixel(2, 2).unwrap()[1] - 1.0).abs() < 1e-6);
 }
 
+/// The radiance law: an emitting slab of glass (n = 1.5) seen at normal
+/// incidence against black. Radiance over n^2 is what a ray carries, so the
+/// emission integrated through the slab, `L_e d`, reaches the eye in air
+/// as `(1 - R) L_e d / n^2`: Fresnel transmission at the near face and the
+/// 1/n^2 of leaving the glass. (Inside the smoothed interface bands n
+/// passes through lower values, which reads a little high: the fine grid
+/// keeps the bands to a small part of the path.) The same slab with n = 1 shows `L_e d`.
+#[test]
+fn radiance_leaving_glass_is_divided_by_n_squared() {
+    let text = r#"
+[grid]
+resolution = 96
+min = [-1, -1, -1]
+max = [1, 1, 1]
+
+[[object]]
+shape = { type = "box", center = [0, 0, 0], size = [3, 3, 1.2] }
+index = 1.5
+extinction = [1e-6, 1e-6, 1e-6]
+emission = [1, 1, 1]
+
+[camera]
+position = [0, 0, 40]
+target = [0, 0, 0]
+fov = 0.5
+resolution = [5, 5]
+
+[background]
+type = "constant"
+color = [0, 0, 0]
+"#;
+    let got = |t: &str| {
+        let (scene, medium, volumes) = setup(t);
+        let (img, _) = render(&scene, &medium, &volumes, Options::default());
+        img.pixel(2, 2).unwrap()[1] as f64
+    };
+    let air = got(&text.replace("index = 1.5", "index = 1.0"));
+    let glass = got(text);
+    let r = ((1.0f64 - 1.5) / (1.0 + 1.5)).powi(2);
+    println!(
+        "emitting slab: n = 1 gives {air:.5} (L_e d = 1.2), n = 1.5 gives {glass:.5}, (1 - R) L_e d / n^2 = {:.5}",
+        (1.0 - r) * 1.2 / 2.25
+    );
+    assert!((air - 1.2).abs() < 1.2 * 5e-3, "{air}");
+    let want = (1.0 - r) * 1.2 / 2.25;
+    assert!((glass - want).abs() < want * 1e-2, "{glass} vs {want}");
+}
+
 /// Oblique reflection: looking down at 45 degrees onto a flat glass
 /// surface (n = 1.5) under an emitting board high above, with nothing
 /// below: the pixel is the board's radiance times the unpolarized Fresnel

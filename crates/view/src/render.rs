@@ -129,6 +129,9 @@ pub struct Renderer<'a> {
     opts: Options,
     cells: Vec<MacroCells>,
     properties: Properties,
+    /// Index at the eye, per channel (the field clamps to its border, so an
+    /// eye outside the grid gets the ambient index there).
+    eye_index: [f64; 3],
 }
 
 /// Where a ray is, and what it has gathered.
@@ -174,6 +177,12 @@ impl<'a> Renderer<'a> {
             // (smoothing plus voxelization, about 4.5 voxels either side of
             // the surface): walls thinner than this read too small a jump.
             properties: Properties::new(medium, (6.0 * medium.smoothing + 0.5).max(1.5) * h),
+            eye_index: [0, 1, 2].map(|c| {
+                medium
+                    .field(c.min(medium.channels() - 1))
+                    .sample(camera.position())
+                    .0
+            }),
         }
     }
 
@@ -374,7 +383,7 @@ impl<'a> Renderer<'a> {
     fn gather(
         &self,
         x: DVec3,
-        (_n, grad): (f64, DVec3),
+        (n, grad): (f64, DVec3),
         d: DVec3,
         step: f64,
         ch: usize,
@@ -401,6 +410,11 @@ impl<'a> Renderer<'a> {
                 }
             }
         }
+        // The radiance law: L / n^2 is what a ray carries unchanged (the
+        // paper's eq 1 leaves it out), so radiance arising where the index
+        // is n reaches an eye in index n_eye scaled by (n_eye / n)^2.
+        // Without it matter in glass would look n^2 too bright.
+        source *= (self.eye_index[ch] / n).powi(2);
         // Exact for constant sigma and S over the step:
         // int_0^ds exp(-sigma s) ds = (1 - exp(-sigma ds)) / sigma.
         if sigma.max_element() > 0.0 {
