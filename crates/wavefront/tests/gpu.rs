@@ -82,3 +82,96 @@ fn gpu_histopyramid_equals_the_cpu_one() {
     }
     println!("{} cases, {slots} output slots: GPU == CPU", cases.len());
 }
+
+// ---------------------------------------------------------------------
+// The light simulator on the GPU.
+
+use eikon_grid::{Medium, Scene};
+use eikon_wavefront::{LightVolume, Options, Summary};
+use glam::DVec3;
+use std::f64::consts::PI;
+
+fn medium(text: &str) -> (Scene, Medium) {
+    let scene = Scene::parse(text, "test").unwrap();
+    let m = Medium::build(&scene).unwrap();
+    (scene, m)
+}
+
+fn run_gpu(gpu: &Gpu, scene: &Scene, m: &Medium, light: usize) -> (LightVolume, Summary) {
+    let t = std::time::Instant::now();
+    let out = eikon_wavefront::gpu::simulate_light(
+        gpu,
+        &scene.lights[light],
+        m,
+        &Options::default(),
+        &|_, _| {},
+    )
+    .unwrap();
+    println!("GPU: {:.2} s, {:?}", t.elapsed().as_secs_f64(), out.1);
+    out
+}
+
+fn run_cpu(scene: &Scene, m: &Medium, light: usize) -> (LightVolume, Summary) {
+    let t = std::time::Instant::now();
+    let out =
+        eikon_wavefront::simulate_light(&scene.lights[light], m, &Options::default(), &|_, _| {})
+            .unwrap();
+    println!("CPU: {:.2} s, {:?}", t.elapsed().as_secs_f64(), out.1);
+    out
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(|a, b| a.total_cmp(b));
+    v[v.len() / 2]
+}
+
+fn glass_sphere(res: usize) -> String {
+    format!(
+        r#"
+[grid]
+resolution = {res}
+min = [-1, -1, -1]
+max = [1, 1, 1]
+
+[[object]]
+shape = {{ type = "sphere", center = [0.02, 0.1, -0.01], radius = 0.5 }}
+index = 1.5
+extinction = [0.3, 0.6, 0.9]
+albedo = [0.5, 0.5, 0.5]
+
+[[light]]
+type = "directional"
+direction = [0.2, -1.0, 0.1]
+power = [1, 1, 1]
+
+[[light]]
+type = "point"
+position = [0.7, 0.8, -0.6]
+power = [5, 5, 5]
+
+[[light]]
+type = "spot"
+position = [-1.5, 0.3, 0.2]
+direction = [1, -0.2, 0]
+angle = 30
+falloff = 5
+power = [20, 10, 5]
+"#
+    )
+}
+
+#[test]
+fn gpu_smoke() {
+    let Some(gpu) = gpu() else { return };
+    let (scene, m) = medium(&glass_sphere(32));
+    let (gv, gs) = run_gpu(&gpu, &scene, &m, 0);
+    let (cv, cs) = run_cpu(&scene, &m, 0);
+    println!(
+        "imbalance gpu {} cpu {}",
+        gs.energy_imbalance(),
+        cs.energy_imbalance()
+    );
+    let lit = cv.irradiance.iter().filter(|&&e| e > 0.0).count();
+    let glit = gv.irradiance.iter().filter(|&&e| e > 0.0).count();
+    println!("lit cpu {lit} gpu {glit}");
+}
