@@ -376,14 +376,17 @@ fn agreement(cpu: &LightVolume, gpu: &LightVolume) -> Agreement {
     }
 }
 
-/// GPU against CPU on the glass sphere (40^3; directional and point
-/// light). The GPU runs the same physics in f32 instead of f64, so patches
-/// near a tessellation threshold or a caustic can take the other fate and
-/// the lists drift apart behind the sphere; the volumes then differ where
-/// the light field is multi-valued. Measured on lavapipe (directional /
-/// point): median relative irradiance difference 2e-7 / 3e-7, 97% / 98%
-/// of commonly lit cells within 1%, 98% / 99% within 10%, directions
-/// within 1 degree in 99% / 99.6%, lit cells differing 0 / 0.
+/// GPU against CPU on the glass sphere (40^3, directional light). The GPU
+/// runs the same physics in f32 instead of f64, so patches near a
+/// tessellation threshold or a caustic can take the other fate and the
+/// lists drift apart behind the sphere, where the light field is
+/// multi-valued and the highest-energy rule may keep another ray. Measured
+/// on lavapipe: median relative irradiance difference 1.8e-6 over the
+/// cells lit in both, 99.6% within 1%, 99.95% within 10%, directions within
+/// 1 degree in 99.8%, no cell lit in one volume only; absorbed and exited
+/// power within 0.1%. Asserted: median < 1e-4, > 95% within 1%, > 97%
+/// within 10%, > 98% aligned, < 0.5% of the cells lit differently, powers
+/// within 1%.
 #[test]
 fn gpu_volumes_match_the_cpu() {
     let Some(gpu) = gpu() else { return };
@@ -420,7 +423,9 @@ fn gpu_volumes_match_the_cpu() {
 
 /// Repeated GPU runs give bitwise the same volumes and summary (energy
 /// tallies in fixed point, deposits by atomics with deterministic ties),
-/// with dispersion (three wavefronts) on the glass sphere.
+/// with dispersion (three wavefronts) on the glass sphere; and they agree
+/// with the CPU's (measured: median relative difference 6.4e-6, 99.7% of
+/// the cells within 1%).
 #[test]
 fn gpu_runs_are_bitwise_repeatable_with_dispersion() {
     let Some(gpu) = gpu() else { return };
