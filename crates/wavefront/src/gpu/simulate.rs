@@ -343,7 +343,7 @@ impl<'a> GpuSimulator<'a> {
             };
             let mut g0 = vec![uniform_entry(0), texture_entry(1), texture_entry(2)];
             g0.push(storage_entry(3, true));
-            g0.extend((4..8).map(|b| storage_entry(b, false)));
+            g0.extend((4..9).map(|b| storage_entry(b, false)));
             let g1: Vec<_> = (0..6).map(|b| storage_entry(b, false)).collect();
             let g2: Vec<_> = (0..9).map(|b| storage_entry(b, false)).collect();
             [
@@ -652,27 +652,31 @@ impl<'a> GpuSimulator<'a> {
                     gpu.storage_empty("counts pyramid", words * 4),
                     gpu.storage_empty("splits pyramid", words * 4),
                     gpu.storage_empty("fates", n as u64 * 4),
+                    gpu.storage_empty("deposits", n as u64 * 40),
                 )
             };
-            let (mut levels, mut splits, mut fates) = make_pyramid(pyr_cap);
+            let (mut levels, mut splits, mut fates, mut deps) = make_pyramid(pyr_cap);
             let (view, empty) = &self.index[g];
-            let bind_medium =
-                |levels: &wgpu::Buffer, splits: &wgpu::Buffer, fates: &wgpu::Buffer| {
-                    self.bind(
-                        0,
-                        &[
-                            params_buf.as_entire_binding(),
-                            wgpu::BindingResource::TextureView(view),
-                            wgpu::BindingResource::TextureView(&self.extinction),
-                            empty.as_entire_binding(),
-                            stats.as_entire_binding(),
-                            levels.as_entire_binding(),
-                            splits.as_entire_binding(),
-                            fates.as_entire_binding(),
-                        ],
-                    )
-                };
-            let mut medium_group = bind_medium(&levels, &splits, &fates);
+            let bind_medium = |levels: &wgpu::Buffer,
+                               splits: &wgpu::Buffer,
+                               fates: &wgpu::Buffer,
+                               deps: &wgpu::Buffer| {
+                self.bind(
+                    0,
+                    &[
+                        params_buf.as_entire_binding(),
+                        wgpu::BindingResource::TextureView(view),
+                        wgpu::BindingResource::TextureView(&self.extinction),
+                        empty.as_entire_binding(),
+                        stats.as_entire_binding(),
+                        levels.as_entire_binding(),
+                        splits.as_entire_binding(),
+                        fates.as_entire_binding(),
+                        deps.as_entire_binding(),
+                    ],
+                )
+            };
+            let mut medium_group = bind_medium(&levels, &splits, &fates, &deps);
             // forward: sets[cur] -> sets[1 - cur].
             let mut cur = 0usize;
             let mut patch_groups = [
@@ -772,13 +776,13 @@ impl<'a> GpuSimulator<'a> {
                 if total > pyr_cap {
                     // The walk still reads the old pyramid: carry it over.
                     let new_cap = total.max(2 * pyr_cap).min(self.patch_limit());
-                    let (l2, s2, f2) = make_pyramid(new_cap);
+                    let (l2, s2, f2, d2) = make_pyramid(new_cap);
                     let mut enc = gpu.device.create_command_encoder(&Default::default());
                     enc.copy_buffer_to_buffer(&levels, 0, &l2, 0, levels.size());
                     gpu.queue.submit([enc.finish()]);
-                    (levels, splits, fates) = (l2, s2, f2);
+                    (levels, splits, fates, deps) = (l2, s2, f2, d2);
                     pyr_cap = new_cap;
-                    medium_group = bind_medium(&levels, &splits, &fates);
+                    medium_group = bind_medium(&levels, &splits, &fates, &deps);
                 }
                 n_old = n;
                 n = total;

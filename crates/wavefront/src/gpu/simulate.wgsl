@@ -55,6 +55,10 @@ struct Level {
 @group(0) @binding(5) var<storage, read_write> levels: array<u32>;
 @group(0) @binding(6) var<storage, read_write> splits: array<u32>;
 @group(0) @binding(7) var<storage, read_write> fate: array<u32>;
+// This step's deposits of each patch, (cell or NONE, packed key): slot 0
+// its midpoint's, slots 1..4 its corners'. The passes after the first
+// read them instead of recomputing; the winner recomputes its value.
+@group(0) @binding(8) var<storage, read_write> deps: array<vec2<u32>>;
 
 @group(1) @binding(0) var<storage, read_write> pos: array<vec4<f32>>;
 @group(1) @binding(1) var<storage, read_write> vel: array<vec4<f32>>;
@@ -820,36 +824,51 @@ fn extinction_at(mid: vec3<f32>) -> vec3<f32> {
     return sample_ext(mid);
 }
 
-fn offer(i: u32, flat: u32, dep: Deposit, phase: u32, st: u32, d: vec3<f32>) {
-    if (phase == 0u) {
-        let old = atomicMax(&key[flat], dep.packed);
-        if (old < dep.packed) {
-            atomicMax(&stamp[flat], st);
-            atomicStore(&owner[flat], NONE);
-        }
-    } else if (phase == 1u) {
-        if (atomicLoad(&stamp[flat]) == st && atomicLoad(&key[flat]) == dep.packed) {
-            atomicMin(&owner[flat], i);
-        }
-    } else {
-        if (atomicLoad(&stamp[flat]) == st && atomicLoad(&owner[flat]) == i) {
-            if (P.group < 0 || P.group == 0) {
-                irr0[flat] = dep.e.x;
-            }
-            if (P.group < 0 || P.group == 1) {
-                irr1[flat] = dep.e.y;
-            }
-            if (P.group < 0 || P.group == 2) {
-                irr2[flat] = dep.e.z;
-            }
-            dir0[flat] = d.x;
-            dir1[flat] = d.y;
-            dir2[flat] = d.z;
-        }
+fn write_volume(flat: u32, e: vec3<f32>, d: vec3<f32>) {
+    if (P.group < 0 || P.group == 0) {
+        irr0[flat] = e.x;
+    }
+    if (P.group < 0 || P.group == 1) {
+        irr1[flat] = e.y;
+    }
+    if (P.group < 0 || P.group == 2) {
+        irr2[flat] = e.z;
+    }
+    dir0[flat] = d.x;
+    dir1[flat] = d.y;
+    dir2[flat] = d.z;
+}
+
+// Pass (a): raise the cell's key; stamp the cell if it rose.
+fn offer_max(i: u32, slot: u32, flat: u32, packed: u32, st: u32) {
+    deps[5u * i + slot] = vec2<u32>(flat, packed);
+    let old = atomicMax(&key[flat], packed);
+    if (old < packed) {
+        atomicMax(&stamp[flat], st);
+        atomicStore(&owner[flat], NONE);
     }
 }
 
-fn deposit_midpoint(i: u32, phase: u32) {
+// Pass (b): the lowest patch index among the deposits equal to a stamped
+// cell's new key.
+fn offer_owner(i: u32, slot: u32, st: u32) {
+    let dp = deps[5u * i + slot];
+    if (dp.x == NONE) {
+        return;
+    }
+    if (atomicLoad(&stamp[dp.x]) == st && atomicLoad(&key[dp.x]) == dp.y) {
+        atomicMin(&owner[dp.x], i);
+    }
+}
+
+// Whether patch i won slot `slot` in pass (b).
+fn won(i: u32, slot: u32, st: u32) -> bool {
+    let dp = deps[5u * i + slot];
+    return dp.x != NONE && atomicLoad(&stamp[dp.x]) == st && atomicLoad(&owner[dp.x]) == i;
+}
+
+fn midpoint_max(i: u32) {
+    deps[5u * i] = vec2<u32>(NONE, 0u);
     let mid = midpoint(i);
     let cell = cell_of(mid);
     if (!cell.ok) {
@@ -858,13 +877,27 @@ fn deposit_midpoint(i: u32, phase: u32) {
     let d = direction(i);
     let dep = deposit_at(i, mid, d, extinction_at(mid), cell.flat, 1u);
     if (dep.ok) {
-        offer(i, cell.flat, dep, phase, P.stamp, d);
+        offer_max(i, 0u, cell.flat, dep.packed, P.stamp);
     }
+}
+
+fn midpoint_write(i: u32) {
+    if (!won(i, 0u, P.stamp)) {
+        return;
+    }
+    let mid = midpoint(i);
+    let d = direction(i);
+    let flat = deps[5u * i].x;
+    let dep = deposit_at(i, mid, d, extinction_at(mid), flat, 1u);
+    write_volume(flat, dep.e, d);
 }
 
 // The cells under the corners that no midpoint has reached (tier 0),
 // each once and not the midpoint's own.
-fn deposit_corners(i: u32, phase: u32) {
+fn corners_max(i: u32) {
+    for (var c = 1u; c < 5u; c++) {
+        deps[5u * i + c] = vec2<u32>(NONE, 0u);
+    }
     let mid = midpoint(i);
     let mc = cell_of(mid);
     var seen = array<u32, 5>(NONE, NONE, NONE, NONE, NONE);
@@ -890,7 +923,24 @@ fn deposit_corners(i: u32, phase: u32) {
         seen[c + 1u] = cell.flat;
         let dep = deposit_at(i, mid, d, ext, cell.flat, 0u);
         if (dep.ok) {
-            offer(i, cell.flat, dep, phase, P.stamp + 1u, d);
+            offer_max(i, c + 1u, cell.flat, dep.packed, P.stamp + 1u);
+        }
+    }
+}
+
+fn corners_write(i: u32) {
+    let st = P.stamp + 1u;
+    if (!(won(i, 1u, st) || won(i, 2u, st) || won(i, 3u, st) || won(i, 4u, st))) {
+        return;
+    }
+    let mid = midpoint(i);
+    let d = direction(i);
+    let ext = extinction_at(mid);
+    for (var c = 1u; c < 5u; c++) {
+        if (won(i, c, st)) {
+            let flat = deps[5u * i + c].x;
+            let dep = deposit_at(i, mid, d, ext, flat, 0u);
+            write_volume(flat, dep.e, d);
         }
     }
 }
@@ -899,7 +949,7 @@ fn deposit_corners(i: u32, phase: u32) {
 fn mid_max(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     let i = item(id, groups);
     if (i < P.n) {
-        deposit_midpoint(i, 0u);
+        midpoint_max(i);
     }
 }
 
@@ -907,7 +957,7 @@ fn mid_max(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups
 fn mid_owner(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     let i = item(id, groups);
     if (i < P.n) {
-        deposit_midpoint(i, 1u);
+        offer_owner(i, 0u, P.stamp);
     }
 }
 
@@ -915,7 +965,7 @@ fn mid_owner(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgrou
 fn mid_write(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     let i = item(id, groups);
     if (i < P.n) {
-        deposit_midpoint(i, 2u);
+        midpoint_write(i);
     }
 }
 
@@ -923,7 +973,7 @@ fn mid_write(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgrou
 fn corner_max(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     let i = item(id, groups);
     if (i < P.n) {
-        deposit_corners(i, 0u);
+        corners_max(i);
     }
 }
 
@@ -931,7 +981,9 @@ fn corner_max(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgro
 fn corner_owner(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     let i = item(id, groups);
     if (i < P.n) {
-        deposit_corners(i, 1u);
+        for (var c = 1u; c < 5u; c++) {
+            offer_owner(i, c, P.stamp + 1u);
+        }
     }
 }
 
@@ -939,7 +991,7 @@ fn corner_owner(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workg
 fn corner_write(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     let i = item(id, groups);
     if (i < P.n) {
-        deposit_corners(i, 2u);
+        corners_write(i);
     }
 }
 
