@@ -39,6 +39,8 @@ const SOURCE: &str = include_str!("simulate.wgsl");
 
 /// Bytes of the largest per-patch array (four corner positions).
 const PATCH_BYTES: u64 = 64;
+/// Storage buffers bound at once (groups 0 to 2 of `simulate.wgsl`).
+const STORAGE_BUFFERS: u32 = 21;
 /// Most pyramid levels (4^15 entries).
 const MAX_LEVELS: usize = 16;
 
@@ -314,6 +316,14 @@ impl<'a> GpuSimulator<'a> {
         let binding_limit = limit
             .min(limits.max_storage_buffer_binding_size as u64)
             .min(limits.max_buffer_size);
+        if limits.max_storage_buffers_per_shader_stage < STORAGE_BUFFERS {
+            return Err(too_large(
+                "the light simulator's kernels (storage buffers per stage)",
+                STORAGE_BUFFERS as u64,
+                limits.max_storage_buffers_per_shader_stage as u64,
+                "use --backend cpu",
+            ));
+        }
         let g = &medium.geometry;
         let max_dim = g.dims.iter().copied().max().unwrap_or(1) as u64;
         if max_dim > limits.max_texture_dimension_3d as u64 {
