@@ -895,17 +895,13 @@ fn midpoint_write(i: u32) {
 // The cells under the corners that no midpoint has reached (tier 0),
 // each once and not the midpoint's own.
 fn corners_max(i: u32) {
-    for (var c = 1u; c < 5u; c++) {
-        deps[5u * i + c] = vec2<u32>(NONE, 0u);
-    }
     let mid = midpoint(i);
     let mc = cell_of(mid);
     var seen = array<u32, 5>(NONE, NONE, NONE, NONE, NONE);
     if (mc.ok) {
         seen[0] = mc.flat;
     }
-    let d = direction(i);
-    let ext = extinction_at(mid);
+    var any_cell = false;
     for (var c = 0u; c < 4u; c++) {
         let cell = cell_of(pos[4u * i + c].xyz);
         if (!cell.ok) {
@@ -921,9 +917,25 @@ fn corners_max(i: u32) {
             continue;
         }
         seen[c + 1u] = cell.flat;
-        let dep = deposit_at(i, mid, d, ext, cell.flat, 0u);
+        any_cell = true;
+    }
+    for (var c = 1u; c < 5u; c++) {
+        deps[5u * i + c] = vec2<u32>(NONE, 0u);
+    }
+    // Direction and extinction only once a cell needs them: most corners
+    // land in cells a midpoint has already reached.
+    if (!any_cell) {
+        return;
+    }
+    let d = direction(i);
+    let ext = extinction_at(mid);
+    for (var c = 1u; c < 5u; c++) {
+        if (seen[c] == NONE) {
+            continue;
+        }
+        let dep = deposit_at(i, mid, d, ext, seen[c], 0u);
         if (dep.ok) {
-            offer_max(i, c + 1u, cell.flat, dep.packed, P.stamp + 1u);
+            offer_max(i, c, seen[c], dep.packed, P.stamp + 1u);
         }
     }
 }
