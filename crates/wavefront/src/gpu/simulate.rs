@@ -26,6 +26,24 @@
 //! corner positions per patch: 2M patches at 128 MiB); `max_patches` is
 //! lowered to what fits, and anything that still does not fit is a
 //! [`GpuError::TooLarge`].
+//!
+//! # Differences from the CPU
+//! * f32 throughout the steps (the CPU steps in f64; emission and the
+//!   pre-step tessellation are the CPU's, rounded once on upload). Patches
+//!   at a tessellation threshold or at a caustic can take the other fate,
+//!   and the lists drift apart where the light field is multi-valued; the
+//!   volumes agree closely elsewhere (numbers in `tests/gpu.rs`: on the
+//!   128^3 glass sphere, median relative irradiance difference 9e-6, 98.8%
+//!   of the cells within 1%).
+//! * A patch is tessellated when its span exceeds the split size by more
+//!   than 1e-5 (the CPU: 1e-9): f32 rounding of the corner positions
+//!   accumulates to a few 1e-6 of a voxel over the steps, which would
+//!   otherwise split patches of a plane wave at random. Some still split
+//!   after many steps (on the 128^3 glass sphere the GPU's list peaks at
+//!   76k patches, the CPU's at 65k).
+//! * Energy tallies are exact sums of the f32 fluxes (64-bit fixed point at
+//!   2^-52 of the largest channel's power); the balance holds to about
+//!   1e-9 instead of 1e-15.
 
 use crate::patch::Patches;
 use crate::Summary;
