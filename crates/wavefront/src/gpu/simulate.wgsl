@@ -107,7 +107,55 @@ fn item(id: vec3<u32>, groups: vec3<u32>) -> u32 {
 // ---------------------------------------------------------------------
 // Deterministic energy tallies: 64-bit fixed point (value * P.scale) in
 // two u32 words with carry. Integer addition is associative, so the sums
-// do not depend on the order the threads run in.
+// do not depend on the order the threads run in. Each workgroup sums its
+// threads' tallies in workgroup memory first (`wg_stats`, the layout of
+// `stats`) and adds them to `stats` once (`wg_begin`, `wg_end`): one
+// global atomic per workgroup instead of one per patch.
+var<workgroup> wg_stats: array<atomic<u32>, 24>;
+
+fn add_fixed(w: u32, lo_u: u32, hi_u: u32, global: bool) {
+    var old = 0u;
+    if (global) {
+        old = atomicAdd(&stats[w], lo_u);
+    } else {
+        old = atomicAdd(&wg_stats[w], lo_u);
+    }
+    var carry = 0u;
+    if (old + lo_u < old) {
+        carry = 1u;
+    }
+    if (hi_u + carry > 0u) {
+        if (global) {
+            atomicAdd(&stats[w + 1u], hi_u + carry);
+        } else {
+            atomicAdd(&wg_stats[w + 1u], hi_u + carry);
+        }
+    }
+}
+
+fn wg_begin(li: u32) {
+    if (li < 24u) {
+        atomicStore(&wg_stats[li], 0u);
+    }
+    workgroupBarrier();
+}
+
+fn wg_end(li: u32) {
+    workgroupBarrier();
+    if (li < 9u) {
+        let lo = atomicLoad(&wg_stats[2u * li]);
+        let hi = atomicLoad(&wg_stats[2u * li + 1u]);
+        if (lo != 0u || hi != 0u) {
+            add_fixed(2u * li, lo, hi, true);
+        }
+    } else if (li >= 18u && li < 24u) {
+        let c = atomicLoad(&wg_stats[li]);
+        if (c != 0u) {
+            atomicAdd(&stats[li], c);
+        }
+    }
+}
+
 fn add_energy(category: u32, channel: u32, value: f32) {
     let x = value * P.scale;
     if (!(x >= 1.0)) {
@@ -115,17 +163,7 @@ fn add_energy(category: u32, channel: u32, value: f32) {
     }
     let hi = floor(x / 4294967296.0);
     let lo = x - hi * 4294967296.0;
-    let lo_u = u32(lo);
-    let hi_u = u32(hi);
-    let w = 2u * (3u * category + channel);
-    let old = atomicAdd(&stats[w], lo_u);
-    var carry = 0u;
-    if (old + lo_u < old) {
-        carry = 1u;
-    }
-    if (hi_u + carry > 0u) {
-        atomicAdd(&stats[w + 1u], hi_u + carry);
-    }
+    add_fixed(2u * (3u * category + channel), u32(lo), u32(hi), false);
 }
 
 fn add_energy3(category: u32, v: vec3<f32>) {
@@ -398,13 +436,7 @@ fn step_depth(x0: vec3<f32>, x1: vec3<f32>, before: vec3<f32>, after: vec3<f32>,
     return select(after, before, in0) * (dt * inside);
 }
 
-@compute @workgroup_size(64)
-fn propagate(@builtin(global_invocation_id) id: vec3<u32>,
-             @builtin(num_workgroups) groups: vec3<u32>) {
-    let i = item(id, groups);
-    if (i >= P.n) {
-        return;
-    }
+fn propagate_patch(i: u32) {
     let dt = P.dt;
     let m0 = midpoint(i);
     var flux = aux[3u * i];
@@ -459,13 +491,7 @@ fn propagate(@builtin(global_invocation_id) id: vec3<u32>,
 // ---------------------------------------------------------------------
 // Step 3: tessellation analysis (`refine::fate`) and its book-keeping.
 
-@compute @workgroup_size(64)
-fn analyse(@builtin(global_invocation_id) id: vec3<u32>,
-           @builtin(num_workgroups) groups: vec3<u32>) {
-    let i = item(id, groups);
-    if (i >= P.n) {
-        return;
-    }
+fn analyse_patch(i: u32) {
     let p0 = pos[4u * i].xyz;
     let p1 = pos[4u * i + 1u].xyz;
     let p2 = pos[4u * i + 2u].xyz;
@@ -489,22 +515,22 @@ fn analyse(@builtin(global_invocation_id) id: vec3<u32>,
     splits[i] = select(0u, 1u, f == F_SPLIT);
     switch f {
         case 0u: {
-            atomicAdd(&stats[S_EXITED], 1u);
+            atomicAdd(&wg_stats[S_EXITED], 1u);
             add_energy3(E_EXITED, flux.xyz);
         }
         case 1u: {
-            atomicAdd(&stats[S_ABSORBED], 1u);
+            atomicAdd(&wg_stats[S_ABSORBED], 1u);
             add_energy3(E_CULLED, flux.xyz);
         }
         case 2u: {
-            atomicAdd(&stats[S_CAUSTIC], 1u);
+            atomicAdd(&wg_stats[S_CAUSTIC], 1u);
             add_energy3(E_CULLED, flux.xyz);
         }
         case 3u: {
-            atomicAdd(&stats[S_KEPT], 1u);
+            atomicAdd(&wg_stats[S_KEPT], 1u);
         }
         default: {
-            atomicAdd(&stats[S_SPLITS], 1u);
+            atomicAdd(&wg_stats[S_SPLITS], 1u);
         }
     }
 }
@@ -1007,11 +1033,39 @@ fn corner_write(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workg
     }
 }
 
+@compute @workgroup_size(64)
+fn propagate(@builtin(global_invocation_id) id: vec3<u32>,
+             @builtin(num_workgroups) groups: vec3<u32>,
+             @builtin(local_invocation_index) li: u32) {
+    wg_begin(li);
+    let i = item(id, groups);
+    if (i < P.n) {
+        propagate_patch(i);
+    }
+    wg_end(li);
+}
+
+@compute @workgroup_size(64)
+fn analyse(@builtin(global_invocation_id) id: vec3<u32>,
+           @builtin(num_workgroups) groups: vec3<u32>,
+           @builtin(local_invocation_index) li: u32) {
+    wg_begin(li);
+    let i = item(id, groups);
+    if (i < P.n) {
+        analyse_patch(i);
+    }
+    wg_end(li);
+}
+
 // Patches alive at the step limit: their flux is culled.
 @compute @workgroup_size(64)
-fn cull_rest(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+fn cull_rest(@builtin(global_invocation_id) id: vec3<u32>,
+             @builtin(num_workgroups) groups: vec3<u32>,
+             @builtin(local_invocation_index) li: u32) {
+    wg_begin(li);
     let i = item(id, groups);
     if (i < P.n) {
         add_energy3(E_CULLED, aux[3u * i].xyz);
     }
+    wg_end(li);
 }
