@@ -381,8 +381,8 @@ fn agreement(cpu: &LightVolume, gpu: &LightVolume) -> Agreement {
 /// tessellation threshold or a caustic can take the other fate and the
 /// lists drift apart behind the sphere, where the light field is
 /// multi-valued and the highest-energy rule may keep another ray. Measured
-/// on lavapipe: median relative irradiance difference 1.8e-6 over the
-/// cells lit in both, 99.6% within 1%, 99.95% within 10%, directions within
+/// on lavapipe: median relative irradiance difference 1.2e-7 over the
+/// cells lit in both, 99.6% within 1%, 99.94% within 10%, directions within
 /// 1 degree in 99.8%, no cell lit in one volume only; absorbed and exited
 /// power within 0.1%. Asserted: median < 1e-4, > 95% within 1%, > 97%
 /// within 10%, > 98% aligned, < 0.5% of the cells lit differently, powers
@@ -427,9 +427,9 @@ fn gpu_volumes_match_the_cpu() {
 /// HistoPyramid of the split flags); the list never exceeds the limit, and
 /// the volumes agree with the CPU's (a little less closely than in
 /// `gpu_volumes_match_the_cpu`: which splits are held depends on every
-/// fate before them in the list). Measured on lavapipe: held 14182 (GPU)
-/// vs 12181 (CPU), peak 3000 on both; median 6.4e-6, 95.8% within 1%,
-/// 97.3% within 10%. Euler: median 6.4e-6, 99.8% within 1%, no cell lit
+/// fate before them in the list). Measured on lavapipe: held 14070 (GPU)
+/// vs 12181 (CPU), peak 3000 on both; median 1.2e-7, 95.7% within 1%,
+/// 97.2% within 10%. Euler: median 1.2e-7, 99.8% within 1%, no cell lit
 /// differently.
 #[test]
 fn gpu_patch_limit_and_euler_match_the_cpu() {
@@ -470,7 +470,7 @@ fn gpu_patch_limit_and_euler_match_the_cpu() {
 /// Repeated GPU runs give bitwise the same volumes and summary (energy
 /// tallies in fixed point, deposits by atomics with deterministic ties),
 /// with dispersion (three wavefronts) on the glass sphere; and they agree
-/// with the CPU's (measured: median relative difference 6.4e-6, 99.7% of
+/// with the CPU's (measured: median relative difference 1.2e-7, 99.7% of
 /// the cells within 1%).
 #[test]
 fn gpu_runs_are_bitwise_repeatable_with_dispersion() {

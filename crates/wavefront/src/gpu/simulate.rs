@@ -32,15 +32,17 @@
 //!   pre-step tessellation are the CPU's, rounded once on upload). Patches
 //!   at a tessellation threshold or at a caustic can take the other fate,
 //!   and the lists drift apart where the light field is multi-valued; the
-//!   volumes agree closely elsewhere (numbers in `tests/gpu.rs`: on the
-//!   128^3 glass sphere, median relative irradiance difference 9e-6, 98.8%
-//!   of the cells within 1%).
-//! * A patch is tessellated when its span exceeds the split size by more
-//!   than 1e-5 (the CPU: 1e-9): f32 rounding of the corner positions
-//!   accumulates to a few 1e-6 of a voxel over the steps, which would
-//!   otherwise split patches of a plane wave at random. Some still split
-//!   after many steps (on the 128^3 glass sphere the GPU's list peaks at
-//!   76k patches, the CPU's at 65k).
+//!   volumes agree closely elsewhere (numbers in `tests/gpu.rs`; on the
+//!   128^3 glass sphere: median relative irradiance difference 1.2e-7,
+//!   98.8% of the cells within 1%, lists peaking at 64.4k patches against
+//!   the CPU's 65.1k).
+//! * Corners 1 to 3 are stored relative to corner 0, and each step moves
+//!   them by the difference of their displacements: f32 rounding of the
+//!   absolute positions (about 1e-5 of a voxel per step at 128^3) would
+//!   otherwise wear the patches' shapes away and split a plane wave's
+//!   patches at random. For what rounding is left, a patch is tessellated
+//!   when its span exceeds the split size by more than 1e-5 (the CPU:
+//!   1e-9).
 //! * Energy tallies are exact sums of the f32 fluxes (64-bit fixed point at
 //!   2^-52 of the largest channel's power); the balance holds to about
 //!   1e-9 instead of 1e-15.
@@ -656,9 +658,12 @@ impl<'a> GpuSimulator<'a> {
                 let mut vel = Vec::with_capacity(n0 * 16);
                 let mut aux = Vec::with_capacity(n0 * 12);
                 for i in 0..n0 {
+                    let x0 = p.corner[0][i].x;
                     for c in 0..4 {
                         let r = &p.corner[c][i];
-                        pos.extend([r.x.x, r.x.y, r.x.z, r.opl].map(|v| v as f32));
+                        // Corner 0 absolute, the others relative to it.
+                        let x = if c == 0 { x0 } else { r.x - x0 };
+                        pos.extend([x.x, x.y, x.z, r.opl].map(|v| v as f32));
                         vel.extend([r.v.x, r.v.y, r.v.z, 0.0].map(|v| v as f32));
                     }
                     let (f, f0, e) = (p.flux[i], p.flux0[i], p.irradiance[i]);

@@ -5,7 +5,11 @@
 //
 // Patch list, structure of arrays (`src` is the live list, `dst` the one
 // the walk writes):
-//   pos[4 i + c] = (corner c position, optical path travelled)
+//   pos[4 i]     = (corner 0 position, its optical path travelled)
+//   pos[4 i + c] = (corner c position relative to corner 0, its optical
+//                   path), c = 1, 2, 3: the patch's shape in f32 does not
+//                   wear away with the rounding of its absolute position
+//                   (a plane wave's patches stay exactly square)
 //   vel[4 i + c] = (corner c eikonal gradient v, |v| = n; 0)
 //   aux[3 i + 0] = (RGB flux, W; area0)
 //   aux[3 i + 1] = (RGB flux0; tessellation depth)
@@ -349,20 +353,21 @@ fn onto_shell(v: vec3<f32>, n: f32) -> vec3<f32> {
     return v;
 }
 
-// `step_rk4_on_shell` / `step_euler_on_shell` in the equal-time form.
+// `step_rk4_on_shell` / `step_euler_on_shell` in the equal-time form;
+// returns the displacement (in `x`), the new v and the new optical path.
 fn step_on_shell(r: Ray, h: f32) -> Ray {
     let s0 = sample_field(r.x);
     let v = onto_shell(r.v, s0.n);
     let k0 = rhs(s0, v);
     if (P.method == 0u) {
-        return Ray(r.x + k0.x * h, v + k0.v * h, r.opl + h);
+        return Ray(k0.x * h, v + k0.v * h, r.opl + h);
     }
     let k1 = deriv(r.x + k0.x * (0.5 * h), v + k0.v * (0.5 * h));
     let k2 = deriv(r.x + k1.x * (0.5 * h), v + k1.v * (0.5 * h));
     let k3 = deriv(r.x + k2.x * h, v + k2.v * h);
     let w = h / 6.0;
     return Ray(
-        r.x + (k0.x + (k1.x + k2.x) * 2.0 + k3.x) * w,
+        (k0.x + (k1.x + k2.x) * 2.0 + k3.x) * w,
         v + (k0.v + (k1.v + k2.v) * 2.0 + k3.v) * w,
         r.opl + 6.0 * w,
     );
@@ -395,8 +400,21 @@ fn quad_span(p0: vec3<f32>, p1: vec3<f32>, p2: vec3<f32>, p3: vec3<f32>) -> f32 
     return sqrt(max(max(a, b), max(c, d)));
 }
 
+// Corner c relative to corner 0.
+fn rel(i: u32, c: u32) -> vec3<f32> {
+    if (c == 0u) {
+        return vec3<f32>(0.0);
+    }
+    return pos[4u * i + c].xyz;
+}
+
+// Corner c's world position.
+fn corner_x(i: u32, c: u32) -> vec3<f32> {
+    return pos[4u * i].xyz + rel(i, c);
+}
+
 fn midpoint(i: u32) -> vec3<f32> {
-    return (pos[4u * i].xyz + pos[4u * i + 1u].xyz + pos[4u * i + 2u].xyz + pos[4u * i + 3u].xyz) * 0.25;
+    return pos[4u * i].xyz + (rel(i, 1u) + rel(i, 2u) + rel(i, 3u)) * 0.25;
 }
 
 fn direction(i: u32) -> vec3<f32> {
@@ -448,15 +466,22 @@ fn propagate_patch(i: u32) {
     if (n >= 0.0) {
         var all_empty = true;
         for (var c = 0u; c < 4u; c++) {
-            if (empty_at(pos[4u * i + c].xyz) != n) {
+            if (empty_at(corner_x(i, c)) != n) {
                 all_empty = false;
             }
         }
         if (all_empty) {
+            var d0 = vec3<f32>(0.0);
             for (var c = 0u; c < 4u; c++) {
                 let v = normalize_or_zero(vel[4u * i + c].xyz) * n;
+                let d = v * (dt / (n * n));
                 let p = pos[4u * i + c];
-                pos[4u * i + c] = vec4<f32>(p.xyz + v * (dt / (n * n)), p.w + dt);
+                if (c == 0u) {
+                    d0 = d;
+                    pos[4u * i] = vec4<f32>(p.xyz + d, p.w + dt);
+                } else {
+                    pos[4u * i + c] = vec4<f32>(p.xyz + (d - d0), p.w + dt);
+                }
                 vel[4u * i + c] = vec4<f32>(v, 0.0);
             }
             skipped = true;
@@ -464,10 +489,17 @@ fn propagate_patch(i: u32) {
     }
     if (!skipped) {
         let before = extinction_per_index(m0);
+        var d0 = vec3<f32>(0.0);
+        let x0 = pos[4u * i].xyz;
         for (var c = 0u; c < 4u; c++) {
             let p = pos[4u * i + c];
-            let r = step_on_shell(Ray(p.xyz, vel[4u * i + c].xyz, p.w), dt);
-            pos[4u * i + c] = vec4<f32>(r.x, r.opl);
+            let r = step_on_shell(Ray(x0 + rel(i, c), vel[4u * i + c].xyz, p.w), dt);
+            if (c == 0u) {
+                d0 = r.x;
+                pos[4u * i] = vec4<f32>(p.xyz + r.x, r.opl);
+            } else {
+                pos[4u * i + c] = vec4<f32>(p.xyz + (r.x - d0), r.opl);
+            }
             vel[4u * i + c] = vec4<f32>(r.v, 0.0);
         }
         let m1 = midpoint(i);
@@ -480,7 +512,7 @@ fn propagate_patch(i: u32) {
         add_energy3(E_ABSORBED, lost);
     }
     // Eq 17: flux over the current area.
-    let ar = quad_area(pos[4u * i].xyz, pos[4u * i + 1u].xyz, pos[4u * i + 2u].xyz, pos[4u * i + 3u].xyz);
+    let ar = quad_area(vec3<f32>(0.0), rel(i, 1u), rel(i, 2u), rel(i, 3u));
     var e = vec3<f32>(0.0);
     if (ar > 0.0) {
         e = flux.xyz / ar;
@@ -492,10 +524,11 @@ fn propagate_patch(i: u32) {
 // Step 3: tessellation analysis (`refine::fate`) and its book-keeping.
 
 fn analyse_patch(i: u32) {
-    let p0 = pos[4u * i].xyz;
-    let p1 = pos[4u * i + 1u].xyz;
-    let p2 = pos[4u * i + 2u].xyz;
-    let p3 = pos[4u * i + 3u].xyz;
+    // Shape measures relative to corner 0 (they do not depend on where).
+    let p0 = vec3<f32>(0.0);
+    let p1 = rel(i, 1u);
+    let p2 = rel(i, 2u);
+    let p3 = rel(i, 3u);
     let dir = direction(i);
     let mid = midpoint(i);
     let flux = aux[3u * i];
@@ -754,7 +787,7 @@ fn expand(@builtin(global_invocation_id) id: vec3<u32>,
     var v: array<vec3<f32>, 4>;
     var o: array<vec3<f32>, 4>;
     for (var c = 0u; c < 4u; c++) {
-        x[c] = pos[4u * i + c].xyz;
+        x[c] = rel(i, c);
         v[c] = vel[4u * i + c].xyz;
         o[c] = vec3<f32>(pos[4u * i + c].w, 0.0, 0.0);
     }
@@ -783,8 +816,12 @@ fn expand(@builtin(global_invocation_id) id: vec3<u32>,
     let co = child_corners(o, r);
     for (var c = 0u; c < 4u; c++) {
         // Bilinear v has the right direction but not |v| = n.
-        let vn = normalize_or_zero(cv[c]) * sample_field(cx[c]).n;
-        dpos[4u * k + c] = vec4<f32>(cx[c], co[c].x);
+        let vn = normalize_or_zero(cv[c]) * sample_field(pos[4u * i].xyz + cx[c]).n;
+        if (c == 0u) {
+            dpos[4u * k] = vec4<f32>(pos[4u * i].xyz + cx[0], co[0].x);
+        } else {
+            dpos[4u * k + c] = vec4<f32>(cx[c] - cx[0], co[c].x);
+        }
         dvel[4u * k + c] = vec4<f32>(vn, 0.0);
     }
     let flux = aux[3u * i];
@@ -822,7 +859,7 @@ fn deposit_at(i: u32, mid: vec3<f32>, d: vec3<f32>, ext: vec3<f32>, flat: u32, t
     let s = dot(d, voxel_center(flat) - mid);
     var m: array<vec3<f32>, 4>;
     for (var c = 0u; c < 4u; c++) {
-        m[c] = pos[4u * i + c].xyz + normalize_or_zero(vel[4u * i + c].xyz) * s;
+        m[c] = rel(i, c) + normalize_or_zero(vel[4u * i + c].xyz) * s;
     }
     let ar = area4(m);
     if (!(ar > 0.0)) {
@@ -929,7 +966,7 @@ fn corners_max(i: u32) {
     }
     var any_cell = false;
     for (var c = 0u; c < 4u; c++) {
-        let cell = cell_of(pos[4u * i + c].xyz);
+        let cell = cell_of(corner_x(i, c));
         if (!cell.ok) {
             continue;
         }
