@@ -184,8 +184,8 @@ fn point_light_errors(m: &Medium, vol: &LightVolume, p: DVec3, power: f64, sigma
 
 /// The CPU test's 1/r^2 criterion on the GPU (40^3 here, 64^3 there): the
 /// median relative error over the cells at least 3 voxels from the light
-/// is at most 1% (measured on lavapipe: 2.6e-3, as the CPU's), and the
-/// colour channels scale with the power.
+/// is at most 1% (measured on lavapipe: 5.3e-4; every cell reached), and
+/// the colour channels scale with the power.
 #[test]
 fn gpu_point_light_falls_off_as_inverse_square() {
     let Some(gpu) = gpu() else { return };
@@ -212,9 +212,10 @@ fn gpu_point_light_falls_off_as_inverse_square() {
 
 /// Beer-Lambert on the GPU: a plane wave along x through an absorbing
 /// medium (sigma 1.5, 3, 0 per channel), every cell within 1% of
-/// `3 exp(-sigma d)` (measured: worst 2.5e-4, transmission down to
+/// `3 exp(-sigma d)` (measured: worst 6.3e-6, transmission down to
 /// 0.0025); and a point light inside absorbing matter within 1% median
-/// of `P exp(-sigma r) / (4 pi r^2)`. Energy balances to 1e-6.
+/// of `P exp(-sigma r) / (4 pi r^2)` (measured: 1.1e-3). Energy balances
+/// to 1e-6 (measured: 0 and 1.8e-9).
 #[test]
 fn gpu_plane_wave_decays_by_beer_lambert() {
     let Some(gpu) = gpu() else { return };
@@ -267,7 +268,7 @@ fn gpu_plane_wave_decays_by_beer_lambert() {
 
 /// The CPU test's Luneburg criterion on the GPU (48^3 here): the
 /// irradiance peak of a plane wave through a Luneburg lens lies within one
-/// voxel of the focus on its far surface.
+/// voxel of the focus on its far surface (measured: 0.77 voxel).
 #[test]
 fn gpu_luneburg_lens_focuses_a_plane_wave_on_its_far_surface() {
     let Some(gpu) = gpu() else { return };
@@ -296,8 +297,8 @@ fn gpu_luneburg_lens_focuses_a_plane_wave_on_its_far_surface() {
 
 /// Energy on the GPU, as the CPU test: for each light of the glass-sphere
 /// scene (32^3), entered = absorbed + exited + culled within 0.5%
-/// (measured: below 1e-8; the tallies are exact fixed point, what is left
-/// is f32 rounding of the fluxes), and blue is absorbed most.
+/// (measured: 5e-10, 2.8e-9, 1.2e-9; the tallies are exact fixed point,
+/// what is left is f32 rounding of the fluxes), and blue is absorbed most.
 #[test]
 fn gpu_energy_is_accounted_for() {
     let Some(gpu) = gpu() else { return };
@@ -510,7 +511,8 @@ fn gpu_runs_are_bitwise_repeatable_with_dispersion() {
 /// (index 1, sigma 2 over x in [-0.5, 0.25]) keeps `3 exp(-sigma d)` to 1%
 /// in every cell (but those within a cell of its faces, where the
 /// trilinear extinction ramps), and the result is bitwise that of the run with
-/// the device's limits. A limit below one channel is a clear error.
+/// the device's limits (measured: worst 3.2e-6). A limit below one channel
+/// is a clear error.
 #[test]
 fn gpu_volume_larger_than_a_binding() {
     let Some(gpu) = gpu() else { return };
@@ -569,7 +571,7 @@ fn gpu_volume_larger_than_a_binding() {
 /// A 256^3 volume (64 MiB per channel buffer, 256 MiB per medium
 /// texture; lavapipe binds at most 128 MiB): the first 24 steps of a plane
 /// wave through an absorbing medium keep Beer-Lambert to 1% in the cells
-/// they reached.
+/// they reached (measured on lavapipe: 11 s, worst 8.6e-7).
 #[test]
 #[ignore]
 fn gpu_256_cubed() {
@@ -617,6 +619,10 @@ fn gpu_256_cubed() {
 /// Times the 128^3 glass-sphere scene (configs/glass-sphere.toml) on the
 /// GPU (without the medium upload) and on the CPU:
 /// `cargo test --release -p eikon-wavefront --test gpu -- --ignored --nocapture`.
+/// Measured on lavapipe (2 cores shared with other jobs): upload 0.4 s,
+/// GPU 21.6 s, CPU 10-15 s; median relative difference 1.2e-7, 98.8% of
+/// the cells within 1%, 99.7% within 10%, 99.8% aligned, 210 cells lit in
+/// one volume only.
 #[test]
 #[ignore]
 fn time_glass_sphere_128() {
