@@ -42,6 +42,18 @@ pub enum GpuError {
     /// Reading a buffer back failed.
     #[error("reading GPU results back failed: {0}")]
     Readback(String),
+    /// Something does not fit the device's limits.
+    #[error("{what} needs {need}, but the GPU allows at most {limit} ({hint})")]
+    TooLarge {
+        /// What was to be allocated.
+        what: String,
+        /// How much it needs.
+        need: u64,
+        /// The device's limit.
+        limit: u64,
+        /// What to do about it.
+        hint: String,
+    },
 }
 
 /// Which graphics API an adapter runs on.
@@ -95,6 +107,12 @@ impl Gpu {
                 max_storage_buffer_binding_size: limits.max_storage_buffer_binding_size,
                 max_buffer_size: limits.max_buffer_size,
                 max_compute_workgroups_per_dimension: limits.max_compute_workgroups_per_dimension,
+                // The light simulator binds its patch lists, pyramids and
+                // per-channel volumes at once (about 20 storage buffers)
+                // and samples the medium from 3D textures.
+                max_storage_buffers_per_shader_stage: limits.max_storage_buffers_per_shader_stage,
+                max_texture_dimension_3d: limits.max_texture_dimension_3d,
+                max_bind_groups: limits.max_bind_groups,
                 ..wgpu::Limits::downlevel_defaults()
             },
             memory_hints: wgpu::MemoryHints::Performance,

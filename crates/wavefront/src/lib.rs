@@ -86,6 +86,9 @@ pub enum Error {
     /// The scene cannot be lit as given.
     #[error(transparent)]
     Scene(#[from] eikon_grid::Error),
+    /// The GPU backend failed (no adapter, a limit, a validation error).
+    #[error(transparent)]
+    Gpu(#[from] eikon_gpu::GpuError),
 }
 
 impl Options {

@@ -2,10 +2,14 @@
 //! shares the CPU backend's definitions: the same counts (0, 1, 4), the
 //! same pyramid layout and the same walk, so the two give identical lists.
 //!
-//! So far: the HistoPyramid ([`GpuHistoPyramid`]), checked against the CPU
-//! one in `tests/gpu.rs`.
+//! The whole simulator ([`simulate_light`], [`GpuSimulator`]; see
+//! `simulate.rs`) and its HistoPyramid on its own ([`GpuHistoPyramid`]),
+//! checked against the CPU in `tests/gpu.rs`.
 
 use eikon_gpu::{groups, Gpu, GpuError};
+
+mod simulate;
+pub use simulate::{simulate_light, GpuSimulator};
 
 const REDUCE: &str = include_str!("histopyramid.wgsl");
 const EXPAND: &str = include_str!("expand.wgsl");
