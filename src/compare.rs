@@ -110,6 +110,11 @@ pub fn run(args: Args) -> Result<()> {
     let camera = render::camera(&scene, &args.overrides)?;
     let seed = args.overrides.seed.unwrap_or(scene.render.seed);
 
+    let backend = if methods.contains(&RenderMethod::Eikonal) {
+        args.overrides.backend.select(args.json)?
+    } else {
+        crate::backend::Backend::Cpu
+    };
     let mut results: Vec<(RenderMethod, Image, f64)> = Vec::new();
     for &m in &methods {
         eprintln!("{}:", m.name());
@@ -117,8 +122,8 @@ pub fn run(args: Args) -> Result<()> {
         let image = if m == RenderMethod::Eikonal {
             let medium = build_medium(&scene)?;
             let sim = simulate::Args::defaults(args.scene.clone(), args.output.join("light"));
-            let volumes = simulate::simulate_quiet(&sim, &scene, &medium)?;
-            render::render_image(&scene, &medium, &volumes, &args.overrides)?.0
+            let volumes = simulate::simulate_quiet(&sim, &scene, &medium, &backend)?;
+            render::render_image(&scene, &medium, &volumes, &args.overrides, &backend)?.0
         } else {
             let method = crate::exact::method(m.name(), args.exact.scatter_samples)?;
             crate::exact::render(&scene, &camera, method, args.exact.guaranteed, seed)?.0

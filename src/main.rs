@@ -1,5 +1,6 @@
 //! `eikon`: light transport in refractive volumes, from the command line.
 
+mod backend;
 mod compare;
 mod exact;
 mod export;
@@ -48,6 +49,13 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    // Mesa's Vulkan drivers print "error: XDG_RUNTIME_DIR is invalid" while
+    // probing for a display when it is unset (a headless machine, a
+    // container); eikon never presents to a display, so any directory will
+    // do. Set here, before any thread exists.
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
+        std::env::set_var("XDG_RUNTIME_DIR", std::env::temp_dir());
+    }
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Info(a) => info::run(a),

@@ -1,6 +1,7 @@
 //! `eikon render`: an image of a scene, lit by light volumes written by
 //! `eikon simulate`.
 
+use crate::backend::Backend;
 use crate::output::{build_medium, write_atomic};
 use crate::simulate::SIDECAR;
 use anyhow::{bail, Context, Result};
@@ -56,6 +57,8 @@ pub struct Overrides {
     /// Seed of the pixel sample jitter.
     #[arg(long)]
     pub seed: Option<u64>,
+    #[command(flatten)]
+    pub backend: crate::backend::BackendFlag,
 }
 
 /// How `eikon render` forms the image.
@@ -185,11 +188,13 @@ pub fn run(args: Args) -> Result<()> {
         Some(dir) => load_light_volumes(dir, &scene, &medium)?,
         None => Vec::new(),
     };
+    let backend = args.overrides.backend.select(args.json)?;
     render_scene(
         &scene,
         &medium,
         &volumes,
         &args.overrides,
+        &backend,
         &args.output,
         args.json,
     )
@@ -255,10 +260,11 @@ pub fn render_scene(
     medium: &Medium,
     volumes: &[LightVolume],
     overrides: &Overrides,
+    backend: &Backend,
     outputs: &[PathBuf],
     json: bool,
 ) -> Result<()> {
-    let (image, stats, seconds) = render_image(scene, medium, volumes, overrides)?;
+    let (image, stats, seconds) = render_image(scene, medium, volumes, overrides, backend)?;
     let tone = tone(scene, overrides);
     for o in outputs {
         write_image(o, &image, &tone)?;
@@ -267,12 +273,14 @@ pub fn render_scene(
 }
 
 /// Render `scene` (built as `medium`, lit by `volumes`) with the eikonal
-/// pipeline: the image, its statistics and the seconds it took.
+/// pipeline on `backend`: the image, its statistics (the CPU's; the GPU
+/// counts none) and the seconds it took.
 pub fn render_image(
     scene: &Scene,
     medium: &Medium,
     volumes: &[LightVolume],
     overrides: &Overrides,
+    backend: &Backend,
 ) -> Result<(Image, Stats, f64)> {
     let camera = camera(scene, overrides)?;
     let r = &scene.render;

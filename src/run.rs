@@ -45,9 +45,10 @@ fn simulate_and_render(
 ) -> Result<()> {
     check_outputs(images)?;
     let medium = build_medium(scene)?;
+    let backend = overrides.backend.select(false)?;
     let args = simulate::Args::defaults(scene_path.to_path_buf(), dir.to_path_buf());
-    let volumes = simulate::simulate(&args, scene, &medium)?;
-    render_scene(scene, &medium, &volumes, overrides, images, false)
+    let volumes = simulate::simulate(&args, scene, &medium, &backend)?;
+    render_scene(scene, &medium, &volumes, overrides, &backend, images, false)
 }
 
 /// Run `eikon run`.

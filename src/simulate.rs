@@ -1,5 +1,6 @@
 //! `eikon simulate`: the light volumes of every light of a scene.
 
+use crate::backend::{Backend, BackendFlag};
 use crate::output::{build_medium, write_atomic};
 use anyhow::{bail, Context, Result};
 use clap::ValueEnum;
@@ -84,6 +85,8 @@ pub struct Args {
     /// Print the summary as JSON.
     #[arg(long)]
     json: bool,
+    #[command(flatten)]
+    backend: BackendFlag,
     /// Print nothing (for commands that simulate on the way to something else).
     #[arg(skip)]
     quiet: bool,
@@ -216,31 +219,57 @@ pub fn run(args: Args) -> Result<()> {
     args.options()?;
     let scene = Scene::load(&args.scene)?;
     let medium = build_medium(&scene)?;
-    simulate(&args, &scene, &medium)?;
+    let backend = if args.method == SimMethod::Photons {
+        if args.backend.backend == Some(crate::backend::BackendArg::Gpu) {
+            bail!("--backend gpu: photons run on the CPU only (--method wavefront runs on the GPU)");
+        }
+        Backend::Cpu
+    } else {
+        args.backend.select(args.json)?
+    };
+    simulate(&args, &scene, &medium, &backend)?;
     Ok(())
 }
 
 /// [`simulate`] without printing the summary.
-pub fn simulate_quiet(args: &Args, scene: &Scene, medium: &Medium) -> Result<Vec<LightVolume>> {
+pub fn simulate_quiet(
+    args: &Args,
+    scene: &Scene,
+    medium: &Medium,
+    backend: &Backend,
+) -> Result<Vec<LightVolume>> {
     let quiet = Args {
         scene: args.scene.clone(),
         output: args.output.clone(),
         quiet: true,
         ..*args
     };
-    simulate(&quiet, scene, medium)
+    simulate(&quiet, scene, medium, backend)
 }
 
 /// Simulate every light of `scene` (built as `medium`), write the volumes
 /// and the sidecar to `args.output`, print the summary. Returns the
-/// wavefront light volumes (none for photons).
-pub fn simulate(args: &Args, scene: &Scene, medium: &Medium) -> Result<Vec<LightVolume>> {
+/// wavefront light volumes (none for photons). The wavefront runs on
+/// `backend`.
+pub fn simulate(
+    args: &Args,
+    scene: &Scene,
+    medium: &Medium,
+    backend: &Backend,
+) -> Result<Vec<LightVolume>> {
     let opts = args.options()?;
     check_scene(scene, medium, &opts)?;
     if args.output.exists() && !args.output.is_dir() {
         bail!("{}: exists and is not a directory", args.output.display());
     }
     let started = Instant::now();
+    // The GPU uploads the medium once for every light.
+    let gpu = match backend {
+        Backend::Gpu(g) if args.method == SimMethod::Wavefront => {
+            Some(eikon_wavefront::gpu::GpuSimulator::new(g, medium)?)
+        }
+        _ => None,
+    };
     let mut results: Vec<(Volumes, Summary, f64)> = Vec::new();
     for (i, light) in scene.lights.iter().enumerate() {
         let bar = indicatif::ProgressBar::new_spinner();
@@ -252,10 +281,14 @@ pub fn simulate(args: &Args, scene: &Scene, medium: &Medium) -> Result<Vec<Light
         let t = Instant::now();
         let (volume, summary) = match args.method {
             SimMethod::Wavefront => {
-                let (v, s) = simulate_light(light, medium, &opts, &|step, live| {
+                let progress = |step, live| {
                     bar.set_message(format!("step {step}, {live} live patches"));
                     bar.tick();
-                })?;
+                };
+                let (v, s) = match &gpu {
+                    Some(sim) => sim.simulate(light, &opts, &progress)?,
+                    None => simulate_light(light, medium, &opts, &progress)?,
+                };
                 (Volumes::Wavefront(v), s)
             }
             SimMethod::Photons => {
@@ -335,6 +368,7 @@ pub fn simulate(args: &Args, scene: &Scene, medium: &Medium) -> Result<Vec<Light
             "seed": (args.method == SimMethod::Photons).then_some(args.seed),
         },
         "lights": lights,
+        "backend": backend.describe(),
         "seconds": wall,
     });
     write_atomic(&args.output.join(SIDECAR), |w| {
@@ -352,6 +386,7 @@ pub fn simulate(args: &Args, scene: &Scene, medium: &Medium) -> Result<Vec<Light
             "{}",
             serde_json::to_string_pretty(&json!({
                 "output": args.output.display().to_string(),
+                "backend": backend.describe(),
                 "lights": summaries,
                 "seconds": wall,
             }))?
