@@ -31,6 +31,7 @@ use crate::camera::Camera;
 use crate::environment::Environment;
 use crate::image::Image;
 use crate::macrocell::{MacroCells, BLOCK};
+use crate::phase::G_MAX;
 use crate::properties::Properties;
 use crate::render::{probe_length, Options, MIRROR_COS};
 use eikon_gpu::{Gpu, GpuError};
@@ -423,12 +424,12 @@ impl<'a> GpuRenderer<'a> {
             v3(g.max, g.diagonal()),
             v3(1.0 / g.spacing(), ds),
             v3(1.0 / (g.spacing() * BLOCK as f64), opts.min_transmittance),
-            v3(camera.position(), 0.0),
+            v3(camera.position(), MIRROR_COS),
             f4([
                 env_const[0] as f64,
                 env_const[1] as f64,
                 env_const[2] as f64,
-                0.0,
+                G_MAX,
             ]),
         ];
         let ck = surroundings.checker;
@@ -467,7 +468,6 @@ impl<'a> GpuRenderer<'a> {
             p.extend(l);
         }
         let params = gpu.uniform("view params", &p);
-        debug_assert!((MIRROR_COS as f32) < 1.0);
 
         let (pipeline, layout) = gpu.checked("view renderer pipeline", || {
             let tex = |binding: u32| wgpu::BindGroupLayoutEntry {

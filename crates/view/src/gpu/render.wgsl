@@ -17,10 +17,6 @@
 
 const INF: f32 = 1e30;
 const PI: f32 = 3.14159265358979;
-// phase.rs: largest |g|.
-const G_MAX: f32 = 0.9999;
-// render.rs: mirror directions closer than this share one lookup.
-const MIRROR_COS: f32 = 0.99999;
 // background.rs: rounding allowance of a plane hit, relative to the scene's
 // scale (1e-9 in f64 there; f32 rounding needs more).
 const PLANE_EPS: f32 = 2e-6;
@@ -60,8 +56,10 @@ struct Params {
     inv_spacing: vec4<f32>,
     // 1 / (spacing BLOCK), minimum transmittance.
     inv_block: vec4<f32>,
-    // eye position, 0.
+    // eye position; render.rs MIRROR_COS: mirror directions closer than
+    // this share one lookup of the surroundings.
     eye: vec4<f32>,
+    // constant environment radiance; phase.rs G_MAX, the largest |g|.
     env_const: vec4<f32>,
     // checkerboard point, square edge.
     chk_point: vec4<f32>,
@@ -460,7 +458,7 @@ fn surroundings(o: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
 // and the direction towards the eye.
 fn hg(cos_theta: f32, g_in: f32) -> f32 {
     let c = clamp(cos_theta, -1.0, 1.0);
-    let g = clamp(g_in, -G_MAX, G_MAX);
+    let g = clamp(g_in, -P.env_const.w, P.env_const.w);
     let g2 = g * g;
     let denom = 1.0 + g2 - 2.0 * g * c;
     return (1.0 - g2) / (4.0 * PI * denom * sqrt(denom));
@@ -572,7 +570,7 @@ fn gather(x: vec3<f32>, grad: vec3<f32>, d: vec3<f32>, stp: f32, ch: u32, w: ptr
         if rho > 0.0 {
             let mirror = incident - 2.0 * dot(incident, normal) * normal;
             var l_r = vec3<f32>(0.0);
-            if (*w).mirrored && dot((*w).mirror, mirror) > MIRROR_COS {
+            if (*w).mirrored && dot((*w).mirror, mirror) > P.eye.w {
                 l_r = (*w).mirror_l;
             } else {
                 l_r = surroundings(x, mirror, ch);
