@@ -447,3 +447,46 @@ fn frame_time_of_the_glass_sphere() {
         psnr(&cpu, &g)
     );
 }
+
+/// A 256^3 grid (the device's 3D texture limit) uploads and renders: a
+/// glass sphere lit by a light volume, checked against the CPU at a few
+/// pixels. `cargo test --release -p eikon-view --test gpu -- --ignored`
+#[test]
+#[ignore]
+fn a_256_cubed_grid_fits() {
+    let Some(gpu) = gpu() else { return };
+    let text = r#"
+[grid]
+resolution = 256
+min = [-1, -1, -1]
+max = [1, 1, 1]
+
+[[object]]
+shape = { type = "sphere", center = [0, 0, 0], radius = 0.6 }
+index = 1.5
+extinction = [0.1, 0.1, 0.1]
+albedo = [0.5, 0.5, 0.5]
+
+[[light]]
+type = "directional"
+direction = [0, -1, 0]
+power = [1, 1, 1]
+
+[camera]
+position = [0, 0.5, 3]
+target = [0, 0, 0]
+fov = 40
+resolution = [24, 18]
+
+[background]
+type = "sky"
+"#;
+    let t = std::time::Instant::now();
+    let (cpu, g) = both(&gpu, text, Options::default());
+    let db = psnr(&cpu, &g);
+    println!(
+        "256^3: GPU vs CPU PSNR {db:.1} dB ({:.0} s in all)",
+        t.elapsed().as_secs_f64()
+    );
+    assert!(db >= 40.0, "{db}");
+}

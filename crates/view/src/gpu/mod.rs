@@ -243,6 +243,10 @@ impl<'a> GpuRenderer<'a> {
             let data = idx.as_slice().expect("standard layout");
             textures.push(flat_texture(gpu, &format!("index {c}"), dims, r32, 4, data));
         }
+        let scatters = properties
+            .texels
+            .iter()
+            .any(|t| t[1].truncate().max_element() > 0.0);
         let props: Vec<[f32; 4]> = properties
             .texels
             .iter()
@@ -405,7 +409,7 @@ impl<'a> GpuRenderer<'a> {
                 u32::from(!matches!(opts.method, Method::Euler)),
                 u32::from(opts.skip_empty),
                 u32::from(properties.emission.is_some()),
-                0,
+                u32::from(scatters),
             ],
             [
                 env_kind,

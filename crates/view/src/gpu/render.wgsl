@@ -38,7 +38,7 @@ struct Params {
     dims: vec4<u32>,
     // width, height, ray-step budget, light count.
     image: vec4<u32>,
-    // rk4, skip empty, has emission, direction arrays bound (unused).
+    // rk4, skip empty, anything emits, anything scatters.
     flags: vec4<u32>,
     // environment kind (0 constant, 1 lat-long), map width, height,
     // checkerboard present.
@@ -508,7 +508,12 @@ fn gather(x: vec3<f32>, grad: vec3<f32>, d: vec3<f32>, stp: f32, ch: u32, w: ptr
     if PASS.p.x != 0u && P.flags.z != 0u {
         source = load4(emis, t).xyz;
     }
-    let b = load4(propb, t);
+    // Nothing scatters where the medium has no albedo anywhere (the
+    // texture then holds zero scatter): its read is skipped.
+    var b = vec4<f32>(0.0);
+    if P.flags.w != 0u && PASS.p.y != 0u {
+        b = load4(propb, t);
+    }
     let scatter = b.xyz;
     if max3(scatter) > 0.0 && PASS.p.y != 0u {
         let e = load4(irr, t).xyz;
