@@ -20,23 +20,23 @@ use std::f64::consts::PI;
 /// The far field of one render: environment, optional checkerboard, and
 /// the receiver plane with the lights that illuminate it.
 pub struct Surroundings<'a> {
-    environment: Environment,
-    checker: Option<Checker>,
-    receiver: Option<Receiver>,
-    lights: &'a [Light],
-    volumes: &'a [LightVolume],
-    grid: &'a GridGeometry,
+    pub(crate) environment: Environment,
+    pub(crate) checker: Option<Checker>,
+    pub(crate) receiver: Option<Receiver>,
+    pub(crate) lights: &'a [Light],
+    pub(crate) volumes: &'a [LightVolume],
+    pub(crate) grid: &'a GridGeometry,
 }
 
 /// An emitting checkerboard plane.
 #[derive(Clone, Copy, Debug)]
-struct Checker {
-    point: DVec3,
-    normal: DVec3,
-    u: DVec3,
-    w: DVec3,
-    square: f64,
-    colors: [DVec3; 2],
+pub(crate) struct Checker {
+    pub(crate) point: DVec3,
+    pub(crate) normal: DVec3,
+    pub(crate) u: DVec3,
+    pub(crate) w: DVec3,
+    pub(crate) square: f64,
+    pub(crate) colors: [DVec3; 2],
 }
 
 /// A unit vector orthogonal to the unit `n` (a fixed, documented choice:

@@ -3,6 +3,7 @@
 pub mod camera;
 pub mod environment;
 pub mod fresnel;
+pub mod gpu;
 pub mod image;
 pub mod phase;
 

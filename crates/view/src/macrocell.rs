@@ -33,7 +33,7 @@ const CLEAR_CAP: u8 = 16;
 /// clear-distance field for the non-uniform blocks.
 #[derive(Clone, Debug)]
 pub struct MacroCells {
-    dims: [usize; 3],
+    pub(crate) dims: [usize; 3],
     min: DVec3,
     inv_block: DVec3,
     /// Voxel grid size, and per voxel the Chebyshev distance (in voxels,
@@ -42,10 +42,10 @@ pub struct MacroCells {
     voxel_dims: [usize; 3],
     inv_spacing: DVec3,
     voxel: f64,
-    clear: Vec<u8>,
+    pub(crate) clear: Vec<u8>,
     /// Per block: `[n, sigma_r, sigma_g, sigma_b]`, with `n` NaN where the
     /// block is not uniform.
-    cells: Vec<[f32; 4]>,
+    pub(crate) cells: Vec<[f32; 4]>,
 }
 
 impl MacroCells {

@@ -45,9 +45,9 @@ pub struct Sides {
 
 /// Packed optical properties of a medium (see the module docs).
 pub struct Properties {
-    texels: Vec<[Vec4; 2]>,
-    sides: Vec<Vec<[f32; 2]>>,
-    emission: Option<Vec<Vec4>>,
+    pub(crate) texels: Vec<[Vec4; 2]>,
+    pub(crate) sides: Vec<Vec<[f32; 2]>>,
+    pub(crate) emission: Option<Vec<Vec4>>,
     geometry: GridGeometry,
 }
 

@@ -106,7 +106,7 @@ pub type Progress<'a> = &'a (dyn Fn(usize, usize) + Sync);
 
 /// Mirror directions closer than this cosine (a quarter degree) share one
 /// lookup of the surroundings.
-const MIRROR_COS: f64 = 0.99999;
+pub(crate) const MIRROR_COS: f64 = 0.99999;
 
 /// Edge of a square tile of pixels, the unit of parallel work.
 pub const TILE: u32 = 16;
@@ -132,6 +132,14 @@ pub struct Renderer<'a> {
     /// Index at the eye, per channel (the field clamps to its border, so an
     /// eye outside the grid gets the ambient index there).
     eye_index: [f64; 3],
+}
+
+/// How far either side of a boundary voxel the interface sides are read
+/// ([`Properties`]): far enough out to clear the band (smoothing plus
+/// voxelization, about 4.5 voxels either side of the surface); walls
+/// thinner than this read too small a jump.
+pub(crate) fn probe_length(medium: &Medium) -> f64 {
+    (6.0 * medium.smoothing + 0.5).max(1.5) * medium.geometry.voxel_size()
 }
 
 /// Where a ray is, and what it has gathered.
@@ -165,7 +173,6 @@ impl<'a> Renderer<'a> {
         } else {
             Vec::new()
         };
-        let h = medium.geometry.voxel_size();
         Self {
             medium,
             volumes,
@@ -173,10 +180,7 @@ impl<'a> Renderer<'a> {
             camera,
             opts,
             cells,
-            // Interface sides are read far enough out to clear the band
-            // (smoothing plus voxelization, about 4.5 voxels either side of
-            // the surface): walls thinner than this read too small a jump.
-            properties: Properties::new(medium, (6.0 * medium.smoothing + 0.5).max(1.5) * h),
+            properties: Properties::new(medium, probe_length(medium)),
             eye_index: [0, 1, 2].map(|c| {
                 medium
                     .field(c.min(medium.channels() - 1))

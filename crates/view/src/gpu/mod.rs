@@ -1,0 +1,690 @@
+//! The `gpu` backend of the view renderer: the CPU renderer's image
+//! formation ([`crate::render`], paper 5.3, eqs 1-12) as a wgpu compute
+//! shader (`render.wgsl`), in f32.
+//!
+//! * The medium, its packed properties ([`Properties`], with the same
+//!   probe for the interface sides), and the light volumes are 3D textures
+//!   (`rgba32float`/`rg32float`), read with `textureLoad` and a manual
+//!   trilinear reconstruction in the grid's cell-centre convention (32-bit
+//!   float filtering is optional in WebGPU). Textures avoid the storage
+//!   binding limit (128 MiB on lavapipe): a 256^3 grid fits the 3D texture
+//!   limit of 256.
+//! * Empty-space skipping uses the CPU's [`MacroCells`] (block table and
+//!   per-voxel clear distance), uploaded as one storage buffer.
+//! * Eye rays: the camera's sample directions ([`Camera::ray`], the same
+//!   stratified, hashed positions as the CPU) are computed on the host in
+//!   f64 and uploaded as f32.
+//! * The device's limit of 16 sampled textures per stage leaves room for one
+//!   light volume at a time: a frame is one pass per light volume (at least
+//!   one), each marching the same rays; pass 0 adds what needs no light
+//!   volume, every pass its volume's in-scatter and receiver light (the
+//!   image is linear in them).
+//! * Tone mapping stays on the host ([`crate::image`]).
+//!
+//! Differences from the CPU: f32 instead of f64 arithmetic (the plane-hit
+//! rounding allowance is 2e-6 instead of 1e-9 of the scene's scale), and
+//! the samples of a pixel and the passes are summed in a different order.
+//! A zero direction looks up black instead of NaN in a lat-long map.
+
+use crate::background::Surroundings;
+use crate::camera::Camera;
+use crate::environment::Environment;
+use crate::image::Image;
+use crate::macrocell::{MacroCells, BLOCK};
+use crate::phase::G_MAX;
+use crate::properties::Properties;
+use crate::render::{probe_length, Options, MIRROR_COS};
+use eikon_gpu::{Gpu, GpuError};
+use eikon_grid::{Light, Medium, Method};
+use eikon_wavefront::LightVolume;
+use std::time::Instant;
+
+const SHADER: &str = include_str!("render.wgsl");
+
+/// Lights the shader's uniform block holds (for the receiver's direct
+/// lighting outside the grid).
+pub const MAX_LIGHTS: usize = 16;
+
+/// Largest eye-ray buffer of one chunk of samples, bytes.
+const RAY_CHUNK: u64 = 64 << 20;
+
+/// Workgroup edge (8 x 8 pixels).
+const TILE: u32 = 8;
+
+/// The view renderer on a GPU, with the scene uploaded.
+pub struct GpuRenderer<'a> {
+    gpu: &'a Gpu,
+    camera: Camera,
+    seed: u64,
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+    params: wgpu::Buffer,
+    /// idx0..2, propa, propb, emission, sides0..2.
+    medium_views: Vec<wgpu::TextureView>,
+    /// Per pass: irradiance, direction 0..2.
+    volume_views: Vec<[wgpu::TextureView; 4]>,
+    skip: wgpu::Buffer,
+    env: wgpu::Buffer,
+    rays: wgpu::Buffer,
+    accum: wgpu::Buffer,
+    /// Samples per chunk of rays.
+    chunk: u32,
+    /// The rays of the only chunk are uploaded once.
+    single_chunk: bool,
+    /// Whether there are light volumes (without, one pass binds a dark
+    /// placeholder).
+    lit: bool,
+    _textures: Vec<wgpu::Texture>,
+}
+
+/// Pack `[f32; 4]` as words.
+fn f4(v: [f64; 4]) -> [u32; 4] {
+    v.map(|x| (x as f32).to_bits())
+}
+
+fn v3(v: glam::DVec3, w: f64) -> [u32; 4] {
+    f4([v.x, v.y, v.z, w])
+}
+
+fn too_big(gpu: &Gpu, message: String) -> GpuError {
+    GpuError::Device {
+        adapter: gpu.info.name.clone(),
+        message,
+    }
+}
+
+/// A 3D texture of `dims` (grid x, y, z) whose texel `(i, j, k)` sits at
+/// texture `(k, j, i)`, filled by `slab(i0, i1)` with the bytes of grid
+/// slabs `i0..i1` (C order, `bytes` per texel).
+fn texture_3d(
+    gpu: &Gpu,
+    label: &str,
+    dims: [usize; 3],
+    format: wgpu::TextureFormat,
+    bytes: usize,
+    slab: &dyn Fn(usize, usize) -> Vec<u8>,
+) -> wgpu::Texture {
+    let [nx, ny, nz] = dims;
+    let texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width: nz as u32,
+            height: ny as u32,
+            depth_or_array_layers: nx as u32,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D3,
+        format,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    // Slabs of about 16 MiB keep the staging copies small.
+    let per = (16usize << 20) / (ny * nz * bytes).max(1);
+    let per = per.clamp(1, nx.max(1));
+    let mut i0 = 0;
+    while i0 < nx {
+        let i1 = (i0 + per).min(nx);
+        let data = slab(i0, i1);
+        gpu.queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture: &texture,
+                mip_level: 0,
+                origin: wgpu::Origin3d {
+                    x: 0,
+                    y: 0,
+                    z: i0 as u32,
+                },
+                aspect: wgpu::TextureAspect::All,
+            },
+            &data,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some((nz * bytes) as u32),
+                rows_per_image: Some(ny as u32),
+            },
+            wgpu::Extent3d {
+                width: nz as u32,
+                height: ny as u32,
+                depth_or_array_layers: (i1 - i0) as u32,
+            },
+        );
+        i0 = i1;
+    }
+    texture
+}
+
+/// A texture of 3-vectors per cell (`(nx, ny, nz, 3)` C order) as RGBA.
+fn vec3_texture(gpu: &Gpu, label: &str, dims: [usize; 3], data: &[f32]) -> wgpu::Texture {
+    let [_, ny, nz] = dims;
+    texture_3d(
+        gpu,
+        label,
+        dims,
+        wgpu::TextureFormat::Rgba32Float,
+        16,
+        &|i0, i1| {
+            let mut out = Vec::with_capacity((i1 - i0) * ny * nz * 4);
+            for c in data[i0 * ny * nz * 3..i1 * ny * nz * 3].chunks_exact(3) {
+                out.extend_from_slice(&[c[0], c[1], c[2], 0.0]);
+            }
+            bytemuck::cast_slice(&out).to_vec()
+        },
+    )
+}
+
+/// A texture of `width` floats per cell straight from a C-order array.
+fn flat_texture(
+    gpu: &Gpu,
+    label: &str,
+    dims: [usize; 3],
+    format: wgpu::TextureFormat,
+    width: usize,
+    data: &[f32],
+) -> wgpu::Texture {
+    let [_, ny, nz] = dims;
+    let layer = ny * nz * width;
+    texture_3d(gpu, label, dims, format, width * 4, &|i0, i1| {
+        bytemuck::cast_slice(&data[i0 * layer..i1 * layer]).to_vec()
+    })
+}
+
+impl<'a> GpuRenderer<'a> {
+    /// Upload `medium`, its light `volumes` (one per light, possibly none)
+    /// and `surroundings`, and compile the kernel, for frames seen by
+    /// `camera` with `opts`. A grid, environment map or image that does
+    /// not fit the device's limits is a [`GpuError::Device`] saying which.
+    pub fn new(
+        gpu: &'a Gpu,
+        medium: &Medium,
+        volumes: &[LightVolume],
+        surroundings: &Surroundings,
+        camera: &Camera,
+        opts: Options,
+    ) -> Result<Self, GpuError> {
+        let limits = gpu.device.limits();
+        let g = &medium.geometry;
+        let dims = g.dims;
+        let [nx, ny, nz] = dims;
+        let max3d = limits.max_texture_dimension_3d as usize;
+        if dims.iter().any(|&d| d > max3d) {
+            return Err(too_big(
+                gpu,
+                format!("the {nx}x{ny}x{nz} grid exceeds the 3D texture limit of {max3d} per axis"),
+            ));
+        }
+        if surroundings.lights.len() > MAX_LIGHTS {
+            return Err(too_big(
+                gpu,
+                format!(
+                    "{} lights; the GPU renderer takes at most {MAX_LIGHTS}",
+                    surroundings.lights.len()
+                ),
+            ));
+        }
+        let max_binding = u64::from(limits.max_storage_buffer_binding_size);
+        let check = |what: &str, bytes: u64| {
+            if bytes > max_binding {
+                Err(too_big(
+                    gpu,
+                    format!("the {what} needs {bytes} bytes, over the storage binding limit of {max_binding}"),
+                ))
+            } else {
+                Ok(())
+            }
+        };
+        let channels = medium.channels();
+        let properties = Properties::new(medium, probe_length(medium));
+        let mut textures = Vec::new();
+
+        // Index channels (reused for absent channels).
+        let r32 = wgpu::TextureFormat::Rgba32Float;
+        for (c, idx) in medium.index.iter().enumerate() {
+            let data = idx.as_slice().expect("standard layout");
+            textures.push(flat_texture(gpu, &format!("index {c}"), dims, r32, 4, data));
+        }
+        let scatters = properties
+            .texels
+            .iter()
+            .any(|t| t[1].truncate().max_element() > 0.0);
+        let props: Vec<[f32; 4]> = properties
+            .texels
+            .iter()
+            .flat_map(|t| [t[0].to_array(), t[1].to_array()])
+            .collect();
+        let flat: &[f32] = bytemuck::cast_slice(&props);
+        let layer = ny * nz;
+        let pick = |half: usize| {
+            move |i0: usize, i1: usize| -> Vec<u8> {
+                let mut out = Vec::with_capacity((i1 - i0) * layer * 16);
+                for f in i0 * layer..i1 * layer {
+                    out.extend_from_slice(bytemuck::cast_slice(
+                        &flat[8 * f + 4 * half..8 * f + 4 * half + 4],
+                    ));
+                }
+                out
+            }
+        };
+        let propa = texture_3d(gpu, "sigma delta", dims, r32, 16, &pick(0));
+        let propb = texture_3d(gpu, "scatter g", dims, r32, 16, &pick(1));
+        let tiny = [1usize, 1, 1];
+        let emission = match &properties.emission {
+            Some(e) => {
+                let data: Vec<f32> = e.iter().flat_map(|v| v.to_array()).collect();
+                flat_texture(gpu, "emission", dims, r32, 4, &data)
+            }
+            None => flat_texture(gpu, "no emission", tiny, r32, 4, &[0.0; 4]),
+        };
+        let sides: Vec<wgpu::Texture> = properties
+            .sides
+            .iter()
+            .enumerate()
+            .map(|(c, s)| {
+                let data: &[f32] = bytemuck::cast_slice(s);
+                flat_texture(
+                    gpu,
+                    &format!("sides {c}"),
+                    dims,
+                    wgpu::TextureFormat::Rg32Float,
+                    2,
+                    data,
+                )
+            })
+            .collect();
+        let view = |t: &wgpu::Texture| t.create_view(&Default::default());
+        let mut medium_views: Vec<wgpu::TextureView> = (0..3)
+            .map(|c| view(&textures[c.min(channels - 1)]))
+            .collect();
+        medium_views.push(view(&propa));
+        medium_views.push(view(&propb));
+        medium_views.push(view(&emission));
+        medium_views.extend((0..3).map(|c| view(&sides[c.min(channels - 1)])));
+        textures.extend([propa, propb, emission]);
+        textures.extend(sides);
+
+        // One pass per light volume; a dark placeholder without any.
+        let mut volume_views = Vec::new();
+        for (j, v) in volumes.iter().enumerate() {
+            let irr = vec3_texture(
+                gpu,
+                &format!("irradiance {j}"),
+                dims,
+                v.irradiance.as_slice().expect("standard layout"),
+            );
+            let dirs: Vec<wgpu::Texture> = v
+                .direction
+                .iter()
+                .enumerate()
+                .map(|(c, d)| {
+                    vec3_texture(
+                        gpu,
+                        &format!("direction {j}.{c}"),
+                        dims,
+                        d.as_slice().expect("standard layout"),
+                    )
+                })
+                .collect();
+            let k = dirs.len();
+            volume_views.push([
+                view(&irr),
+                view(&dirs[0]),
+                view(&dirs[1.min(k - 1)]),
+                view(&dirs[2.min(k - 1)]),
+            ]);
+            textures.push(irr);
+            textures.extend(dirs);
+        }
+        if volumes.is_empty() {
+            let dark = flat_texture(gpu, "no light volume", tiny, r32, 4, &[0.0; 4]);
+            volume_views.push([view(&dark), view(&dark), view(&dark), view(&dark)]);
+            textures.push(dark);
+        }
+
+        // Empty-space skipping: per channel the block table, then per
+        // channel the clear distances (four to a word).
+        let blocks = dims.map(|d| d.div_ceil(BLOCK));
+        let nblocks = blocks[0] * blocks[1] * blocks[2];
+        let clear_words = g.voxel_count().div_ceil(4);
+        let mut skip: Vec<u32> = Vec::new();
+        if opts.skip_empty {
+            let cells: Vec<MacroCells> =
+                (0..channels).map(|c| MacroCells::new(medium, c)).collect();
+            for m in &cells {
+                debug_assert_eq!(m.dims, blocks);
+                for c in &m.cells {
+                    if c[0].is_nan() {
+                        skip.extend([u32::MAX; 4]);
+                    } else {
+                        skip.extend(c.map(f32::to_bits));
+                    }
+                }
+            }
+            for m in &cells {
+                let mut words = vec![0u32; clear_words];
+                for (f, &d) in m.clear.iter().enumerate() {
+                    words[f / 4] |= u32::from(d) << (8 * (f % 4));
+                }
+                skip.extend(words);
+            }
+        } else {
+            skip.push(0);
+        }
+        check("empty-space table", skip.len() as u64 * 4)?;
+        let skip = gpu.storage("empty space", &skip);
+
+        // The environment map, RGB per texel.
+        let (env_kind, env_w, env_h, env_const, env_data) = match &surroundings.environment {
+            Environment::Constant(c) => (0u32, 1u32, 1u32, *c, vec![0.0f32; 3]),
+            Environment::LatLong(m) => (
+                1,
+                m.width() as u32,
+                m.height() as u32,
+                [0.0; 3],
+                m.data().iter().flatten().copied().collect(),
+            ),
+        };
+        check("environment map", env_data.len() as u64 * 4)?;
+        let env = gpu.storage("environment", &env_data);
+
+        // Image and rays.
+        let (w, h) = (camera.width(), camera.height());
+        let pixels = u64::from(w) * u64::from(h);
+        check("image", pixels * 12)?;
+        let per_sample = pixels * 12;
+        check("eye rays of one sample", per_sample)?;
+        let chunk = (RAY_CHUNK.min(max_binding) / per_sample).clamp(1, u64::from(camera.samples()));
+        let chunk = chunk as u32;
+        let rays = gpu.storage_empty("eye rays", per_sample * u64::from(chunk));
+        let accum = gpu.storage_empty("radiance", pixels * 12);
+
+        // Uniforms, in the order of `Params` in the shader.
+        let hvox = g.voxel_size();
+        let ds = opts.step * hvox;
+        let budget = (64.0 * g.diagonal() / ds) as u64 + 16;
+        let budget = budget.min(u64::from(u32::MAX)) as u32;
+        let mut p: Vec<[u32; 4]> = vec![
+            [nx as u32, ny as u32, nz as u32, channels as u32],
+            [w, h, budget, surroundings.lights.len() as u32],
+            [
+                u32::from(!matches!(opts.method, Method::Euler)),
+                u32::from(opts.skip_empty),
+                u32::from(properties.emission.is_some()),
+                u32::from(scatters),
+            ],
+            [
+                env_kind,
+                env_w,
+                env_h,
+                u32::from(surroundings.checker.is_some()),
+            ],
+            [
+                u32::from(surroundings.receiver.is_some()),
+                (4 * nblocks) as u32,
+                (channels * 4 * nblocks) as u32,
+                clear_words as u32,
+            ],
+            [blocks[0] as u32, blocks[1] as u32, blocks[2] as u32, 0],
+            v3(g.min, hvox),
+            v3(g.max, g.diagonal()),
+            v3(1.0 / g.spacing(), ds),
+            v3(1.0 / (g.spacing() * BLOCK as f64), opts.min_transmittance),
+            v3(camera.position(), MIRROR_COS),
+            f4([
+                env_const[0] as f64,
+                env_const[1] as f64,
+                env_const[2] as f64,
+                G_MAX,
+            ]),
+        ];
+        let ck = surroundings.checker;
+        let z = glam::DVec3::ZERO;
+        p.push(v3(ck.map_or(z, |c| c.point), ck.map_or(1.0, |c| c.square)));
+        p.push(v3(ck.map_or(z, |c| c.normal), 0.0));
+        p.push(v3(ck.map_or(z, |c| c.u), 0.0));
+        p.push(v3(ck.map_or(z, |c| c.w), 0.0));
+        p.push(v3(ck.map_or(z, |c| c.colors[0]), 0.0));
+        p.push(v3(ck.map_or(z, |c| c.colors[1]), 0.0));
+        let rc = surroundings.receiver.as_ref();
+        p.push(v3(rc.map_or(z, |r| r.point), 0.0));
+        p.push(v3(rc.map_or(z, |r| r.normal), 0.0));
+        p.push(v3(rc.map_or(z, |r| r.albedo), 0.0));
+        for k in 0..MAX_LIGHTS {
+            let l = match surroundings.lights.get(k) {
+                None => [[0; 4]; 3],
+                Some(Light::Directional { direction, power }) => {
+                    [v3(*direction, 0.0), v3(z, 0.0), v3(*power, 0.0)]
+                }
+                Some(Light::Point { position, power }) => {
+                    [v3(*position, 1.0), v3(z, 0.0), v3(*power, 0.0)]
+                }
+                Some(Light::Spot {
+                    position,
+                    direction,
+                    angle,
+                    falloff,
+                    power,
+                }) => [
+                    v3(*position, 2.0),
+                    v3(*direction, *angle),
+                    v3(*power, *falloff),
+                ],
+            };
+            p.extend(l);
+        }
+        let params = gpu.uniform("view params", &p);
+
+        let (pipeline, layout) = gpu.checked("view renderer pipeline", || {
+            let tex = |binding: u32| wgpu::BindGroupLayoutEntry {
+                binding,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::Texture {
+                    sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                    view_dimension: wgpu::TextureViewDimension::D3,
+                    multisampled: false,
+                },
+                count: None,
+            };
+            let buf = |binding: u32, ty: wgpu::BufferBindingType| wgpu::BindGroupLayoutEntry {
+                binding,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::Buffer {
+                    ty,
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
+                },
+                count: None,
+            };
+            let mut entries = vec![
+                buf(0, wgpu::BufferBindingType::Uniform),
+                buf(1, wgpu::BufferBindingType::Uniform),
+            ];
+            entries.extend((2..15).map(tex));
+            for b in 15..18 {
+                entries.push(buf(b, wgpu::BufferBindingType::Storage { read_only: true }));
+            }
+            entries.push(buf(
+                18,
+                wgpu::BufferBindingType::Storage { read_only: false },
+            ));
+            let layout = gpu
+                .device
+                .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                    label: Some("view renderer"),
+                    entries: &entries,
+                });
+            let pl = gpu
+                .device
+                .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                    label: Some("view renderer"),
+                    bind_group_layouts: &[&layout],
+                    push_constant_ranges: &[],
+                });
+            let module = gpu
+                .device
+                .create_shader_module(wgpu::ShaderModuleDescriptor {
+                    label: Some("view renderer"),
+                    source: wgpu::ShaderSource::Wgsl(SHADER.into()),
+                });
+            let pipeline = gpu
+                .device
+                .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some("view renderer"),
+                    layout: Some(&pl),
+                    module: &module,
+                    entry_point: Some("render"),
+                    compilation_options: Default::default(),
+                    cache: None,
+                });
+            (pipeline, layout)
+        })?;
+
+        let single_chunk = chunk >= camera.samples();
+        let renderer = Self {
+            gpu,
+            camera: camera.clone(),
+            seed: opts.seed,
+            pipeline,
+            layout,
+            params,
+            medium_views,
+            volume_views,
+            skip,
+            env,
+            rays,
+            accum,
+            chunk,
+            single_chunk,
+            lit: !volumes.is_empty(),
+            _textures: textures,
+        };
+        if single_chunk {
+            renderer.upload_rays(0, camera.samples());
+        }
+        Ok(renderer)
+    }
+
+    /// Write the eye-ray directions of samples `s0..s1` (sample-major,
+    /// then pixel rows) into the ray buffer.
+    fn upload_rays(&self, s0: u32, s1: u32) {
+        let cam = &self.camera;
+        let (w, h) = (cam.width(), cam.height());
+        let mut dirs = Vec::with_capacity(((s1 - s0) * w * h * 3) as usize);
+        for s in s0..s1 {
+            for y in 0..h {
+                for x in 0..w {
+                    let (_, d) = cam.ray(x, y, s, self.seed);
+                    dirs.extend([d.x as f32, d.y as f32, d.z as f32]);
+                }
+            }
+        }
+        self.gpu
+            .queue
+            .write_buffer(&self.rays, 0, bytemuck::cast_slice(&dirs));
+    }
+
+    /// Submit one frame's work and wait for it.
+    fn run_frame(&self) -> Result<(), GpuError> {
+        let gpu = self.gpu;
+        let cam = &self.camera;
+        let n = cam.samples();
+        let (gx, gy) = (cam.width().div_ceil(TILE), cam.height().div_ceil(TILE));
+        let mut s0 = 0;
+        let mut first = true;
+        while s0 < n {
+            let s1 = (s0 + self.chunk).min(n);
+            if !self.single_chunk {
+                self.upload_rays(s0, s1);
+            }
+            gpu.checked("view render", || {
+                let mut enc = gpu.device.create_command_encoder(&Default::default());
+                if first {
+                    enc.clear_buffer(&self.accum, 0, None);
+                }
+                // Uniform buffers and bind groups live until the submit.
+                let mut groups = Vec::new();
+                for (j, vol) in self.volume_views.iter().enumerate() {
+                    let pass = gpu.uniform(
+                        "view pass",
+                        &[[u32::from(j == 0), u32::from(self.lit), s0, s1 - s0]],
+                    );
+                    let mut entries = vec![
+                        wgpu::BindGroupEntry {
+                            binding: 0,
+                            resource: self.params.as_entire_binding(),
+                        },
+                        wgpu::BindGroupEntry {
+                            binding: 1,
+                            resource: pass.as_entire_binding(),
+                        },
+                    ];
+                    let views = self.medium_views.iter().chain(vol.iter());
+                    for (k, v) in views.enumerate() {
+                        entries.push(wgpu::BindGroupEntry {
+                            binding: 2 + k as u32,
+                            resource: wgpu::BindingResource::TextureView(v),
+                        });
+                    }
+                    for (b, buf) in [&self.skip, &self.env, &self.rays, &self.accum]
+                        .into_iter()
+                        .enumerate()
+                    {
+                        entries.push(wgpu::BindGroupEntry {
+                            binding: 15 + b as u32,
+                            resource: buf.as_entire_binding(),
+                        });
+                    }
+                    let group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                        label: Some("view renderer"),
+                        layout: &self.layout,
+                        entries: &entries,
+                    });
+                    groups.push((pass, group));
+                }
+                for (_, group) in &groups {
+                    let mut cp = enc.begin_compute_pass(&Default::default());
+                    cp.set_pipeline(&self.pipeline);
+                    cp.set_bind_group(0, group, &[]);
+                    cp.dispatch_workgroups(gx, gy, 1);
+                }
+                gpu.queue.submit([enc.finish()]);
+            })?;
+            first = false;
+            s0 = s1;
+        }
+        gpu.device
+            .poll(wgpu::PollType::Wait)
+            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        Ok(())
+    }
+
+    /// Render one frame (volumes already uploaded); returns the HDR image,
+    /// the same struct as the CPU's: per pixel the mean over its samples.
+    pub fn render(&self) -> Result<Image, GpuError> {
+        self.run_frame()?;
+        let (w, h) = (self.camera.width(), self.camera.height());
+        let sum: Vec<f32> = self.gpu.read(&self.accum, (w * h * 3) as usize)?;
+        let n = f64::from(self.camera.samples());
+        let data = sum
+            .chunks_exact(3)
+            .map(|c| [0, 1, 2].map(|k| (f64::from(c[k]) / n) as f32))
+            .collect();
+        Ok(Image {
+            width: w,
+            height: h,
+            data,
+        })
+    }
+
+    /// Render `frames` frames back to back and return the mean seconds per
+    /// frame measured on the GPU side (submit..done), for benchmarks.
+    pub fn time_frames(&self, frames: u32) -> Result<f64, GpuError> {
+        let frames = frames.max(1);
+        let mut total = 0.0;
+        for _ in 0..frames {
+            let t = Instant::now();
+            self.run_frame()?;
+            total += t.elapsed().as_secs_f64();
+        }
+        Ok(total / f64::from(frames))
+    }
+}
