@@ -1,6 +1,7 @@
 //! `eikon`: light transport in refractive volumes, from the command line.
 
 mod backend;
+mod bench;
 mod compare;
 mod exact;
 mod export;
@@ -42,6 +43,8 @@ enum Command {
     Run(run::Args),
     /// Simulate and render a built-in scene (a glass sphere and its caustic): no files needed.
     Demo(run::DemoArgs),
+    /// Time the standard scenes' light simulation and 800x600 frames on every available backend.
+    Bench(bench::Args),
     /// Render a scene with a mesh-bounded medium by every method (eikonal, walter, holzschuch, straight), side by side, with errors and times.
     Compare(compare::Args),
     /// Write a scene's volumes (index, gradient, extinction, light) as OpenVDB grids and/or NumPy arrays.
@@ -68,6 +71,7 @@ fn main() -> ExitCode {
         Command::Demo(a) => run::demo(a),
         Command::Export(a) => export::run(a),
         Command::Compare(a) => compare::run(a),
+        Command::Bench(a) => bench::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -306,6 +306,13 @@ pub fn render_image(
         );
     }
     let surroundings = Surroundings::new(scene, env, volumes, &medium.geometry);
+    if let Backend::Gpu(gpu) = backend {
+        let started = Instant::now();
+        let renderer =
+            eikon_view::gpu::GpuRenderer::new(gpu, medium, volumes, &surroundings, &camera, opts)?;
+        let image = renderer.render()?;
+        return Ok((image, Stats::default(), started.elapsed().as_secs_f64()));
+    }
     let renderer = Renderer::new(medium, volumes, &surroundings, &camera, opts);
 
     let bar = indicatif::ProgressBar::new(0);

@@ -221,7 +221,9 @@ pub fn run(args: Args) -> Result<()> {
     let medium = build_medium(&scene)?;
     let backend = if args.method == SimMethod::Photons {
         if args.backend.backend == Some(crate::backend::BackendArg::Gpu) {
-            bail!("--backend gpu: photons run on the CPU only (--method wavefront runs on the GPU)");
+            bail!(
+                "--backend gpu: photons run on the CPU only (--method wavefront runs on the GPU)"
+            );
         }
         Backend::Cpu
     } else {

@@ -496,11 +496,13 @@ struct Walk {
     mirror_l: vec3<f32>,
     has_incident: bool,
     incident: vec3<f32>,
+    // Index at the eye (render.rs `eye_index`).
+    n_eye: f32,
 }
 
 // Eq 1 over one step of length `stp` from x along the unit d: in-scatter
 // (eqs 2, 3, 6), emission, attenuation (eq 5) and Fresnel at boundaries.
-fn gather(x: vec3<f32>, grad: vec3<f32>, d: vec3<f32>, stp: f32, ch: u32, w: ptr<function, Walk>) {
+fn gather(x: vec3<f32>, n: f32, grad: vec3<f32>, d: vec3<f32>, stp: f32, ch: u32, w: ptr<function, Walk>) {
     let t = tri(x);
     let a = load4(propa, t);
     let sigma = a.xyz;
@@ -526,6 +528,10 @@ fn gather(x: vec3<f32>, grad: vec3<f32>, d: vec3<f32>, stp: f32, ch: u32, w: ptr
             }
         }
     }
+    // The radiance law (render.rs): radiance arising where the index is n
+    // reaches the eye scaled by (n_eye / n)^2.
+    let k = (*w).n_eye / n;
+    source *= k * k;
     // Exact for constant sigma and S over the step:
     // int_0^ds exp(-sigma s) ds = (1 - exp(-sigma ds)) / sigma.
     if max3(sigma) > 0.0 {
@@ -638,6 +644,7 @@ fn march(o: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
     w.steps = 0u;
     w.mirrored = false;
     w.has_incident = false;
+    w.n_eye = field(ch, P.eye.xyz).x;
     let budget = P.image.z;
     let skip_empty = P.flags.y != 0u;
     while w.steps < budget {
@@ -706,7 +713,7 @@ fn march(o: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
             let stp = min(ds, max(exit, 1e-6 * h));
             let xs = w.x;
             let f = field(ch, xs);
-            gather(xs, f.yzw, dir, stp, ch, &w);
+            gather(xs, f.x, f.yzw, dir, stp, ch, &w);
             if P.flags.x != 0u {
                 rk4(ch, &w, stp);
             } else {

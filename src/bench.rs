@@ -1,0 +1,267 @@
+//! `eikon bench`: the standard scenes on every available backend, with
+//! light-simulation time, frame time and peak memory.
+//!
+//! Each (scene, backend) pair runs in a child process of its own
+//! (`eikon bench --one ...`), so that its peak resident memory is its own.
+//! Times are medians over `--runs` simulations and `--frames` frames after
+//! one untimed warm-up frame; building the grid, uploading it to the GPU
+//! and compiling kernels are not timed.
+
+use crate::backend::{is_software, Backend, BackendArg, BackendFlag};
+use anyhow::{bail, Context, Result};
+use eikon_grid::{Medium, Scene};
+use eikon_view::{Camera, Options, Renderer, Surroundings};
+use serde_json::{json, Value};
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// The standard scenes: name and TOML text.
+fn standard() -> Vec<(&'static str, String)> {
+    let sphere = include_str!("../configs/glass-sphere.toml");
+    vec![
+        ("glass-sphere-128", sphere.to_string()),
+        (
+            "glass-sphere-256",
+            sphere.replace("resolution = 128", "resolution = 256"),
+        ),
+    ]
+}
+
+/// Arguments of `eikon bench`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Scene files to run instead of the standard scenes (the 128^3 and
+    /// 256^3 glass sphere of Ihrke et al. Fig. 7).
+    #[arg(long)]
+    scene: Vec<PathBuf>,
+    /// Backends to run (default: the CPU, and the GPU when an adapter
+    /// exists, software ones included).
+    #[arg(long, value_enum, value_delimiter = ',')]
+    backends: Vec<BackendArg>,
+    /// Simulations per scene and backend (the median is reported).
+    #[arg(long, default_value_t = 3)]
+    runs: usize,
+    /// Frames per scene and backend, 800x600 (the median is reported).
+    #[arg(long, default_value_t = 5)]
+    frames: u32,
+    /// Print the table as JSON.
+    #[arg(long)]
+    json: bool,
+    /// Run one scene on one backend and print its figures as JSON (what
+    /// the parent runs in a child process).
+    #[arg(long, hide = true)]
+    one: Option<String>,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        f64::NAN
+    } else if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// Peak resident memory of this process, MiB (Linux; `None` elsewhere).
+fn peak_rss_mib() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
+}
+
+/// The figures of one scene on one backend, in this process.
+fn one(name: &str, text: &str, backend: Backend, runs: usize, frames: u32) -> Result<Value> {
+    let scene = Scene::parse(text, name)?;
+    let medium = Medium::build(&scene)?;
+    let opts = eikon_wavefront::Options::default();
+    eikon_wavefront::check_scene(&scene, &medium, &opts)?;
+    let quiet = |_: usize, _: usize| {};
+    let mut sims = Vec::new();
+    let mut volumes = Vec::new();
+    let mut patches = 0;
+    match &backend {
+        Backend::Cpu => {
+            for _ in 0..runs.max(1) {
+                let t = Instant::now();
+                volumes.clear();
+                for l in &scene.lights {
+                    let (v, s) = eikon_wavefront::simulate_light(l, &medium, &opts, &quiet)?;
+                    patches = patches.max(s.peak_patches);
+                    volumes.push(v);
+                }
+                sims.push(t.elapsed().as_secs_f64());
+            }
+        }
+        Backend::Gpu(gpu) => {
+            let sim = eikon_wavefront::gpu::GpuSimulator::new(gpu, &medium)?;
+            for _ in 0..runs.max(1) {
+                let t = Instant::now();
+                volumes.clear();
+                for l in &scene.lights {
+                    let (v, s) = sim.simulate(l, &opts, &quiet)?;
+                    patches = patches.max(s.peak_patches);
+                    volumes.push(v);
+                }
+                sims.push(t.elapsed().as_secs_f64());
+            }
+        }
+    }
+    let cs = eikon_view::render::camera_settings(&scene);
+    let camera = Camera::new(cs.position, cs.target, cs.up, cs.fov, 800, 600, 1)?;
+    let env = eikon_view::background::load_environment(&scene.background)?;
+    let surroundings = Surroundings::new(&scene, env, &volumes, &medium.geometry);
+    let ropts = Options::default();
+    let frame = match &backend {
+        Backend::Cpu => {
+            let r = Renderer::new(&medium, &volumes, &surroundings, &camera, ropts);
+            r.render(&quiet);
+            median(
+                (0..frames.max(1))
+                    .map(|_| {
+                        let t = Instant::now();
+                        r.render(&quiet);
+                        t.elapsed().as_secs_f64()
+                    })
+                    .collect(),
+            )
+        }
+        Backend::Gpu(gpu) => {
+            let r = eikon_view::gpu::GpuRenderer::new(
+                gpu,
+                &medium,
+                &volumes,
+                &surroundings,
+                &camera,
+                ropts,
+            )?;
+            r.render()?;
+            median(
+                (0..frames.max(1))
+                    .map(|_| r.time_frames(1))
+                    .collect::<Result<Vec<_>, _>>()?,
+            )
+        }
+    };
+    Ok(json!({
+        "scene": name,
+        "dims": medium.geometry.dims,
+        "backend": backend.name(),
+        "device": backend.describe(),
+        "simulate_seconds": median(sims.clone()),
+        "simulate_runs": sims,
+        "peak_patches": patches,
+        "frame_seconds": frame,
+        "frames_per_second": 1.0 / frame,
+        "peak_rss_mib": peak_rss_mib(),
+    }))
+}
+
+/// Run `eikon bench`.
+pub fn run(args: Args) -> Result<()> {
+    let scenes: Vec<(String, String)> = if args.scene.is_empty() {
+        standard()
+            .into_iter()
+            .map(|(n, t)| (n.to_string(), t))
+            .collect()
+    } else {
+        args.scene
+            .iter()
+            .map(|p| {
+                let text = std::fs::read_to_string(p)
+                    .with_context(|| format!("{}: cannot read the scene", p.display()))?;
+                Scene::parse(&text, &p.display().to_string())?;
+                Ok((p.display().to_string(), text))
+            })
+            .collect::<Result<_>>()?
+    };
+    if let Some(spec) = &args.one {
+        let Some((name, text)) = scenes.iter().find(|(n, _)| n == spec) else {
+            bail!("--one: no scene {spec}");
+        };
+        let backend = BackendFlag {
+            backend: Some(args.backends.first().copied().unwrap_or(BackendArg::Cpu)),
+        }
+        .select(true)?;
+        let v = one(name, text, backend, args.runs, args.frames)?;
+        println!("{}", serde_json::to_string(&v)?);
+        return Ok(());
+    }
+    let backends = if args.backends.is_empty() {
+        match eikon_gpu::Gpu::new() {
+            Ok(g) => {
+                eprintln!(
+                    "GPU adapter: {}{}",
+                    g.describe(),
+                    if is_software(&g) {
+                        " (software: the CPU-emulated baseline)"
+                    } else {
+                        ""
+                    }
+                );
+                vec![BackendArg::Cpu, BackendArg::Gpu]
+            }
+            Err(e) => {
+                eprintln!("no GPU backend: {e}");
+                vec![BackendArg::Cpu]
+            }
+        }
+    } else {
+        args.backends.clone()
+    };
+    let exe = std::env::current_exe().context("finding the eikon executable")?;
+    let mut rows = Vec::new();
+    for (name, _) in &scenes {
+        for b in &backends {
+            let bname = match b {
+                BackendArg::Cpu => "cpu",
+                BackendArg::Gpu => "gpu",
+            };
+            eprintln!("{name} on {bname} ...");
+            let mut cmd = std::process::Command::new(&exe);
+            cmd.args(["bench", "--one", name, "--backends", bname]);
+            cmd.args(["--runs", &args.runs.to_string()]);
+            cmd.args(["--frames", &args.frames.to_string()]);
+            for s in &args.scene {
+                cmd.arg("--scene").arg(s);
+            }
+            let out = cmd.output().context("running a benchmark child")?;
+            if !out.status.success() {
+                bail!(
+                    "{name} on {bname} failed: {}",
+                    String::from_utf8_lossy(&out.stderr).trim()
+                );
+            }
+            let v: Value = serde_json::from_slice(&out.stdout)
+                .with_context(|| format!("{name} on {bname}: unreadable figures"))?;
+            rows.push(v);
+        }
+    }
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&json!({ "runs": rows }))?
+        );
+        return Ok(());
+    }
+    println!(
+        "{:<20} {:<5} {:>12} {:>12} {:>10} {:>10}  device",
+        "scene", "", "simulate s", "frame ms", "fps", "peak MiB"
+    );
+    for r in &rows {
+        println!(
+            "{:<20} {:<5} {:>12.3} {:>12.2} {:>10.1} {:>10.0}  {}",
+            r["scene"].as_str().unwrap_or("?"),
+            r["backend"].as_str().unwrap_or("?"),
+            r["simulate_seconds"].as_f64().unwrap_or(f64::NAN),
+            1e3 * r["frame_seconds"].as_f64().unwrap_or(f64::NAN),
+            r["frames_per_second"].as_f64().unwrap_or(f64::NAN),
+            r["peak_rss_mib"].as_f64().unwrap_or(f64::NAN),
+            r["device"].as_str().unwrap_or("?"),
+        );
+    }
+    Ok(())
+}
