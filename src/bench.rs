@@ -1,5 +1,5 @@
 //! `eikon bench`: the standard scenes on every available backend, with
-//! light-simulation time, frame time and peak memory.
+//! light-simulation time, frame time (800x600 unless told) and peak memory.
 //!
 //! Each (scene, backend) pair runs in a child process of its own
 //! (`eikon bench --one ...`), so that its peak resident memory is its own.
@@ -41,9 +41,15 @@ pub struct Args {
     /// Simulations per scene and backend (the median is reported).
     #[arg(long, default_value_t = 3)]
     runs: usize,
-    /// Frames per scene and backend, 800x600 (the median is reported).
+    /// Frames per scene and backend (the median is reported).
     #[arg(long, default_value_t = 5)]
     frames: u32,
+    /// Frame width, pixels.
+    #[arg(long, default_value_t = 800)]
+    width: u32,
+    /// Frame height, pixels.
+    #[arg(long, default_value_t = 600)]
+    height: u32,
     /// Print the table as JSON.
     #[arg(long)]
     json: bool,
@@ -74,7 +80,8 @@ fn peak_rss_mib() -> Option<f64> {
 }
 
 /// The figures of one scene on one backend, in this process.
-fn one(name: &str, text: &str, backend: Backend, runs: usize, frames: u32) -> Result<Value> {
+fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
+    let (runs, frames) = (args.runs, args.frames);
     let scene = Scene::parse(text, name)?;
     let medium = Medium::build(&scene)?;
     let opts = eikon_wavefront::Options::default();
@@ -111,7 +118,15 @@ fn one(name: &str, text: &str, backend: Backend, runs: usize, frames: u32) -> Re
         }
     }
     let cs = eikon_view::render::camera_settings(&scene);
-    let camera = Camera::new(cs.position, cs.target, cs.up, cs.fov, 800, 600, 1)?;
+    let camera = Camera::new(
+        cs.position,
+        cs.target,
+        cs.up,
+        cs.fov,
+        args.width,
+        args.height,
+        1,
+    )?;
     let env = eikon_view::background::load_environment(&scene.background)?;
     let surroundings = Surroundings::new(&scene, env, &volumes, &medium.geometry);
     let ropts = Options::default();
@@ -154,6 +169,7 @@ fn one(name: &str, text: &str, backend: Backend, runs: usize, frames: u32) -> Re
         "simulate_seconds": median(sims.clone()),
         "simulate_runs": sims,
         "peak_patches": patches,
+        "frame": [args.width, args.height],
         "frame_seconds": frame,
         "frames_per_second": 1.0 / frame,
         "peak_rss_mib": peak_rss_mib(),
@@ -186,7 +202,7 @@ pub fn run(args: Args) -> Result<()> {
             backend: Some(args.backends.first().copied().unwrap_or(BackendArg::Cpu)),
         }
         .select(true)?;
-        let v = one(name, text, backend, args.runs, args.frames)?;
+        let v = one(name, text, backend, &args)?;
         println!("{}", serde_json::to_string(&v)?);
         return Ok(());
     }
@@ -225,6 +241,8 @@ pub fn run(args: Args) -> Result<()> {
             cmd.args(["bench", "--one", name, "--backends", bname]);
             cmd.args(["--runs", &args.runs.to_string()]);
             cmd.args(["--frames", &args.frames.to_string()]);
+            cmd.args(["--width", &args.width.to_string()]);
+            cmd.args(["--height", &args.height.to_string()]);
             for s in &args.scene {
                 cmd.arg("--scene").arg(s);
             }
