@@ -259,20 +259,58 @@ impl PnTree {
         let mid = 0.5 * (v + l);
         let dist_vl = (l - v).length();
         let axis = (l - v) / dist_vl;
-        let mut stack = vec![self.root];
+        // The exact spindle: the deviation `θ_L − θ_V` of a refraction is at
+        // most `γ = π/2 − asin(1/η)`, so the angle V P L is at least
+        // `π − γ`; by the inscribed-angle theorem `P` lies in the lens
+        // `|P − M|² + |LV| cot(γ) r <= |LV|²/4`, `cot γ = 1/sqrt(η² − 1)`
+        // (eq 16 uses the smaller, looser `1/η`).
+        let spindle_k = if eta > 1.0 {
+            dist_vl / (eta * eta - 1.0).sqrt()
+        } else {
+            0.0
+        };
+        let spindle_r2 = 0.25 * dist_vl * dist_vl * (1.0 + 1e-9);
+        // The critical angle: inside the denser medium a refracted
+        // direction is within `asin(1/η)` of the inward normal (`ω̂_V` of
+        // `−N̂_s` for `η > 1`; `ω̂_L` of `N̂_s` for `η < 1`).
+        let critical = if eta > 1.0 {
+            (1.0 / eta).asin()
+        } else {
+            eta.asin()
+        } + 1e-9;
+        let mut stack = Vec::with_capacity(64);
+        stack.push(self.root);
         while let Some(i) = stack.pop() {
             let n = &self.nodes[i as usize];
             stats.visited += 1;
-            // Spindle test (eq 16): a lower bound of |P − M|² over the box
-            // plus (|LV|/η) times a lower bound of the distance to line VL.
+            // Spindle test: a lower bound of |P − M|² over the box plus
+            // |LV| cot γ times a lower bound of the distance to line VL.
             if eta > 1.0 && dist_vl > 0.0 {
                 let d_box = (mid.clamp(n.lo, n.hi) - mid).length_squared();
                 let w = n.center - v;
                 let r_line = (w - axis * w.dot(axis)).length();
                 let r_min = (r_line - n.radius).max(0.0);
-                if d_box + dist_vl / eta * r_min > 0.25 * dist_vl * dist_vl * (1.0 + 1e-9) {
+                if d_box + spindle_k * r_min > spindle_r2 {
                     stats.spindle += 1;
                     continue;
+                }
+            }
+            // Critical angle, then sidedness (both about the normal cone).
+            if eta != 1.0 && n.cone.is_convex() {
+                let (x, toward) = if eta > 1.0 {
+                    (v, -n.cone.axis)
+                } else {
+                    (l, n.cone.axis)
+                };
+                let w = x - n.center;
+                let d = w.length();
+                if d > n.radius * (1.0 + 1e-9) {
+                    let cos_a = (w.dot(toward) / d).clamp(-1.0, 1.0);
+                    let spread = (n.radius / d).asin() + n.cone.angle + critical;
+                    if spread < PI && cos_a < spread.cos() - 1e-12 {
+                        stats.sidedness += 1;
+                        continue;
+                    }
                 }
             }
             if !sided(n, l, 1.0) || !sided(n, v, -1.0) {
