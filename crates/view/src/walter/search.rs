@@ -277,8 +277,8 @@ fn excluded_on(pi: &Problem<Interval>, q: &[DVec2; 3], depth: u32) -> bool {
         let g0 = dot_fi(w, fc);
         let (a0, a1) = (dot_fi(w, e.fu), dot_fi(w, e.fv));
         let (m0, m1) = (a0.mid(), a1.mid());
-        let rad = (a0.hi() - m0).max(m0 - a0.lo()) * dmax.x
-            + (a1.hi() - m1).max(m1 - a1.lo()) * dmax.y;
+        let rad =
+            (a0.hi() - m0).max(m0 - a0.lo()) * dmax.x + (a1.hi() - m1).max(m1 - a1.lo()) * dmax.y;
         let (mut lmin, mut lmax) = (f64::INFINITY, f64::NEG_INFINITY);
         for d in verts {
             let t = m0 * d.x + m1 * d.y;

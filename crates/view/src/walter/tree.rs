@@ -435,7 +435,8 @@ fn triangle_sphere(p: [DVec3; 3]) -> (DVec3, f64) {
     let (u, w) = (p[1] - p[0], p[2] - p[0]);
     let n = u.cross(w);
     let n2 = n.length_squared();
-    let cc = p[0] + (w.length_squared() * n.cross(u) + u.length_squared() * w.cross(n)) / (2.0 * n2);
+    let cc =
+        p[0] + (w.length_squared() * n.cross(u) + u.length_squared() * w.cross(n)) / (2.0 * n2);
     if !(n2 > 0.0) || !cc.is_finite() {
         let lo = p[0].min(p[1]).min(p[2]);
         let hi = p[0].max(p[1]).max(p[2]);
