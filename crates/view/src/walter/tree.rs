@@ -437,7 +437,7 @@ fn triangle_sphere(p: [DVec3; 3]) -> (DVec3, f64) {
     let n2 = n.length_squared();
     let cc =
         p[0] + (w.length_squared() * n.cross(u) + u.length_squared() * w.cross(n)) / (2.0 * n2);
-    if !(n2 > 0.0) || !cc.is_finite() {
+    if n2.is_nan() || n2 <= 0.0 || !cc.is_finite() {
         let lo = p[0].min(p[1]).min(p[2]);
         let hi = p[0].max(p[1]).max(p[2]);
         return pad(0.5 * (lo + hi), 0.5 * (hi - lo).length());
