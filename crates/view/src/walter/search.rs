@@ -3,7 +3,7 @@
 
 use super::func::Problem;
 use super::interval::{Interval, V3};
-use super::newton::{newton2, pinv};
+use super::newton::{newton2, pinv, ACCEPT_RESIDUAL};
 use super::{dedup, finish, Options, Solution, Stats, Triangle};
 use glam::{DVec2, DVec3};
 use std::f64::consts::FRAC_PI_2;
@@ -177,6 +177,13 @@ pub(crate) fn heuristic(
             stats.pruned += 1;
             continue;
         }
+        if depth == 0 && no_residual_below_accept(&Problem::<Interval>::new(tri, v, l, eta)) {
+            // Proven: no point of the triangle has ‖f‖ small enough for a
+            // Newton run to be accepted there, so none of the runs below
+            // could report anything.
+            stats.pruned += 1;
+            continue;
+        }
         let m = [
             0.5 * (q[0] + q[1]),
             0.5 * (q[1] + q[2]),
@@ -221,6 +228,85 @@ pub(crate) fn heuristic(
         }
     }
     dedup(found, DEDUP_TOL)
+}
+
+/// Whether `‖f‖ > 2·ACCEPT_RESIDUAL` at every point of the whole triangle,
+/// proven with the mean-value form: for `x` in the triangle `T` and its
+/// centroid `c`, `w·f(x) ∈ w·F(c) + Σ_j (w·F'_j(X)) (x_j − c_j)` for any
+/// unit `w`, with `F'(X)` the interval Jacobian over `X = [0, 1]² ⊇ T`.
+/// The linear part is bounded at the vertices of `T` (it is exact there for
+/// the midpoint coefficients) and the coefficients' radii by `|x_j − c_j| <=
+/// 2/3`. Directions tried: the normal of the Jacobian's range (a residual
+/// that Gauss-Newton cannot remove) and the rows of `M⁺` and their sum (a
+/// linearized root beyond an edge of `T`, as in eq 13), and `f(c)` itself.
+/// Since `‖f(x)‖ >= |w·f(x)|`, a sign-definite interval beyond the margin
+/// means no Newton run can converge (`‖f‖ <= ACCEPT_RESIDUAL`) on `T`.
+pub(crate) fn no_residual_below_accept(pi: &Problem<Interval>) -> bool {
+    excluded_on(pi, &[DVec2::ZERO, DVec2::X, DVec2::Y], EXCLUSION_DEPTH)
+}
+
+/// Splits of the triangle tried by [`no_residual_below_accept`].
+const EXCLUSION_DEPTH: u32 = 1;
+
+/// [`no_residual_below_accept`] on the sub-triangle `q`, splitting it 4
+/// ways (all four must be excluded) at most `depth` more times.
+fn excluded_on(pi: &Problem<Interval>, q: &[DVec2; 3], depth: u32) -> bool {
+    let margin = 2.0 * ACCEPT_RESIDUAL;
+    let lo = q[0].min(q[1]).min(q[2]);
+    let hi = q[0].max(q[1]).max(q[2]);
+    let e = pi.eval(Interval::new(lo.x, hi.x), Interval::new(lo.y, hi.y));
+    let c = (q[0] + q[1] + q[2]) / 3.0;
+    let fc = pi.f(Interval::point(c.x), Interval::point(c.y));
+    let (ju, jv) = (mid3(e.fu), mid3(e.fv));
+    let mut dirs = [DVec3::ZERO; 5];
+    dirs[0] = ju.cross(jv);
+    if let Some(mp) = pinv(ju, jv) {
+        dirs[1] = mp[0];
+        dirs[2] = mp[1];
+        dirs[3] = mp[0] + mp[1];
+    }
+    dirs[4] = mid3(fc);
+    // Vertex offsets x − c of q, and bounds on |x_j − c_j| over q.
+    let verts = q.map(|x| x - c);
+    let dmax = verts[0].abs().max(verts[1].abs()).max(verts[2].abs()) * (1.0 + 1e-12);
+    for w in dirs {
+        let w = w.normalize_or_zero();
+        if w == DVec3::ZERO || !w.is_finite() {
+            continue;
+        }
+        let g0 = dot_fi(w, fc);
+        let (a0, a1) = (dot_fi(w, e.fu), dot_fi(w, e.fv));
+        let (m0, m1) = (a0.mid(), a1.mid());
+        let rad =
+            (a0.hi() - m0).max(m0 - a0.lo()) * dmax.x + (a1.hi() - m1).max(m1 - a1.lo()) * dmax.y;
+        let (mut lmin, mut lmax) = (f64::INFINITY, f64::NEG_INFINITY);
+        for d in verts {
+            let t = m0 * d.x + m1 * d.y;
+            lmin = lmin.min(t);
+            lmax = lmax.max(t);
+        }
+        // Rounding of the float terms above: far below the margin.
+        let slack = 1e-12 * (m0.abs() + m1.abs()) + rad * (1.0 + 1e-12);
+        if g0.lo() + lmin - slack > margin || g0.hi() + lmax + slack < -margin {
+            return true;
+        }
+    }
+    if depth == 0 {
+        return false;
+    }
+    let m = [
+        0.5 * (q[0] + q[1]),
+        0.5 * (q[1] + q[2]),
+        0.5 * (q[2] + q[0]),
+    ];
+    [
+        [q[0], m[0], m[2]],
+        [m[0], q[1], m[1]],
+        [m[2], m[1], q[2]],
+        [m[0], m[1], m[2]],
+    ]
+    .iter()
+    .all(|sub| excluded_on(pi, sub, depth - 1))
 }
 
 /// Whether some component's interval excludes zero (eq 12 proves there is

@@ -100,6 +100,9 @@ struct Node {
     center: DVec3,
     radius: f64,
     cone: NormalCone,
+    /// `cos` and `sin` of the cone's semi-angle (for trig-free tests).
+    cone_cos: f64,
+    cone_sin: f64,
     /// Leaf: the triangle index; interior: `u32::MAX`.
     triangle: u32,
     /// Interior: children indices.
@@ -197,13 +200,16 @@ impl PnTree {
                     angle: PI,
                 }
             };
+            let (center, radius) = triangle_sphere(t.p);
             level.push(nodes.len() as u32);
             nodes.push(Node {
                 lo,
                 hi,
-                center: 0.5 * (lo + hi),
-                radius: 0.5 * (hi - lo).length(),
+                center,
+                radius,
                 cone,
+                cone_cos: cone.angle.cos(),
+                cone_sin: cone.angle.sin(),
                 triangle: i,
                 children: [u32::MAX; 2],
             });
@@ -215,13 +221,23 @@ impl PnTree {
                     let (na, nb) = (nodes[a as usize], nodes[b as usize]);
                     let lo = na.lo.min(nb.lo);
                     let hi = na.hi.max(nb.hi);
+                    // The smaller of the box's sphere and the sphere around
+                    // both children's spheres.
+                    let (mut center, mut radius) = (0.5 * (lo + hi), 0.5 * (hi - lo).length());
+                    let (c2, r2) = merge_spheres(na.center, na.radius, nb.center, nb.radius);
+                    if r2 < radius {
+                        (center, radius) = (c2, r2);
+                    }
+                    let cone = na.cone.union(nb.cone);
                     next.push(nodes.len() as u32);
                     nodes.push(Node {
                         lo,
                         hi,
-                        center: 0.5 * (lo + hi),
-                        radius: 0.5 * (hi - lo).length(),
-                        cone: na.cone.union(nb.cone),
+                        center,
+                        radius,
+                        cone,
+                        cone_cos: cone.angle.cos(),
+                        cone_sin: cone.angle.sin(),
                         triangle: u32::MAX,
                         children: [a, b],
                     });
@@ -259,29 +275,65 @@ impl PnTree {
         let mid = 0.5 * (v + l);
         let dist_vl = (l - v).length();
         let axis = (l - v) / dist_vl;
-        let mut stack = vec![self.root];
+        // The exact spindle: the deviation `θ_L − θ_V` of a refraction is at
+        // most `γ = π/2 − asin(1/η)`, so the angle V P L is at least
+        // `π − γ`; by the inscribed-angle theorem `P` lies in the lens
+        // `|P − M|² + |LV| cot(γ) r <= |LV|²/4`, `cot γ = 1/sqrt(η² − 1)`
+        // (eq 16 uses the smaller, looser `1/η`).
+        let spindle_k = if eta > 1.0 {
+            dist_vl / (eta * eta - 1.0).sqrt()
+        } else {
+            0.0
+        };
+        let spindle_r2 = 0.25 * dist_vl * dist_vl * (1.0 + 1e-9);
+        // The critical angle: inside the denser medium a refracted
+        // direction is within `asin(1/η)` of the inward normal (`ω̂_V` of
+        // `−N̂_s` for `η > 1`; `ω̂_L` of `N̂_s` for `η < 1`).
+        let critical = if eta > 1.0 {
+            (1.0 / eta).asin()
+        } else {
+            eta.asin()
+        } + 1e-9;
+        let mut stack = Vec::with_capacity(64);
+        stack.push(self.root);
         while let Some(i) = stack.pop() {
             let n = &self.nodes[i as usize];
             stats.visited += 1;
-            // Spindle test (eq 16): a lower bound of |P − M|² over the box
-            // plus (|LV|/η) times a lower bound of the distance to line VL.
+            // Spindle test: a lower bound of |P − M|² over the box plus
+            // |LV| cot γ times a lower bound of the distance to line VL.
             if eta > 1.0 && dist_vl > 0.0 {
                 let d_box = (mid.clamp(n.lo, n.hi) - mid).length_squared();
                 let w = n.center - v;
                 let r_line = (w - axis * w.dot(axis)).length();
                 let r_min = (r_line - n.radius).max(0.0);
-                if d_box + dist_vl / eta * r_min > 0.25 * dist_vl * dist_vl * (1.0 + 1e-9) {
+                if d_box + spindle_k * r_min > spindle_r2 {
                     stats.spindle += 1;
                     continue;
+                }
+            }
+            // Critical angle, then sidedness (both about the normal cone).
+            if eta != 1.0 && n.cone.is_convex() {
+                let (x, toward) = if eta > 1.0 {
+                    (v, -n.cone.axis)
+                } else {
+                    (l, n.cone.axis)
+                };
+                let w = x - n.center;
+                let d = w.length();
+                if d > n.radius * (1.0 + 1e-9) {
+                    let cos_a = (w.dot(toward) / d).clamp(-1.0, 1.0);
+                    let spread = (n.radius / d).asin() + n.cone.angle + critical;
+                    if spread < PI && cos_a < spread.cos() - 1e-12 {
+                        stats.sidedness += 1;
+                        continue;
+                    }
                 }
             }
             if !sided(n, l, 1.0) || !sided(n, v, -1.0) {
                 stats.sidedness += 1;
                 continue;
             }
-            let vc = direction_cone(n, v);
-            let lc = direction_cone(n, l);
-            if !half_vector_overlaps(n, vc, lc, eta) {
+            if !half_vector_overlaps_point(n, v, l, eta) {
                 stats.cone += 1;
                 continue;
             }
@@ -352,6 +404,63 @@ impl PnTree {
     }
 }
 
+/// The smallest sphere holding the triangle's corners (the circumsphere of
+/// an acute triangle, else the sphere on its longest edge), padded for
+/// rounding; every point of the triangle is inside since the ball is convex.
+fn triangle_sphere(p: [DVec3; 3]) -> (DVec3, f64) {
+    let pad = |c: DVec3, r: f64| {
+        let r = p.iter().map(|&q| (q - c).length()).fold(r, f64::max);
+        (c, r * (1.0 + 1e-12) + 1e-300)
+    };
+    // Longest edge opposite vertex k.
+    let e = [
+        (p[1] - p[2]).length_squared(),
+        (p[2] - p[0]).length_squared(),
+        (p[0] - p[1]).length_squared(),
+    ];
+    let k = if e[0] >= e[1] && e[0] >= e[2] {
+        0
+    } else if e[1] >= e[2] {
+        1
+    } else {
+        2
+    };
+    let (a, b) = (p[(k + 1) % 3], p[(k + 2) % 3]);
+    let c = 0.5 * (a + b);
+    let r = 0.5 * (b - a).length();
+    if (p[k] - c).length() <= r {
+        return pad(c, r);
+    }
+    // Circumcentre of the acute triangle.
+    let (u, w) = (p[1] - p[0], p[2] - p[0]);
+    let n = u.cross(w);
+    let n2 = n.length_squared();
+    let cc =
+        p[0] + (w.length_squared() * n.cross(u) + u.length_squared() * w.cross(n)) / (2.0 * n2);
+    if n2.is_nan() || n2 <= 0.0 || !cc.is_finite() {
+        let lo = p[0].min(p[1]).min(p[2]);
+        let hi = p[0].max(p[1]).max(p[2]);
+        return pad(0.5 * (lo + hi), 0.5 * (hi - lo).length());
+    }
+    pad(cc, 0.0)
+}
+
+/// The smallest sphere holding two spheres, padded for rounding.
+fn merge_spheres(c1: DVec3, r1: f64, c2: DVec3, r2: f64) -> (DVec3, f64) {
+    let d = (c2 - c1).length();
+    if d + r2 <= r1 {
+        return (c1, r1);
+    }
+    if d + r1 <= r2 {
+        return (c2, r2);
+    }
+    let r = 0.5 * (d + r1 + r2);
+    let c = c1 + (c2 - c1) * ((r - r1) / d);
+    // Check both spheres are inside despite rounding.
+    let r = r.max((c - c1).length() + r1).max((c - c2).length() + r2);
+    (c, r * (1.0 + 1e-12))
+}
+
 /// Sidedness: whether some point `P` of the node's sphere and some normal
 /// `n` of its cone have `sign · (x − P)·n > 0` (`sign = 1`: `x` in front,
 /// as the light must be; `−1`: behind, as the scatter point must be).
@@ -365,8 +474,14 @@ fn sided(n: &Node, x: DVec3, sign: f64) -> bool {
     if len <= n.radius {
         return true;
     }
-    let gap = (angle_between(w, n.cone.axis) - n.cone.angle).max(0.0);
-    len * gap.cos() + n.radius > 0.0
+    // With α = ∠(w, axis): if α <= θ the bound is len + r > 0; else
+    // len cos(α − θ) = (w·a) cos θ + |w × a| sin θ.
+    let wa = w.dot(n.cone.axis);
+    if wa >= len * n.cone_cos {
+        return true;
+    }
+    let wx = w.cross(n.cone.axis).length();
+    wa * n.cone_cos + wx * n.cone_sin + n.radius > -1e-12 * (len + n.radius)
 }
 
 /// The cone of directions from the node's sphere towards `x`:
@@ -441,6 +556,41 @@ fn min_angle_to_arc(n: &Node, w: DVec3, a: DVec3, b: DVec3) -> Option<f64> {
     } else {
         Some(ends)
     }
+}
+
+/// [`half_vector_overlaps`] for the direction cones from the node's sphere
+/// towards the points `v` and `l`, without trigonometric functions: the
+/// chord `2 sin(φ/2)` of a cone with `sin φ = r/d` is
+/// `sqrt(2 (1 − cos φ))`, `1 − cos φ = sin²φ / (1 + cos φ)`, and the angle
+/// comparison `∠(a, −σH) <= θ_N + θ_H` is made on cosines (the sum is below
+/// π since both cones are convex).
+fn half_vector_overlaps_point(n: &Node, v: DVec3, l: DVec3, eta: f64) -> bool {
+    if !n.cone.is_convex() || eta == 1.0 {
+        return true;
+    }
+    let (wv, wl) = (v - n.center, l - n.center);
+    let (dv, dl) = (wv.length(), wl.length());
+    let lim = n.radius * (1.0 + 1e-9);
+    if !(dv > lim && dl > lim) {
+        return true;
+    }
+    let chord = |d: f64| {
+        let s = n.radius / d;
+        let c = (1.0 - s * s).max(0.0).sqrt();
+        (2.0 * s * s / (1.0 + c)).sqrt()
+    };
+    let center = eta * (wv / dv) + wl / dl;
+    let rad = eta * chord(dv) + chord(dl);
+    let len = center.length();
+    if len <= rad * (1.0 + 1e-9) {
+        return true;
+    }
+    let sh = rad / len;
+    let ch = (1.0 - sh * sh).max(0.0).sqrt();
+    let cos_beta = n.cone_cos * ch - n.cone_sin * sh;
+    let sigma = if eta > 1.0 { 1.0 } else { -1.0 };
+    let cos_a = n.cone.axis.dot(-sigma * center) / len;
+    cos_a >= cos_beta - 1e-9
 }
 
 /// Cone-overlap test: a solution has `N̂_s = −σ Ĥ` (`σ = sign(η − 1)`), so
