@@ -464,7 +464,11 @@ fn repeated_gpu_renders_are_bitwise_equal() {
 }
 
 /// The 800x600 frame of `configs/glass-sphere.toml` (128^3, its light
-/// volume, 2 samples per pixel): GPU and CPU seconds per frame.
+/// volume, 2 samples per pixel): GPU and CPU seconds per frame. Measured
+/// on lavapipe (llvmpipe, 2 cores shared with other jobs): GPU 30.7 s per
+/// frame against 1.46 s for the CPU renderer (its setup included), PSNR
+/// 45.6 dB between them. llvmpipe runs the march at about 5 us per ray
+/// iteration; the number says nothing about a hardware GPU.
 /// `cargo test --release -p eikon-view --test gpu -- --ignored --nocapture`
 #[test]
 #[ignore]

@@ -24,7 +24,12 @@
 //! Differences from the CPU: f32 instead of f64 arithmetic (the plane-hit
 //! rounding allowance is 2e-6 instead of 1e-9 of the scene's scale), and
 //! the samples of a pixel and the passes are summed in a different order.
-//! A zero direction looks up black instead of NaN in a lat-long map.
+//! A zero direction looks up black instead of NaN in a lat-long map. The
+//! nudge past a uniform block's face is at least 1e-6 of the position
+//! (1e-6 voxels alone is below f32 resolution and would leave the ray on
+//! the face). Measured against the CPU on lavapipe (`tests/gpu.rs`): PSNR
+//! 42.7 to 140 dB over the test scenes, 45.6 dB on the 800x600 glass
+//! sphere.
 
 use crate::background::Surroundings;
 use crate::camera::Camera;
