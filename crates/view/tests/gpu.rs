@@ -308,6 +308,55 @@ color = [0.02, 0.02, 0.02]
     check("emissive volume", text, Options::default(), 40.0);
 }
 
+/// Two lights (a directional and a spot light), so two light volumes and
+/// two passes, on a scattering sphere over a receiver that reaches out of
+/// the grid (lit directly there). Measured: 120.7 dB.
+#[test]
+fn two_light_volumes_match_the_cpu() {
+    let text = r#"
+[grid]
+resolution = 32
+min = [-1, -1, -1]
+max = [1, 1, 1]
+
+[[object]]
+shape = { type = "sphere", center = [0, 0.1, 0], radius = 0.5 }
+index = 1.0
+extinction = [0.8, 0.8, 0.8]
+albedo = [0.9, 0.9, 0.9]
+g = -0.3
+
+[[light]]
+type = "directional"
+direction = [0.3, -1, 0.2]
+power = [1, 0.5, 0.25]
+
+[[light]]
+type = "spot"
+position = [-0.5, 0.9, 0.5]
+direction = [0.4, -1, -0.3]
+angle = 35
+falloff = 10
+power = [2, 4, 8]
+
+[receiver]
+point = [0, -0.7, 0]
+normal = [0, 1, 0]
+albedo = [0.8, 0.8, 0.8]
+
+[camera]
+position = [0.5, 1.5, 4]
+target = [0, -0.3, 0]
+fov = 50
+resolution = [64, 48]
+
+[background]
+type = "constant"
+color = [0.02, 0.02, 0.02]
+"#;
+    check("two light volumes", text, Options::default(), 40.0);
+}
+
 /// An empty volume shows the environment: each pixel is the sky looked up
 /// along its ray, with and without empty-space skipping. Measured: worst
 /// relative difference 1.6e-4 (f32 lookups of the sun's steep lobe).
@@ -415,7 +464,11 @@ fn repeated_gpu_renders_are_bitwise_equal() {
 }
 
 /// The 800x600 frame of `configs/glass-sphere.toml` (128^3, its light
-/// volume, 2 samples per pixel): GPU and CPU seconds per frame.
+/// volume, 2 samples per pixel): GPU and CPU seconds per frame. Measured
+/// on lavapipe (llvmpipe, 2 cores shared with other jobs): GPU 30.7 s per
+/// frame against 1.46 s for the CPU renderer (its setup included), PSNR
+/// 45.6 dB between them. llvmpipe runs the march at about 5 us per ray
+/// iteration; the number says nothing about a hardware GPU.
 /// `cargo test --release -p eikon-view --test gpu -- --ignored --nocapture`
 #[test]
 #[ignore]

@@ -24,7 +24,12 @@
 //! Differences from the CPU: f32 instead of f64 arithmetic (the plane-hit
 //! rounding allowance is 2e-6 instead of 1e-9 of the scene's scale), and
 //! the samples of a pixel and the passes are summed in a different order.
-//! A zero direction looks up black instead of NaN in a lat-long map.
+//! A zero direction looks up black instead of NaN in a lat-long map. The
+//! nudge past a uniform block's face is at least 1e-6 of the position
+//! (1e-6 voxels alone is below f32 resolution and would leave the ray on
+//! the face). Measured against the CPU on lavapipe (`tests/gpu.rs`): PSNR
+//! 42.7 to 140 dB over the test scenes, 45.6 dB on the 800x600 glass
+//! sphere.
 
 use crate::background::Surroundings;
 use crate::camera::Camera;
@@ -390,6 +395,16 @@ impl<'a> GpuRenderer<'a> {
         let (w, h) = (camera.width(), camera.height());
         let pixels = u64::from(w) * u64::from(h);
         check("image", pixels * 12)?;
+        let groups = w.div_ceil(TILE).max(h.div_ceil(TILE));
+        if groups > limits.max_compute_workgroups_per_dimension {
+            return Err(too_big(
+                gpu,
+                format!(
+                    "the {w}x{h} image needs {groups} workgroups along one axis, over the limit of {}",
+                    limits.max_compute_workgroups_per_dimension
+                ),
+            ));
+        }
         let per_sample = pixels * 12;
         check("eye rays of one sample", per_sample)?;
         let chunk = (RAY_CHUNK.min(max_binding) / per_sample).clamp(1, u64::from(camera.samples()));
@@ -686,5 +701,65 @@ impl<'a> GpuRenderer<'a> {
             total += t.elapsed().as_secs_f64();
         }
         Ok(total / f64::from(frames))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::background::load_environment;
+    use eikon_grid::Scene;
+
+    /// Rays uploaded in chunks of one sample give bitwise the image of one
+    /// upload (the samples are summed in the same order).
+    #[test]
+    fn chunked_rays_give_the_same_image() {
+        let gpu = match Gpu::new() {
+            Ok(g) => g,
+            Err(e) => {
+                assert!(std::env::var_os("CI").is_none(), "CI needs a GPU: {e}");
+                return;
+            }
+        };
+        let scene = Scene::parse(
+            r#"
+[grid]
+resolution = 16
+min = [-1, -1, -1]
+max = [1, 1, 1]
+
+[[object]]
+shape = { type = "sphere", center = [0, 0, 0], radius = 0.6 }
+index = 1.4
+extinction = [0.3, 0.2, 0.1]
+
+[background]
+type = "sky"
+"#,
+            "test",
+        )
+        .unwrap();
+        let medium = Medium::build(&scene).unwrap();
+        let env = load_environment(&scene.background).unwrap();
+        let s = Surroundings::new(&scene, env, &[], &medium.geometry);
+        let cam = Camera::new(
+            glam::DVec3::new(0.2, 0.3, 3.0),
+            glam::DVec3::ZERO,
+            glam::DVec3::Y,
+            40.0,
+            20,
+            15,
+            3,
+        )
+        .unwrap();
+        let opts = Options::default();
+        let whole = GpuRenderer::new(&gpu, &medium, &[], &s, &cam, opts).unwrap();
+        assert!(whole.single_chunk);
+        let mut chunked = GpuRenderer::new(&gpu, &medium, &[], &s, &cam, opts).unwrap();
+        chunked.chunk = 1;
+        chunked.single_chunk = false;
+        let (a, b) = (whole.render().unwrap(), chunked.render().unwrap());
+        assert!(a.data.iter().flatten().any(|&x| x > 0.0));
+        assert!(a.data == b.data);
     }
 }
