@@ -9,6 +9,7 @@
 use anyhow::Result;
 use clap::ValueEnum;
 use eikon_gpu::Gpu;
+use std::sync::Mutex;
 
 /// The `--backend` values.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -60,12 +61,26 @@ pub fn is_software(gpu: &Gpu) -> bool {
     gpu.info.device_type == wgpu::DeviceType::Cpu
 }
 
+/// What [`BackendFlag::select`] chose and why, said by [`announce`] once
+/// the work starts (so that bad input is reported first, alone).
+static NOTE: Mutex<Option<String>> = Mutex::new(None);
+
+/// Say on stderr which backend was chosen, once, if there is anything left
+/// to say.
+pub fn announce() {
+    if let Some(note) = NOTE.lock().ok().and_then(|mut n| n.take()) {
+        eprintln!("{note}");
+    }
+}
+
 impl BackendFlag {
-    /// Choose, and say which on stderr (`quiet` keeps stderr for errors).
+    /// Choose; [`announce`] says which on stderr (`quiet`: never).
     pub fn select(&self, quiet: bool) -> Result<Backend> {
         let say = |b: &Backend, why: &str| {
             if !quiet {
-                eprintln!("backend: {}{why}", b.describe());
+                if let Ok(mut n) = NOTE.lock() {
+                    *n = Some(format!("backend: {}{why}", b.describe()));
+                }
             }
         };
         match self.backend {

@@ -306,6 +306,7 @@ pub fn render_image(
         );
     }
     let surroundings = Surroundings::new(scene, env, volumes, &medium.geometry);
+    crate::backend::announce();
     if let Backend::Gpu(gpu) = backend {
         let started = Instant::now();
         let renderer =

@@ -264,6 +264,7 @@ pub fn simulate(
     if args.output.exists() && !args.output.is_dir() {
         bail!("{}: exists and is not a directory", args.output.display());
     }
+    crate::backend::announce();
     let started = Instant::now();
     // The GPU uploads the medium once for every light.
     let gpu = match backend {
