@@ -128,7 +128,7 @@ pub(crate) fn rays_cross(x: &[DVec3; 4], u: &[DVec3; 4], d: DVec3, lo: f64, hi: 
             m = m.min(q(tv));
         }
     }
-    !(m > 0.0)
+    m.is_nan() || m <= 0.0
 }
 
 /// Extinction at the patch midpoint `mid` (none in empty space).
