@@ -15,6 +15,23 @@
 //! cell the patch happened to be, biased towards the side the light comes
 //! from (by up to `2 h / r` for a point light at distance r).
 //!
+//! # No deposit across or beside a caustic
+//! A patch deposits nothing into a cell where its corner rays (straight,
+//! along their own directions) cross between the patch and the cell
+//! centre, or within half a cell of the centre: where the tube's oriented
+//! area `((x2 - x0) x (x3 - x1)) . d`, a quadratic along the rays, fails
+//! to stay positive ([`rays_cross`]). The intensity law `flux / area`
+//! holds only while the tube keeps its orientation; across a caustic its
+//! value is meaningless, and within a cell of one it is the point value of
+//! a singularity (`1 / distance` for a fold), which the cell cannot
+//! resolve. Taking it anyway, the highest-energy rule kept whichever patch
+//! happened to land nearest its own caustic: in the smoothed interface
+//! band of a refracting sphere, where grazing patches fold, cells held
+//! hundreds of times their neighbours' irradiance (carried areas 50 to
+//! 500 times below the patch's own, a speckled ring in the render). The
+//! patch still deposits into cells farther from its caustic, and is culled
+//! once it flips (`refine`); the cell keeps the next best ray.
+//!
 //! # What is stored
 //! `irradiance` is the differential irradiance Delta E of eq 17-18 in
 //! W/m^2: the power per unit area crossing a surface normal to `direction`.
@@ -61,12 +78,20 @@ fn deposit_at(
 ) -> Option<Deposit> {
     let [x, y, z] = cell;
     let s = d.dot(grid.voxel_center(x, y, z) - mid);
-    let moved = [0, 1, 2, 3].map(|c| {
-        let r = &p.corner[c][i];
-        r.x + r.v.normalize_or_zero() * s
-    });
+    let u = [0, 1, 2, 3].map(|c| p.corner[c][i].v.normalize_or_zero());
+    let moved = [0, 1, 2, 3].map(|c| p.corner[c][i].x + u[c] * s);
     let ar = area(&moved);
     if ar.is_nan() || ar <= 0.0 {
+        return None;
+    }
+    let half = 0.5 * grid.voxel_size();
+    if rays_cross(
+        &p.positions(i),
+        &u,
+        d,
+        (s - half).min(0.0),
+        (s + half).max(0.0),
+    ) {
         return None;
     }
     let e = [0, 1, 2].map(|c| p.flux[i][c] * (-ext[c] * s).exp() / ar);
@@ -81,6 +106,29 @@ fn deposit_at(
         irradiance: e.map(|v| v as f32),
         direction: [d.x as f32, d.y as f32, d.z as f32],
     })
+}
+
+/// Whether the straight corner rays `x + t u` of a patch cross for some
+/// `t` in `[lo, hi]`: whether the tube's oriented area along `d`,
+/// `q(t) = ((x2 - x0 + t (u2 - u0)) x (x3 - x1 + t (u3 - u1))) . d`, a
+/// quadratic in `t`, fails to stay positive there. Positions are taken
+/// relative to corner 0 (only differences enter).
+#[inline]
+pub(crate) fn rays_cross(x: &[DVec3; 4], u: &[DVec3; 4], d: DVec3, lo: f64, hi: f64) -> bool {
+    let (a0, a1) = (x[2] - x[0], u[2] - u[0]);
+    let (b0, b1) = (x[3] - x[1], u[3] - u[1]);
+    let c0 = a0.cross(b0).dot(d);
+    let c1 = (a0.cross(b1) + a1.cross(b0)).dot(d);
+    let c2 = a1.cross(b1).dot(d);
+    let q = |t: f64| c0 + t * (c1 + t * c2);
+    let mut m = q(lo).min(q(hi));
+    if c2 > 0.0 {
+        let tv = -c1 / (2.0 * c2);
+        if tv > lo && tv < hi {
+            m = m.min(q(tv));
+        }
+    }
+    m.is_nan() || m <= 0.0
 }
 
 /// Extinction at the patch midpoint `mid` (none in empty space).
@@ -283,5 +331,31 @@ impl LightVolume {
             }
             dir[3 * cell..3 * cell + 3].copy_from_slice(&d.direction);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn converging_corner_rays_cross_at_their_focus() {
+        // A unit square whose corner rays converge on a line: the rays
+        // along x meet at t = 2 (a fold), those along y stay parallel.
+        let x = [
+            DVec3::new(-0.5, -0.5, 0.0),
+            DVec3::new(0.5, -0.5, 0.0),
+            DVec3::new(0.5, 0.5, 0.0),
+            DVec3::new(-0.5, 0.5, 0.0),
+        ];
+        let u = x.map(|p| DVec3::new(-p.x * 0.5, 0.0, 1.0));
+        let d = DVec3::Z;
+        assert!(!rays_cross(&x, &u, d, -1.0, 1.9));
+        assert!(rays_cross(&x, &u, d, 1.9, 2.1));
+        assert!(rays_cross(&x, &u, d, 2.5, 3.0));
+        // A point focus (both directions) touches zero at t = 2 only.
+        let u = x.map(|p| DVec3::new(-p.x * 0.5, -p.y * 0.5, 1.0));
+        assert!(!rays_cross(&x, &u, d, 0.0, 1.9));
+        assert!(rays_cross(&x, &u, d, 1.5, 2.5));
     }
 }

@@ -853,16 +853,45 @@ struct Deposit {
     e: vec3<f32>,
 }
 
+// Whether the straight corner rays x + t u cross for some t in [lo, hi]:
+// the tube's oriented area along d, a quadratic in t, fails to stay
+// positive there (`voxelize::rays_cross`).
+fn rays_cross(x: array<vec3<f32>, 4>, u: array<vec3<f32>, 4>, d: vec3<f32>, lo: f32, hi: f32) -> bool {
+    let a0 = x[2] - x[0];
+    let a1 = u[2] - u[0];
+    let b0 = x[3] - x[1];
+    let b1 = u[3] - u[1];
+    let c0 = dot(cross(a0, b0), d);
+    let c1 = dot(cross(a0, b1) + cross(a1, b0), d);
+    let c2 = dot(cross(a1, b1), d);
+    var m = min(c0 + lo * (c1 + lo * c2), c0 + hi * (c1 + hi * c2));
+    if (c2 > 0.0) {
+        let tv = -c1 / (2.0 * c2);
+        if (tv > lo && tv < hi) {
+            m = min(m, c0 + tv * (c1 + tv * c2));
+        }
+    }
+    return !(m > 0.0);
+}
+
 // Patch i's irradiance carried to the centre of cell `flat`
 // (`voxelize::deposit_at`).
 fn deposit_at(i: u32, mid: vec3<f32>, d: vec3<f32>, ext: vec3<f32>, flat: u32, tier: u32) -> Deposit {
     let s = dot(d, voxel_center(flat) - mid);
     var m: array<vec3<f32>, 4>;
+    var x: array<vec3<f32>, 4>;
+    var u: array<vec3<f32>, 4>;
     for (var c = 0u; c < 4u; c++) {
-        m[c] = rel(i, c) + normalize_or_zero(vel[4u * i + c].xyz) * s;
+        x[c] = rel(i, c);
+        u[c] = normalize_or_zero(vel[4u * i + c].xyz);
+        m[c] = x[c] + u[c] * s;
     }
     let ar = area4(m);
     if (!(ar > 0.0)) {
+        return Deposit(false, 0u, vec3<f32>(0.0));
+    }
+    let half = 0.5 * min(P.spacing.x, min(P.spacing.y, P.spacing.z));
+    if (rays_cross(x, u, d, min(s - half, 0.0), max(s + half, 0.0))) {
         return Deposit(false, 0u, vec3<f32>(0.0));
     }
     let e = aux[3u * i].xyz * exp(-ext * s) / ar;
