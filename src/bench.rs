@@ -265,13 +265,18 @@ pub fn run(args: Args) -> Result<()> {
         );
         return Ok(());
     }
+    let w = rows
+        .iter()
+        .filter_map(|r| r["scene"].as_str())
+        .map(str::len)
+        .fold(5, usize::max);
     println!(
-        "{:<20} {:<5} {:>12} {:>12} {:>10} {:>10}  device",
+        "{:<w$} {:<5} {:>12} {:>12} {:>10} {:>10}  device",
         "scene", "", "simulate s", "frame ms", "fps", "peak MiB"
     );
     for r in &rows {
         println!(
-            "{:<20} {:<5} {:>12.3} {:>12.2} {:>10.1} {:>10.0}  {}",
+            "{:<w$} {:<5} {:>12.3} {:>12.2} {:>10.1} {:>10.0}  {}",
             r["scene"].as_str().unwrap_or("?"),
             r["backend"].as_str().unwrap_or("?"),
             r["simulate_seconds"].as_f64().unwrap_or(f64::NAN),
