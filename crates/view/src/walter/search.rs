@@ -6,7 +6,6 @@ use super::interval::{Interval, V3};
 use super::newton::{newton2, pinv, ACCEPT_RESIDUAL};
 use super::{dedup, finish, Options, Solution, Stats, Triangle};
 use glam::{DVec2, DVec3};
-use std::f64::consts::FRAC_PI_2;
 
 /// Solutions closer than this in barycentric units are the same one.
 const DEDUP_TOL: f64 = 1e-8;
@@ -14,15 +13,31 @@ const DEDUP_TOL: f64 = 1e-8;
 /// Newton steps allowed per run.
 const MAX_NEWTON: u32 = 60;
 
-/// A cone of directions with apex at the origin: unit `axis`, semi-angle
-/// `angle < π/2` (wider sets are represented by `None`: "anything").
+/// A cone of directions with apex at the origin: unit `axis` and the
+/// cosine and sine of its semi-angle `θ < π/2` (wider sets are represented
+/// by `None`: "anything"). All tests compare cosines: no inverse
+/// trigonometric function is evaluated.
 #[derive(Debug, Clone, Copy)]
 struct Cone {
     axis: DVec3,
-    angle: f64,
+    /// `cos θ`, in `(0, 1]`.
+    cos: f64,
+    /// `sin θ`, in `[0, 1)`.
+    sin: f64,
 }
 
 impl Cone {
+    /// The cone about `axis` through the direction whose dot product with
+    /// `axis` is the smallest, `min_dot`; `None` for `θ >= π/2`.
+    fn with_min_dot(axis: DVec3, min_dot: f64) -> Option<Cone> {
+        let cos = min_dot.clamp(-1.0, 1.0);
+        (cos > 0.0).then(|| Cone {
+            axis,
+            cos,
+            sin: (1.0 - cos * cos).max(0.0).sqrt(),
+        })
+    }
+
     /// A cone containing the spherical triangle spanned by three unit
     /// vectors. The cone `{x : ∠(x, axis) <= θ}` is convex for `θ < π/2`, so
     /// containing the three corners means containing every normalized
@@ -32,23 +47,32 @@ impl Cone {
         if axis == DVec3::ZERO {
             return None;
         }
-        let angle = w
-            .iter()
-            .map(|x| x.dot(axis).clamp(-1.0, 1.0).acos())
-            .fold(0.0, f64::max);
-        (angle < FRAC_PI_2).then_some(Cone { axis, angle })
+        let min_dot = w[0].dot(axis).min(w[1].dot(axis)).min(w[2].dot(axis));
+        Cone::with_min_dot(axis, min_dot)
     }
 
     /// The axis-aligned box of the unit vectors in the cone: the component
     /// along `e_k` of a unit vector at angle `<= θ` from the axis is a
-    /// cosine of an angle in `[α_k − θ, α_k + θ]`, `α_k = ∠(axis, e_k)`.
+    /// cosine of an angle in `[α_k − θ, α_k + θ]`, `α_k = ∠(axis, e_k)`,
+    /// clamped to `[0, π]`; `cos(α ± θ)` by the addition formulas.
     fn bbox(&self) -> (DVec3, DVec3) {
+        let (ct, st) = (self.cos, self.sin);
         let range = |a: f64| {
-            let alpha = a.clamp(-1.0, 1.0).acos();
-            (
-                (alpha + self.angle).min(std::f64::consts::PI).cos(),
-                (alpha - self.angle).max(0.0).cos(),
-            )
+            let ca = a.clamp(-1.0, 1.0);
+            let sa = (1.0 - ca * ca).max(0.0).sqrt();
+            // α + θ <= π exactly when sin(α + θ) >= 0 (α + θ < 3π/2).
+            let lo = if sa * ct + ca * st >= 0.0 {
+                (ca * ct - sa * st).max(-1.0)
+            } else {
+                -1.0
+            };
+            // α <= θ exactly when cos α >= cos θ.
+            let hi = if ca >= ct {
+                1.0
+            } else {
+                (ca * ct + sa * st).min(1.0)
+            };
+            (lo, hi)
         };
         let (x, y, z) = (range(self.axis.x), range(self.axis.y), range(self.axis.z));
         (DVec3::new(x.0, y.0, z.0), DVec3::new(x.1, y.1, z.1))
@@ -64,7 +88,7 @@ impl Cone {
         if axis == DVec3::ZERO {
             return None;
         }
-        let mut angle: f64 = 0.0;
+        let mut min_dot: f64 = 1.0;
         for i in 0..8 {
             let c = DVec3::new(
                 if i & 1 == 0 { lo.x } else { hi.x },
@@ -75,15 +99,22 @@ impl Cone {
             if c == DVec3::ZERO {
                 return None;
             }
-            angle = angle.max(c.dot(axis).clamp(-1.0, 1.0).acos());
+            min_dot = min_dot.min(c.dot(axis));
         }
-        (angle < FRAC_PI_2).then_some(Cone { axis, angle })
+        Cone::with_min_dot(axis, min_dot)
     }
 
     /// Two cones overlap if the angle between their axes is at most the sum
-    /// of their semi-angles (§3.3.1).
+    /// of their semi-angles (§3.3.1): the sum is below `π`, so on cosines,
+    /// `cos ∠ >= cos(θ₁ + θ₂)` (with a little slack for rounding).
     fn overlaps(&self, o: &Cone) -> bool {
-        self.axis.dot(o.axis).clamp(-1.0, 1.0).acos() <= self.angle + o.angle + 1e-12
+        self.axis.dot(o.axis) >= self.cos * o.cos - self.sin * o.sin - 1e-12
+    }
+
+    /// Whether the two semi-angles sum to less than the angle with cosine
+    /// `cos_limit`, an angle in `(0, π)` (the sum is below `π`).
+    fn spans_less_than(&self, o: &Cone, cos_limit: f64) -> bool {
+        self.cos * o.cos - self.sin * o.sin > cos_limit
     }
 }
 
@@ -100,8 +131,12 @@ fn cones(
     eta: f64,
     q: &[DVec2; 3],
 ) -> (Option<Cone>, Option<Cone>) {
-    let pts = q.map(|x| tri.point(x));
     let ncone = Cone::of_units(q.map(|x| tri.shading_normal(x)));
+    if ncone.is_none() {
+        // The pair is "anything" whatever the half-vector cone is.
+        return (None, None);
+    }
+    let pts = q.map(|x| tri.point(x));
     let vcone = Cone::of_units(pts.map(|p| (v - p).normalize()));
     let lcone = Cone::of_units(pts.map(|p| (l - p).normalize()));
     let hcone = match (vcone, lcone) {
@@ -160,7 +195,10 @@ pub(crate) fn heuristic(
     stats: &mut Stats,
 ) -> Vec<Solution> {
     let prob = Problem::<f64>::new(tri, v, l, eta);
+    // The stopping rule on cosines: `θ_H + θ_N < limit`, with both
+    // semi-angles below π/2.
     let limit = opts.cone_angle_deg.to_radians();
+    let cos_limit = limit.cos();
     let vproj = projected_v(tri, v);
     let query = (v, l, eta);
     let mut found = Vec::new();
@@ -170,7 +208,16 @@ pub(crate) fn heuristic(
         stats.regions += 1;
         let (hcone, ncone) = cones(tri, v, l, eta, &q);
         let (stop, overlap) = match (hcone, ncone) {
-            (Some(h), Some(n)) => (h.angle + n.angle < limit, h.overlaps(&n)),
+            (Some(h), Some(n)) => {
+                let stop = if limit >= std::f64::consts::PI {
+                    true
+                } else if limit > 0.0 {
+                    h.spans_less_than(&n, cos_limit)
+                } else {
+                    false
+                };
+                (stop, h.overlaps(&n))
+            }
             _ => (false, true),
         };
         if !overlap {

@@ -11,8 +11,9 @@
 //! 90°, which is convex, and a wider cone is treated as "any direction").
 //!
 //! The tree is built bottom-up: the triangles are ordered along a Morton
-//! curve of their centroids and neighbours are merged pairwise, level by
-//! level, until one root is left.
+//! curve of their centroids, then clusters that are each other's best
+//! partner (smallest merged bounding sphere) within a window of that order
+//! are merged, pass after pass, until one root is left.
 //!
 //! All tests are conservative: a node is pruned only when no triangle below
 //! it can hold a refracted path (checked against brute force in the tests).
@@ -214,36 +215,47 @@ impl PnTree {
                 children: [u32::MAX; 2],
             });
         }
+        // Locally-ordered agglomerative clustering (Meister and Bittner
+        // 2018) along the Morton order: each cluster picks, among the
+        // `WINDOW` clusters on either side, the one whose merge has the
+        // smallest bounding sphere; mutual picks are merged, in place, and
+        // the pass repeats until one root is left. Ties go to the lower
+        // index, so the build is deterministic.
+        const WINDOW: usize = 8;
+        let mut best: Vec<usize> = Vec::with_capacity(level.len());
         while level.len() > 1 {
-            let mut next = Vec::with_capacity(level.len().div_ceil(2));
-            for pair in level.chunks(2) {
-                if let [a, b] = *pair {
-                    let (na, nb) = (nodes[a as usize], nodes[b as usize]);
-                    let lo = na.lo.min(nb.lo);
-                    let hi = na.hi.max(nb.hi);
-                    // The smaller of the box's sphere and the sphere around
-                    // both children's spheres.
-                    let (mut center, mut radius) = (0.5 * (lo + hi), 0.5 * (hi - lo).length());
-                    let (c2, r2) = merge_spheres(na.center, na.radius, nb.center, nb.radius);
-                    if r2 < radius {
-                        (center, radius) = (c2, r2);
+            best.clear();
+            for i in 0..level.len() {
+                let (lo, hi) = (i.saturating_sub(WINDOW), (i + WINDOW).min(level.len() - 1));
+                let mut pick = (f64::INFINITY, usize::MAX);
+                for j in (lo..=hi).filter(|&j| j != i) {
+                    let (a, b) = (&nodes[level[i] as usize], &nodes[level[j] as usize]);
+                    let cost = merged_sphere(a, b).1;
+                    if cost < pick.0 {
+                        pick = (cost, j);
                     }
-                    let cone = na.cone.union(nb.cone);
-                    next.push(nodes.len() as u32);
-                    nodes.push(Node {
-                        lo,
-                        hi,
-                        center,
-                        radius,
-                        cone,
-                        cone_cos: cone.angle.cos(),
-                        cone_sin: cone.angle.sin(),
-                        triangle: u32::MAX,
-                        children: [a, b],
-                    });
-                } else {
-                    next.push(pair[0]);
                 }
+                best.push(pick.1);
+            }
+            let mut next = Vec::with_capacity(level.len());
+            let mut merged = false;
+            for i in 0..level.len() {
+                let j = best[i];
+                if j != usize::MAX && best[j] == i {
+                    if i < j {
+                        next.push(push_parent(&mut nodes, level[i], level[j]));
+                        merged = true;
+                    }
+                } else {
+                    next.push(level[i]);
+                }
+            }
+            if !merged {
+                // Cannot happen with finite costs (the cheapest pair is
+                // mutual); a fallback so the build always ends.
+                next.clear();
+                next.push(push_parent(&mut nodes, level[0], level[1]));
+                next.extend_from_slice(&level[2..]);
             }
             level = next;
         }
@@ -294,6 +306,9 @@ impl PnTree {
         } else {
             eta.asin()
         } + 1e-9;
+        // Its cosine and sine, so that the per-node test below needs no
+        // trigonometric function.
+        let (crit_sin, crit_cos) = critical.sin_cos();
         let mut stack = Vec::with_capacity(64);
         stack.push(self.root);
         while let Some(i) = stack.pop() {
@@ -322,8 +337,17 @@ impl PnTree {
                 let d = w.length();
                 if d > n.radius * (1.0 + 1e-9) {
                     let cos_a = (w.dot(toward) / d).clamp(-1.0, 1.0);
-                    let spread = (n.radius / d).asin() + n.cone.angle + critical;
-                    if spread < PI && cos_a < spread.cos() - 1e-12 {
+                    // spread = asin(r/d) + θ_N + critical, by the addition
+                    // formulas: the first two terms are each below π/2,
+                    // so the sum is in [0, 3π/2) and below π exactly when
+                    // its sine is positive.
+                    let s1 = n.radius / d;
+                    let c1 = (1.0 - s1 * s1).max(0.0).sqrt();
+                    let c12 = c1 * n.cone_cos - s1 * n.cone_sin;
+                    let s12 = s1 * n.cone_cos + c1 * n.cone_sin;
+                    let cos_spread = c12 * crit_cos - s12 * crit_sin;
+                    let sin_spread = s12 * crit_cos + c12 * crit_sin;
+                    if sin_spread > 0.0 && cos_a < cos_spread - 1e-12 {
                         stats.sidedness += 1;
                         continue;
                     }
@@ -402,6 +426,39 @@ impl PnTree {
             stack.push(n.children[0]);
         }
     }
+}
+
+/// The bounding sphere of the parent of `a` and `b`: the smaller of the
+/// sphere around their joint box and the sphere around both spheres.
+fn merged_sphere(a: &Node, b: &Node) -> (DVec3, f64) {
+    let lo = a.lo.min(b.lo);
+    let hi = a.hi.max(b.hi);
+    let (center, radius) = (0.5 * (lo + hi), 0.5 * (hi - lo).length());
+    let (c2, r2) = merge_spheres(a.center, a.radius, b.center, b.radius);
+    if r2 < radius {
+        (c2, r2)
+    } else {
+        (center, radius)
+    }
+}
+
+/// Appends the parent of nodes `a` and `b` and returns its index.
+fn push_parent(nodes: &mut Vec<Node>, a: u32, b: u32) -> u32 {
+    let (na, nb) = (nodes[a as usize], nodes[b as usize]);
+    let (center, radius) = merged_sphere(&na, &nb);
+    let cone = na.cone.union(nb.cone);
+    nodes.push(Node {
+        lo: na.lo.min(nb.lo),
+        hi: na.hi.max(nb.hi),
+        center,
+        radius,
+        cone,
+        cone_cos: cone.angle.cos(),
+        cone_sin: cone.angle.sin(),
+        triangle: u32::MAX,
+        children: [a, b],
+    });
+    (nodes.len() - 1) as u32
 }
 
 /// The smallest sphere holding the triangle's corners (the circumsphere of
