@@ -12,7 +12,7 @@
 //! by the step's `dt`. Since `dt = n ds` this is `int sigma_t ds`, the
 //! optical depth. Outside the volume bounds sigma_t is zero, and a step
 //! that crosses the bounds is charged for its part inside only
-//! ([`step_depth`]).
+//! (`step_depth`).
 
 use crate::patch::{area, Patches};
 use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};

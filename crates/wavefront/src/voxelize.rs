@@ -20,7 +20,7 @@
 //! along their own directions) cross between the patch and the cell
 //! centre, or within half a cell of the centre: where the tube's oriented
 //! area `((x2 - x0) x (x3 - x1)) . d`, a quadratic along the rays, fails
-//! to stay positive ([`rays_cross`]). The intensity law `flux / area`
+//! to stay positive (`rays_cross`). The intensity law `flux / area`
 //! holds only while the tube keeps its orientation; across a caustic its
 //! value is meaningless, and within a cell of one it is the point value of
 //! a singularity (`1 / distance` for a fold), which the cell cannot

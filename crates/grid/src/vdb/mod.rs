@@ -1,7 +1,7 @@
 //! OpenVDB files: a writer of sparse float and vec3s grids (no Rust crate
 //! writes OpenVDB), and import of float grids read through `vdb-rs`.
 //!
-//! * [`Tree`]: the voxels of one grid, kept as 8^3 leaves; [`write`] lays
+//! * [`Tree`]: the voxels of one grid, kept as 8^3 leaves; [`write`](fn@write) lays
 //!   them out as OpenVDB's standard 5-4-3 tree (root, 32^3 internal nodes,
 //!   16^3 internal nodes, 8^3 leaves). Only voxels that differ from the
 //!   background are stored (active); a leaf whose 512 voxels are all active

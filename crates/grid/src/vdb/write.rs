@@ -154,7 +154,7 @@ pub fn write(w: &mut dyn Write, grids: &[Grid], options: &WriteOptions) -> Resul
     Ok(report)
 }
 
-/// [`write`] to the file `path`, atomically: the bytes go to a temporary
+/// [`write`](fn@write) to the file `path`, atomically: the bytes go to a temporary
 /// file beside it, which is renamed into place only once complete, so a
 /// failure never leaves a partial file.
 pub fn write_file(path: &Path, grids: &[Grid], options: &WriteOptions) -> Result<WriteReport> {
