@@ -212,16 +212,7 @@ pub fn camera(scene: &Scene, overrides: &Overrides) -> Result<Camera> {
     if let Some(s) = overrides.samples {
         cs.samples = s;
     }
-    Camera::new(
-        cs.position,
-        cs.target,
-        cs.up,
-        cs.fov,
-        cs.resolution[0],
-        cs.resolution[1],
-        cs.samples,
-    )
-    .with_context(|| format!("{}: camera", scene.origin))
+    Camera::from_settings(&cs).with_context(|| format!("{}: camera", scene.origin))
 }
 
 /// The tone mapping of `scene` with the command line's exposure.

@@ -45,12 +45,7 @@ fn write(dir: &Path, name: &str, text: &str) -> String {
 }
 
 fn has_gpu() -> bool {
-    let ok = eikon_gpu::Gpu::new().is_ok();
-    assert!(
-        ok || std::env::var_os("CI").is_none(),
-        "CI must have a GPU adapter (lavapipe)"
-    );
-    ok
+    eikon_gpu::test_device().is_some()
 }
 
 #[test]

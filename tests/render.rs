@@ -28,17 +28,7 @@ fn setup(text: &str) -> (Scene, Medium, Vec<LightVolume>) {
 }
 
 fn camera(scene: &Scene) -> Camera {
-    let c = camera_settings(scene);
-    Camera::new(
-        c.position,
-        c.target,
-        c.up,
-        c.fov,
-        c.resolution[0],
-        c.resolution[1],
-        c.samples,
-    )
-    .unwrap()
+    Camera::from_settings(&camera_settings(scene)).unwrap()
 }
 
 /// Render with `opts`; also returns the camera.

@@ -292,6 +292,31 @@ pub fn groups(items: usize) -> (u32, u32) {
     (x as u32, g.div_ceil(x) as u32)
 }
 
+/// The device for a test of a GPU backend, under the tests' policy: without
+/// an adapter the test is skipped (`None`), except where the `CI`
+/// environment variable is set (`.ci/run` sets it and installs lavapipe):
+/// there a missing adapter fails the test. Under `WGPU_BACKEND=vulkan` the
+/// adapter must be a Vulkan one.
+pub fn test_device() -> Option<Gpu> {
+    match Gpu::new() {
+        Ok(g) => {
+            println!("adapter: {}", g.describe());
+            if std::env::var("WGPU_BACKEND").is_ok_and(|b| b.eq_ignore_ascii_case("vulkan")) {
+                assert_eq!(g.info.backend, wgpu::Backend::Vulkan, "{}", g.describe());
+            }
+            Some(g)
+        }
+        Err(e) => {
+            assert!(
+                std::env::var_os("CI").is_none(),
+                "CI must have a GPU adapter (lavapipe): {e}"
+            );
+            eprintln!("skipped (no GPU adapter here): {e}");
+            None
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

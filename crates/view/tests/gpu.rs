@@ -18,23 +18,7 @@ use eikon_view::{Camera, Image, Options, Renderer, Surroundings};
 use eikon_wavefront::{simulate_light, LightVolume};
 
 fn gpu() -> Option<Gpu> {
-    match Gpu::new() {
-        Ok(g) => {
-            println!("adapter: {}", g.describe());
-            if std::env::var("WGPU_BACKEND").is_ok_and(|b| b.eq_ignore_ascii_case("vulkan")) {
-                assert_eq!(g.info.backend, wgpu::Backend::Vulkan, "{}", g.describe());
-            }
-            Some(g)
-        }
-        Err(e) => {
-            assert!(
-                std::env::var_os("CI").is_none(),
-                "CI must have a GPU adapter (lavapipe): {e}"
-            );
-            eprintln!("skipped (no GPU adapter here): {e}");
-            None
-        }
-    }
+    eikon_gpu::test_device()
 }
 
 /// Scene, medium and light volumes (simulated with default options).
@@ -54,17 +38,7 @@ fn setup(text: &str) -> (Scene, Medium, Vec<LightVolume>) {
 }
 
 fn camera(scene: &Scene) -> Camera {
-    let c = camera_settings(scene);
-    Camera::new(
-        c.position,
-        c.target,
-        c.up,
-        c.fov,
-        c.resolution[0],
-        c.resolution[1],
-        c.samples,
-    )
-    .unwrap()
+    Camera::from_settings(&camera_settings(scene)).unwrap()
 }
 
 /// The CPU and the GPU image of `text` with `opts`.

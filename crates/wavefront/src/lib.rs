@@ -239,6 +239,112 @@ pub fn check_scene(scene: &Scene, medium: &Medium, opts: &Options) -> Result<(),
     Ok(())
 }
 
+/// What both backends derive from the options before stepping.
+pub(crate) struct Plan {
+    /// Tessellation analysis settings.
+    pub rules: refine::Rules,
+    /// Equal-time step, world units of optical path.
+    pub dt: f64,
+    /// Step limit per wavefront.
+    pub max_steps: usize,
+}
+
+impl Plan {
+    /// The plan for `light` in `medium` under `opts`.
+    pub fn new(light: &Light, medium: &Medium, opts: &Options) -> Plan {
+        let grid = &medium.geometry;
+        let h = grid.voxel_size();
+        let dt = opts.step * h;
+        let n_max = medium.index_range().1 as f64;
+        Plan {
+            rules: refine::Rules {
+                split_span: opts.split * h,
+                threshold: opts.threshold,
+                max_patches: opts.max_patches,
+                max_depth: opts
+                    .max_depth
+                    .unwrap_or_else(|| default_depth(light, grid, opts)),
+            },
+            dt,
+            max_steps: opts
+                .max_steps
+                .unwrap_or((16.0 * grid.diagonal() * n_max / dt).ceil() as usize),
+        }
+    }
+}
+
+/// Wavefront `g` of `groups`: the colour channels it carries (a mask) and,
+/// with dispersion, the one channel it is traced for.
+pub(crate) fn group(g: usize, groups: usize) -> ([f64; 3], Option<usize>) {
+    if groups == 1 {
+        ([1.0; 3], None)
+    } else {
+        let mut m = [0.0; 3];
+        m[g] = 1.0;
+        (m, Some(g))
+    }
+}
+
+impl Summary {
+    /// Count the patches (and their flux) that left the list in a refine.
+    fn add_ended(&mut self, ended: &refine::Ended) {
+        self.exited += ended.exited;
+        self.absorbed += ended.absorbed;
+        self.caustic += ended.caustic;
+        add(&mut self.exited_power, &ended.exited_flux);
+        add(&mut self.culled_power, &ended.culled_flux);
+    }
+}
+
+/// The wavefront of `light` for colour `mask` as it enters the volume, on
+/// either backend: emitted ([`light::emit`]), less what the medium absorbs
+/// around a light inside it, and tessellated until no patch exceeds the
+/// split size. Counts the entered, absorbed and ended power into `summary`.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn start_wavefront(
+    light: &Light,
+    medium: &Medium,
+    field: &propagate::Bounded,
+    opts: &Options,
+    rules: &refine::Rules,
+    mask: [f64; 3],
+    (p, next, scratch): (&mut Patches, &mut Patches, &mut refine::Scratch),
+    summary: &mut Summary,
+) {
+    let grid = &medium.geometry;
+    let h = grid.voxel_size();
+    p.clear();
+    let entered = light::emit(light, grid, field, opts.patch_size * h, mask, p);
+    add(&mut summary.entered, &entered);
+    // A light inside the volume emits from a sphere one voxel across
+    // (a patch needs an area): what the medium absorbs within it, eq 18
+    // over that radius at the light's extinction, never reaches it.
+    if let Light::Point { position, .. } | Light::Spot { position, .. } = light {
+        if grid.contains(*position) {
+            let sigma = medium.sample_rgb(&medium.extinction, *position);
+            let kept = (-sigma * light::INNER_RADIUS_VOXELS * h).exp();
+            for (f, e) in p.flux.iter_mut().zip(p.irradiance.iter_mut()) {
+                for c in 0..3 {
+                    summary.absorbed_power[c] += f[c] * (1.0 - kept[c]);
+                    f[c] *= kept[c];
+                    e[c] *= kept[c];
+                }
+            }
+        }
+    }
+    summary.emitted += p.len();
+    // Patches that start far from a point light are larger than the
+    // split size: tessellate them before the first step.
+    for _ in 0..16 {
+        let before = p.len();
+        let ended = refine::refine(p, next, scratch, field, grid, rules, &mut summary.held);
+        summary.add_ended(&ended);
+        if p.len() == before {
+            break;
+        }
+    }
+}
+
 /// Simulate one light: its wavefront (or, with dispersion, one wavefront
 /// per colour channel, each through its own index field) from emission to
 /// the last patch. Returns the light volume and the summary.
@@ -250,83 +356,31 @@ pub fn simulate_light(
 ) -> Result<(LightVolume, Summary), Error> {
     opts.check()?;
     let grid = &medium.geometry;
-    let h = grid.voxel_size();
     let groups = medium.channels();
     let mut volume = LightVolume::new(grid, groups);
     let mut summary = Summary::default();
-    let rules = refine::Rules {
-        split_span: opts.split * h,
-        threshold: opts.threshold,
-        max_patches: opts.max_patches,
-        max_depth: opts
-            .max_depth
-            .unwrap_or_else(|| default_depth(light, grid, opts)),
-    };
-    let dt = opts.step * h;
-    let n_max = medium.index_range().1 as f64;
-    let max_steps = opts
-        .max_steps
-        .unwrap_or((16.0 * grid.diagonal() * n_max / dt).ceil() as usize);
+    let Plan {
+        rules,
+        dt,
+        max_steps,
+    } = Plan::new(light, medium, opts);
     let (mut p, mut next) = (Patches::default(), Patches::default());
     let mut scratch = refine::Scratch::default();
     let mut absorbed = Vec::new();
     for g in 0..groups {
-        let (mask, group) = if groups == 1 {
-            ([1.0; 3], None)
-        } else {
-            let mut m = [0.0; 3];
-            m[g] = 1.0;
-            (m, Some(g))
-        };
+        let (mask, group) = group(g, groups);
         let field = propagate::Bounded::new(medium, g);
         let empty = eikon_grid::EmptySpace::new(medium, g);
-        p.clear();
-        let entered = light::emit(light, grid, &field, opts.patch_size * h, mask, &mut p);
-        add(&mut summary.entered, &entered);
-        // A light inside the volume emits from a sphere one voxel across
-        // (a patch needs an area): what the medium absorbs within it, eq 18
-        // over that radius at the light's extinction, never reaches it.
-        if let Light::Point { position, .. } | Light::Spot { position, .. } = light {
-            if grid.contains(*position) {
-                let sigma = medium.sample_rgb(&medium.extinction, *position);
-                let kept = (-sigma * light::INNER_RADIUS_VOXELS * h).exp();
-                for (f, e) in p.flux.iter_mut().zip(p.irradiance.iter_mut()) {
-                    for c in 0..3 {
-                        summary.absorbed_power[c] += f[c] * (1.0 - kept[c]);
-                        f[c] *= kept[c];
-                        e[c] *= kept[c];
-                    }
-                }
-            }
-        }
-        summary.emitted += p.len();
-        // Step 3 (and its book-keeping): tessellation analysis and the new
-        // patch list.
-        let mut refine = |p: &mut Patches, s: &mut Summary| {
-            let ended = refine::refine(
-                p,
-                &mut next,
-                &mut scratch,
-                &field,
-                grid,
-                &rules,
-                &mut s.held,
-            );
-            s.exited += ended.exited;
-            s.absorbed += ended.absorbed;
-            s.caustic += ended.caustic;
-            add(&mut s.exited_power, &ended.exited_flux);
-            add(&mut s.culled_power, &ended.culled_flux);
-        };
-        // Patches that start far from a point light are larger than the
-        // split size: tessellate them before the first step.
-        for _ in 0..16 {
-            let before = p.len();
-            refine(&mut p, &mut summary);
-            if p.len() == before {
-                break;
-            }
-        }
+        start_wavefront(
+            light,
+            medium,
+            &field,
+            opts,
+            &rules,
+            mask,
+            (&mut p, &mut next, &mut scratch),
+            &mut summary,
+        );
         volume.deposit(&p, medium, &empty, group);
         let mut step = 0;
         while !p.is_empty() && step < max_steps {
@@ -344,7 +398,16 @@ pub fn simulate_light(
                 add(&mut summary.absorbed_power, a);
             }
             propagate::irradiance(&mut p);
-            refine(&mut p, &mut summary);
+            let ended = refine::refine(
+                &mut p,
+                &mut next,
+                &mut scratch,
+                &field,
+                grid,
+                &rules,
+                &mut summary.held,
+            );
+            summary.add_ended(&ended);
             volume.deposit(&p, medium, &empty, group);
             summary.peak_patches = summary.peak_patches.max(p.len());
             progress(step, p.len());

@@ -8,23 +8,7 @@ use eikon_wavefront::gpu::GpuHistoPyramid;
 use eikon_wavefront::HistoPyramid;
 
 fn gpu() -> Option<Gpu> {
-    match Gpu::new() {
-        Ok(g) => {
-            println!("adapter: {}", g.describe());
-            if std::env::var("WGPU_BACKEND").is_ok_and(|b| b.eq_ignore_ascii_case("vulkan")) {
-                assert_eq!(g.info.backend, wgpu::Backend::Vulkan, "{}", g.describe());
-            }
-            Some(g)
-        }
-        Err(e) => {
-            assert!(
-                std::env::var_os("CI").is_none(),
-                "CI must have a GPU adapter (lavapipe): {e}"
-            );
-            eprintln!("skipped (no GPU adapter here): {e}");
-            None
-        }
-    }
+    eikon_gpu::test_device()
 }
 
 /// A seeded xorshift, so the cases are the same on every run.

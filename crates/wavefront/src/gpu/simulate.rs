@@ -49,7 +49,7 @@
 
 use crate::patch::Patches;
 use crate::Summary;
-use crate::{default_depth, light, propagate, refine, Error, LightVolume, Options, Progress};
+use crate::{propagate, refine, Error, LightVolume, Options, Progress};
 use eikon_gpu::{groups, Gpu, GpuError};
 use eikon_grid::{EmptySpace, Light, Medium, Method};
 use glam::DVec3;
@@ -490,24 +490,15 @@ impl<'a> GpuSimulator<'a> {
         let medium = self.medium;
         let grid = &medium.geometry;
         let gpu = self.gpu;
-        let h = grid.voxel_size();
         let ngroups = medium.channels();
         let cells = grid.voxel_count();
         let mut summary = Summary::default();
-        let rules = refine::Rules {
-            split_span: opts.split * h,
-            threshold: opts.threshold,
-            max_patches: opts.max_patches,
-            max_depth: opts
-                .max_depth
-                .unwrap_or_else(|| default_depth(light, grid, opts)),
-        };
+        let crate::Plan {
+            rules,
+            dt,
+            max_steps,
+        } = crate::Plan::new(light, medium, opts);
         let max_patches = opts.max_patches.min(self.patch_limit());
-        let dt = opts.step * h;
-        let n_max = medium.index_range().1 as f64;
-        let max_steps = opts
-            .max_steps
-            .unwrap_or((16.0 * grid.diagonal() * n_max / dt).ceil() as usize);
 
         // The light volume: one buffer per channel and component.
         let vol = |label| gpu.storage_empty(label, cells as u64 * 4);
@@ -554,54 +545,19 @@ impl<'a> GpuSimulator<'a> {
         let (mut p, mut next) = (Patches::default(), Patches::default());
         let mut scratch = refine::Scratch::default();
         for g in 0..ngroups {
-            let (mask, group) = if ngroups == 1 {
-                ([1.0; 3], None)
-            } else {
-                let mut m = [0.0; 3];
-                m[g] = 1.0;
-                (m, Some(g))
-            };
-            // Emission and the pre-step tessellation exactly as the CPU's.
+            let (mask, group) = crate::group(g, ngroups);
+            // Emission and the pre-step tessellation are the CPU's own.
             let field = propagate::Bounded::new(medium, g);
-            p.clear();
-            let entered = light::emit(light, grid, &field, opts.patch_size * h, mask, &mut p);
-            (0..3).for_each(|c| summary.entered[c] += entered[c]);
-            if let Light::Point { position, .. } | Light::Spot { position, .. } = light {
-                if grid.contains(*position) {
-                    let sigma = medium.sample_rgb(&medium.extinction, *position);
-                    let kept = (-sigma * light::INNER_RADIUS_VOXELS * h).exp();
-                    for (f, e) in p.flux.iter_mut().zip(p.irradiance.iter_mut()) {
-                        for c in 0..3 {
-                            summary.absorbed_power[c] += f[c] * (1.0 - kept[c]);
-                            f[c] *= kept[c];
-                            e[c] *= kept[c];
-                        }
-                    }
-                }
-            }
-            summary.emitted += p.len();
-            for _ in 0..16 {
-                let before = p.len();
-                let ended = refine::refine(
-                    &mut p,
-                    &mut next,
-                    &mut scratch,
-                    &field,
-                    grid,
-                    &rules,
-                    &mut summary.held,
-                );
-                summary.exited += ended.exited;
-                summary.absorbed += ended.absorbed;
-                summary.caustic += ended.caustic;
-                (0..3).for_each(|c| {
-                    summary.exited_power[c] += ended.exited_flux[c];
-                    summary.culled_power[c] += ended.culled_flux[c];
-                });
-                if p.len() == before {
-                    break;
-                }
-            }
+            crate::start_wavefront(
+                light,
+                medium,
+                &field,
+                opts,
+                &rules,
+                mask,
+                (&mut p, &mut next, &mut scratch),
+                &mut summary,
+            );
             let n0 = p.len();
             if n0 == 0 {
                 directions.push(Array4::zeros((grid.dims[0], grid.dims[1], grid.dims[2], 3)));
