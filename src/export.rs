@@ -22,7 +22,7 @@ pub struct Args {
     /// Scene file (TOML).
     scene: PathBuf,
     /// Light volumes written by `eikon simulate` (needed for the
-    /// `irradiance` and `direction` grids).
+    /// `fluence` and `flux` grids).
     #[arg(long)]
     light: Option<PathBuf>,
     /// OpenVDB file to write (several grids in one file).
@@ -33,8 +33,7 @@ pub struct Args {
     #[arg(long)]
     npy: Option<PathBuf>,
     /// Grids to export, comma-separated, from n, grad_n, sigma_t,
-    /// irradiance, direction [default: all; irradiance and direction only
-    /// with --light].
+    /// fluence, flux [default: all; fluence and flux only with --light].
     #[arg(long, value_delimiter = ',')]
     grids: Option<Vec<String>>,
     /// Store VDB values as 16-bit half floats (about 3 significant digits;
@@ -58,16 +57,16 @@ enum Key {
     N,
     GradN,
     SigmaT,
-    Irradiance,
-    Direction,
+    Fluence,
+    Flux,
 }
 
 const KEYS: [(&str, Key); 5] = [
     ("n", Key::N),
     ("grad_n", Key::GradN),
     ("sigma_t", Key::SigmaT),
-    ("irradiance", Key::Irradiance),
-    ("direction", Key::Direction),
+    ("fluence", Key::Fluence),
+    ("flux", Key::Flux),
 ];
 
 /// The values of one exported volume, on the scene's grid.
@@ -101,7 +100,7 @@ fn parse_keys(args: &Args) -> Result<Vec<Key>> {
                 KEYS.map(|k| k.0).join(", ")
             );
         };
-        if matches!(k, Key::Irradiance | Key::Direction) && args.light.is_none() {
+        if matches!(k, Key::Fluence | Key::Flux) && args.light.is_none() {
             bail!("--grids {name}: needs --light OUT/ (the output of `eikon simulate` for this scene)");
         }
         if !keys.contains(&k) {
@@ -177,48 +176,53 @@ fn volumes(scene: &Scene, medium: &Medium, lights: &[LightVolume], keys: &[Key])
         });
     }
     let several = lights.len() > 1;
-    if keys.contains(&Key::Irradiance) && !lights.is_empty() {
+    if keys.contains(&Key::Fluence) && !lights.is_empty() {
+        // All lights together, then each light (when there are several).
         let mut total = Array4::<f32>::zeros((nx, ny, nz, 3));
         for l in lights {
-            total += &l.irradiance;
+            total += &l.fluence;
         }
-        out.push(Volume {
-            name: "irradiance".into(),
-            class: GridClass::Unknown,
-            units: "W/m^2",
-            description: if several {
-                "differential irradiance, R, G, B, all lights".into()
-            } else {
-                "differential irradiance, R, G, B".into()
-            },
-            values: Values::Vec3(total, [0.0; 3], VectorType::Invariant),
-        });
+        let mut sets = vec![(String::new(), "all lights".to_string(), total)];
         if several {
-            for (i, l) in lights.iter().enumerate() {
-                out.push(Volume {
-                    name: format!("irradiance_{i}"),
-                    class: GridClass::Unknown,
-                    units: "W/m^2",
-                    description: format!("differential irradiance, R, G, B, light {i}"),
-                    values: Values::Vec3(l.irradiance.clone(), [0.0; 3], VectorType::Invariant),
-                });
-            }
+            sets.extend(
+                lights
+                    .iter()
+                    .enumerate()
+                    .map(|(i, l)| (format!("_{i}"), format!("light {i}"), l.fluence.clone())),
+            );
+        }
+        for (suffix, who, rgb) in sets {
+            let mean = rgb.mean_axis(Axis(3)).expect("3 channels");
+            out.push(Volume {
+                name: format!("fluence{suffix}"),
+                class: GridClass::FogVolume,
+                units: "W/world unit^2",
+                description: format!("fluence rate, mean of R, G, B, {who}"),
+                values: Values::Float(mean, 0.0),
+            });
+            out.push(Volume {
+                name: format!("fluence_rgb{suffix}"),
+                class: GridClass::Unknown,
+                units: "W/world unit^2",
+                description: format!("fluence rate, R, G, B, {who}"),
+                values: Values::Vec3(rgb, [0.0; 3], VectorType::Invariant),
+            });
         }
     }
-    if keys.contains(&Key::Direction) {
+    if keys.contains(&Key::Flux) {
         for (i, l) in lights.iter().enumerate() {
             let base = if several {
-                format!("direction_{i}")
+                format!("flux_{i}")
             } else {
-                "direction".into()
+                "flux".into()
             };
-            for (c, d) in l.direction.iter().enumerate() {
+            for (c, f) in l.flux.iter().enumerate() {
                 out.push(Volume {
-                    name: channel_name(&base, c, l.direction.len()),
+                    name: channel_name(&base, c, l.flux.len()),
                     class: GridClass::Unknown,
-                    units: "1 (unit vector)",
-                    description: format!("direction of travel of light {i}"),
-                    values: Values::Vec3(d.clone(), [0.0; 3], VectorType::ContravariantRelative),
+                    units: "W/world unit^2",
+                    description: format!("net flux vector (vector irradiance) of light {i}"),
+                    values: Values::Vec3(f.clone(), [0.0; 3], VectorType::ContravariantRelative),
                 });
             }
         }

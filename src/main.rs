@@ -35,7 +35,7 @@ enum Command {
     Slice(slice::Args),
     /// Simulate every light by adaptive wavefront tracing; write the light volumes.
     Simulate(simulate::Args),
-    /// Print the simulated irradiance and light direction at a point.
+    /// Print the simulated fluence and net flux at a point.
     Probe(probe::Args),
     /// Render an image of a scene lit by simulated light volumes.
     Render(render::Args),

@@ -102,13 +102,8 @@ pub fn run(args: Args) -> Result<()> {
                 read_npy(&path).with_context(|| format!("{}: cannot read", path.display()))?;
             Ok(a)
         };
-        let irr = file("irradiance_file")?;
-        // Photon volumes carry no direction.
-        let dir = if l["direction_file"].is_null() {
-            None
-        } else {
-            Some(file("direction_file")?)
-        };
+        let irr = file("fluence_file")?;
+        let dir = Some(file("flux_file")?);
         let shape_ok = |a: &ArrayD<f32>, lead: usize| {
             a.ndim() == 4 + lead && a.shape()[lead..lead + 3] == dims && a.shape()[lead + 3] == 3
         };
@@ -125,9 +120,9 @@ pub fn run(args: Args) -> Result<()> {
         let e = trilinear(&irr, &[], dims, u);
         let directions: Vec<DVec3> = match &dir {
             None => Vec::new(),
-            Some(d) if d.ndim() == 4 => vec![trilinear(d, &[], dims, u).normalize_or_zero()],
+            Some(d) if d.ndim() == 4 => vec![trilinear(d, &[], dims, u)],
             Some(d) => (0..d.shape()[0])
-                .map(|c| trilinear(d, &[c], dims, u).normalize_or_zero())
+                .map(|c| trilinear(d, &[c], dims, u))
                 .collect(),
         };
         out.push((e, directions));
@@ -137,8 +132,8 @@ pub fn run(args: Args) -> Result<()> {
             .iter()
             .map(|(e, d)| {
                 json!({
-                    "irradiance": e.to_array(),
-                    "direction": d.iter().map(|x| x.to_array()).collect::<Vec<_>>(),
+                    "fluence": e.to_array(),
+                    "flux": d.iter().map(|x| x.to_array()).collect::<Vec<_>>(),
                 })
             })
             .collect();
@@ -150,12 +145,12 @@ pub fn run(args: Args) -> Result<()> {
         println!("at            {}", fmt_vec(args.at));
         for (i, (e, d)) in out.iter().enumerate() {
             println!("light {i}");
-            println!("  irradiance  {} W/m^2 (R, G, B)", fmt_vec(*e));
+            println!("  fluence     {} W/unit^2 (R, G, B)", fmt_vec(*e));
             for (c, dc) in d.iter().enumerate() {
                 let label = if d.len() == 1 {
-                    "direction ".to_string()
+                    "flux".to_string()
                 } else {
-                    format!("direction {}", ["R", "G", "B"][c])
+                    format!("flux {}", ["R", "G", "B"][c])
                 };
                 println!("  {label:<11} {}", fmt_vec(*dc));
             }

@@ -395,6 +395,13 @@ pub fn load_light_volumes(dir: &Path, scene: &Scene, medium: &Medium) -> Result<
             sidecar.display()
         );
     }
+    if meta["version"] != 2 {
+        bail!(
+            "{}: version: {} is not 2 (light volumes written before fluence and flux were stored): simulate this scene again",
+            sidecar.display(),
+            meta["version"]
+        );
+    }
     let g = &medium.geometry;
     let dims: [usize; 3] = serde_json::from_value(meta["grid"]["dims"].clone())
         .with_context(|| format!("{}: grid.dims", sidecar.display()))?;
@@ -432,23 +439,16 @@ pub fn load_light_volumes(dir: &Path, scene: &Scene, medium: &Medium) -> Result<
     let mut out = Vec::new();
     for (i, l) in lights.iter().enumerate() {
         let file = |key: &str| -> Result<(PathBuf, ArrayD<f32>)> {
-            let name = l[key].as_str().with_context(|| {
-                if key == "direction_file" {
-                    format!(
-                        "{}: lights[{i}]: no direction volume (photon volumes cannot be rendered: the phase function needs the light's direction)",
-                        sidecar.display()
-                    )
-                } else {
-                    format!("{}: lights[{i}].{key}", sidecar.display())
-                }
-            })?;
+            let name = l[key]
+                .as_str()
+                .with_context(|| format!("{}: lights[{i}].{key}", sidecar.display()))?;
             let path = dir.join(name);
             let a: ArrayD<f32> =
                 read_npy(&path).with_context(|| format!("{}: cannot read", path.display()))?;
             Ok((path, a))
         };
-        let (irr_path, irr) = file("irradiance_file")?;
-        let (dir_path, d) = file("direction_file")?;
+        let (irr_path, irr) = file("fluence_file")?;
+        let (dir_path, d) = file("flux_file")?;
         let irr: Array4<f32> = irr.into_dimensionality::<Ix4>().map_err(|_| {
             anyhow::anyhow!("{}: not a 4-D (nx, ny, nz, 3) array", irr_path.display())
         })?;
@@ -465,7 +465,7 @@ pub fn load_light_volumes(dir: &Path, scene: &Scene, medium: &Medium) -> Result<
         };
         if direction.len() != medium.channels() {
             bail!(
-                "{}: {} direction volume(s) but the scene has {} index field(s) (dispersion differs): simulate this scene again",
+                "{}: {} flux volume(s) but the scene has {} index field(s) (dispersion differs): simulate this scene again",
                 dir_path.display(),
                 direction.len(),
                 medium.channels()

@@ -6,20 +6,12 @@ use anyhow::{bail, Context, Result};
 use clap::ValueEnum;
 use eikon_grid::{Light, Medium, Method, Scene};
 use eikon_wavefront::photons::simulate_photons;
-use eikon_wavefront::{check_scene, simulate_light, LightVolume, Options, Summary};
+use eikon_wavefront::{check_scene, simulate_light, DepositRule, LightVolume, Options, Summary};
 use ndarray::{Array4, Array5, Axis};
 use ndarray_npy::WriteNpyExt;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-
-/// What one light's simulation produced.
-enum Volumes {
-    /// Irradiance and direction volumes.
-    Wavefront(LightVolume),
-    /// The photon estimate of the irradiance.
-    Photons(Array4<f32>),
-}
 
 /// The sidecar that describes a light-volume directory.
 pub const SIDECAR: &str = "light_volumes.json";
@@ -29,8 +21,18 @@ enum SimMethod {
     /// Adaptive wavefront tracing (the paper's method).
     Wavefront,
     /// Brute-force photons with a track-length histogram: the baseline and
-    /// cross-check (no direction volume).
+    /// cross-check (the same fluence and flux volumes, with noise).
     Photons,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
+enum DepositArg {
+    /// Track-length fluence and net flux of every patch; light passes
+    /// through caustics.
+    Fluence,
+    /// The paper's rule (5.2.2): the highest-energy ray per cell, patches
+    /// culled at caustics. With --no-fresnel it reproduces the paper.
+    Paper,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -74,6 +76,12 @@ pub struct Args {
     /// Light transport method.
     #[arg(long, value_enum, default_value = "wavefront")]
     method: SimMethod,
+    /// How the wavefront becomes a light volume.
+    #[arg(long, value_enum, default_value = "fluence")]
+    deposit: DepositArg,
+    /// No Fresnel transmission at interfaces (the paper's eq 18 has none).
+    #[arg(long)]
+    no_fresnel: bool,
     /// Photons per light (per colour channel with dispersion), with
     /// `--method photons`.
     #[arg(long, default_value_t = 1_000_000)]
@@ -133,6 +141,7 @@ pub fn summary_json(s: &Summary, seconds: f64) -> Value {
             "entered": s.entered,
             "absorbed": s.absorbed_power,
             "exited": s.exited_power,
+            "reflected": s.reflected_power,
             "culled": s.culled_power,
             "imbalance_relative": s.energy_imbalance(),
         },
@@ -158,6 +167,7 @@ fn print_summary(i: usize, s: &Summary, seconds: f64) {
     println!("  entered        {} W", rgb(s.entered));
     println!("  absorbed       {} W", rgb(s.absorbed_power));
     println!("  exited         {} W", rgb(s.exited_power));
+    println!("  reflected      {} W", rgb(s.reflected_power));
     println!("  culled         {} W", rgb(s.culled_power));
     println!(
         "  imbalance      {:.2e} of the entered power",
@@ -202,7 +212,12 @@ impl Args {
             threshold: self.threshold,
             max_patches: self.max_patches,
             max_steps: self.max_steps,
-            ..Options::default()
+            deposit: match self.deposit {
+                DepositArg::Fluence => DepositRule::Fluence,
+                DepositArg::Paper => DepositRule::Paper,
+            },
+            fresnel: !self.no_fresnel,
+            max_depth: None,
         };
         if let Err(e) = opts.check() {
             bail!("--{e}");
@@ -250,9 +265,8 @@ pub fn simulate_quiet(
 }
 
 /// Simulate every light of `scene` (built as `medium`), write the volumes
-/// and the sidecar to `args.output`, print the summary. Returns the
-/// wavefront light volumes (none for photons). The wavefront runs on
-/// `backend`.
+/// and the sidecar to `args.output`, print the summary. Returns the light
+/// volumes (of either method). The wavefront runs on `backend`.
 pub fn simulate(
     args: &Args,
     scene: &Scene,
@@ -273,7 +287,7 @@ pub fn simulate(
         }
         _ => None,
     };
-    let mut results: Vec<(Volumes, Summary, f64)> = Vec::new();
+    let mut results: Vec<(LightVolume, Summary, f64)> = Vec::new();
     for (i, light) in scene.lights.iter().enumerate() {
         let bar = indicatif::ProgressBar::new_spinner();
         bar.set_style(
@@ -288,17 +302,15 @@ pub fn simulate(
                     bar.set_message(format!("step {step}, {live} live patches"));
                     bar.tick();
                 };
-                let (v, s) = match &gpu {
+                match &gpu {
                     Some(sim) => sim.simulate(light, &opts, &progress)?,
                     None => simulate_light(light, medium, &opts, &progress)?,
-                };
-                (Volumes::Wavefront(v), s)
+                }
             }
             SimMethod::Photons => {
                 bar.set_message(format!("tracing {} photons", args.count));
                 bar.enable_steady_tick(std::time::Duration::from_millis(200));
-                let (v, s) = simulate_photons(light, medium, args.count, args.seed, &opts)?;
-                (Volumes::Photons(v.irradiance), s)
+                simulate_photons(light, medium, args.count, args.seed, &opts)?
             }
         };
         bar.finish_and_clear();
@@ -317,33 +329,28 @@ pub fn simulate(
     let g = &medium.geometry;
     let mut lights = Vec::new();
     for (i, ((volume, summary, secs), light)) in results.iter().zip(&scene.lights).enumerate() {
-        let irr = format!("light{i}_irradiance.npy");
+        let flu = format!("light{i}_fluence.npy");
         let mut l = light_json(light);
-        l["irradiance_file"] = json!(irr);
-        match volume {
-            Volumes::Wavefront(volume) => {
-                write_npy(&args.output, &irr, &volume.irradiance)?;
-                let dir = format!("light{i}_direction.npy");
-                let shape: Vec<usize> = if volume.direction.len() == 1 {
-                    write_npy(&args.output, &dir, &volume.direction[0])?;
-                    volume.direction[0].shape().to_vec()
-                } else {
-                    let views: Vec<_> = volume.direction.iter().map(Array4::view).collect();
-                    let stacked: Array5<f32> = ndarray::stack(Axis(0), &views)?;
-                    write_npy(&args.output, &dir, &stacked)?;
-                    stacked.shape().to_vec()
-                };
-                l["direction_file"] = json!(dir);
-                l["direction_shape"] = json!(shape);
-            }
-            Volumes::Photons(irradiance) => write_npy(&args.output, &irr, irradiance)?,
-        }
+        l["fluence_file"] = json!(flu);
+        write_npy(&args.output, &flu, &volume.fluence)?;
+        let flux = format!("light{i}_flux.npy");
+        let shape: Vec<usize> = if volume.flux.len() == 1 {
+            write_npy(&args.output, &flux, &volume.flux[0])?;
+            volume.flux[0].shape().to_vec()
+        } else {
+            let views: Vec<_> = volume.flux.iter().map(Array4::view).collect();
+            let stacked: Array5<f32> = ndarray::stack(Axis(0), &views)?;
+            write_npy(&args.output, &flux, &stacked)?;
+            stacked.shape().to_vec()
+        };
+        l["flux_file"] = json!(flux);
+        l["flux_shape"] = json!(shape);
         l["summary"] = summary_json(summary, *secs);
         lights.push(l);
     }
     let sidecar = json!({
         "format": "eikon-light-volumes",
-        "version": 1,
+        "version": 2,
         "scene": args.scene.display().to_string(),
         "grid": {
             "dims": g.dims,
@@ -354,8 +361,8 @@ pub fn simulate(
         },
         "units": {
             "length": "world units of the scene",
-            "irradiance": "W/m^2: wavefront: differential irradiance across the wavefront, highest-energy ray per cell (in-scattered radiance per unit length is albedo * sigma_t * phase(direction, view) * irradiance); photons: fluence rate, the cell average of the summed irradiance of all rays",
-            "direction": "unit vector of travel of the kept ray; shape (nx, ny, nz, 3), or (3, nx, ny, nz, 3) per R, G, B with dispersion",
+            "fluence": "W per world unit^2 (W/m^2 when the unit is the metre), R, G, B: the fluence rate phi, the cell average of the integral of radiance over all directions (track-length estimate; ray families add); with --deposit paper the differential irradiance of the highest-energy ray",
+            "flux": "W per world unit^2: the net flux vector F (vector irradiance, the first angular moment), cell average; shape (nx, ny, nz, 3) holding the mean of the R, G, B channels' vectors, or (3, nx, ny, nz, 3) per channel with dispersion. In-scattered radiance per unit length is albedo * sigma_t * phi * p_HG(w . F/|F|; g * |F|/phi); a surface of normal N facing the light receives max(0, -F . N)",
         },
         "method": match args.method {
             SimMethod::Wavefront => "wavefront",
@@ -367,6 +374,11 @@ pub fn simulate(
             "patch_size_voxels": opts.patch_size,
             "split_voxels": opts.split,
             "threshold": opts.threshold,
+            "deposit": match opts.deposit {
+                DepositRule::Fluence => "fluence",
+                DepositRule::Paper => "paper",
+            },
+            "fresnel": opts.fresnel,
             "photons": (args.method == SimMethod::Photons).then_some(args.count),
             "seed": (args.method == SimMethod::Photons).then_some(args.seed),
         },
@@ -404,11 +416,5 @@ pub fn simulate(
             args.output.display()
         );
     }
-    Ok(results
-        .into_iter()
-        .filter_map(|(v, _, _)| match v {
-            Volumes::Wavefront(v) => Some(v),
-            Volumes::Photons(_) => None,
-        })
-        .collect())
+    Ok(results.into_iter().map(|(v, _, _)| v).collect())
 }

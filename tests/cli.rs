@@ -306,12 +306,13 @@ fn simulate_writes_light_volumes_that_probe_reads() {
     assert!((energy["entered"][0].as_f64().unwrap() - 4.0).abs() < 1e-9);
     for f in [
         "light_volumes.json",
-        "light0_irradiance.npy",
-        "light0_direction.npy",
+        "light0_fluence.npy",
+        "light0_flux.npy",
     ] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
-    // 0.5 away from the light: irradiance P / (4 pi r^2), pointing away.
+    // 0.5 away from the light: fluence P / (4 pi r^2), the net flux as
+    // large, pointing away.
     let at = [0.6, 0.05, -0.02];
     let probe = eikon_ok(&[
         "probe",
@@ -321,11 +322,16 @@ fn simulate_writes_light_volumes_that_probe_reads() {
         "--json",
     ]);
     let v: serde_json::Value = serde_json::from_slice(&probe.stdout).unwrap();
-    let e = v["lights"][0]["irradiance"][0].as_f64().unwrap();
+    let e = v["lights"][0]["fluence"][0].as_f64().unwrap();
     let want = 4.0 / (4.0 * std::f64::consts::PI * 0.25);
     assert!((e / want - 1.0).abs() < 0.02, "{e} vs {want}");
-    let d = v["lights"][0]["direction"][0][0].as_f64().unwrap();
-    assert!(d > 0.99, "direction x {d}");
+    // The flux vector is the mean of the channels' vectors.
+    let mean = (0..3)
+        .map(|c| v["lights"][0]["fluence"][c].as_f64().unwrap())
+        .sum::<f64>()
+        / 3.0;
+    let f = v["lights"][0]["flux"][0][0].as_f64().unwrap();
+    assert!(f / mean > 0.99, "flux x {f}, mean fluence {mean}");
     // Outside the volume is refused.
     expect_error(
         &["probe", out.to_str().unwrap(), "--at", "3,0,0"],
@@ -405,7 +411,7 @@ fn simulate_with_photons_agrees_with_the_wavefront_in_free_space() {
         serde_json::from_str(&std::fs::read_to_string(out.join("light_volumes.json")).unwrap())
             .unwrap();
     assert_eq!(meta["method"], "photons");
-    assert!(meta["lights"][0]["direction_file"].is_null());
+    assert_eq!(meta["lights"][0]["flux_file"], "light0_flux.npy");
     let probe = eikon_ok(&[
         "probe",
         out.to_str().unwrap(),
@@ -414,7 +420,7 @@ fn simulate_with_photons_agrees_with_the_wavefront_in_free_space() {
         "--json",
     ]);
     let v: serde_json::Value = serde_json::from_slice(&probe.stdout).unwrap();
-    let e = v["lights"][0]["irradiance"][0].as_f64().unwrap();
+    let e = v["lights"][0]["fluence"][0].as_f64().unwrap();
     let r2 = 0.6f64.powi(2) + 0.35f64.powi(2) + 0.32f64.powi(2);
     let want = 4.0 / (4.0 * std::f64::consts::PI * r2);
     // 200k photons over 32^3 cells: a few hundred crossings per cell.
@@ -471,7 +477,7 @@ fn run_simulates_and_renders_and_render_reuses_the_volumes() {
     eikon_ok(&["run", scene.to_str().unwrap(), "-o", out.to_str().unwrap()]);
     for f in [
         "light_volumes.json",
-        "light0_irradiance.npy",
+        "light0_fluence.npy",
         "image.exr",
         "image.png",
     ] {

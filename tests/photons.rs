@@ -7,14 +7,24 @@ mod common;
 
 use common::{medium, GLASS_SPHERE};
 use eikon_grid::{Light, Medium};
-use eikon_wavefront::photons::{simulate_photons, PhotonVolume};
+use eikon_wavefront::photons::simulate_photons;
+use eikon_wavefront::LightVolume;
 use eikon_wavefront::{simulate_light, Options, Summary};
 use glam::DVec3;
 use ndarray::{Array3, Array4};
 use std::time::Instant;
 
-fn photons(light: &Light, m: &Medium, count: usize, seed: u64) -> (PhotonVolume, Summary) {
-    simulate_photons(light, m, count, seed, &Options::default()).unwrap()
+fn photons(light: &Light, m: &Medium, count: usize, seed: u64) -> (LightVolume, Summary) {
+    simulate_photons(light, m, count, seed, &no_fresnel()).unwrap()
+}
+
+/// The default options without Fresnel transmission: these tests compare
+/// with geometric optics that has none.
+fn no_fresnel() -> Options {
+    Options {
+        fresnel: false,
+        ..Options::default()
+    }
 }
 
 #[test]
@@ -96,7 +106,7 @@ fn photons_decay_by_beer_lambert() {
                         .product();
                     let want = 3.0 * (-s * depth(x)).exp() * mean;
                     darkest = darkest.min(want / 3.0);
-                    sum += vol.irradiance[[i, j, k, c]] as f64 / want;
+                    sum += vol.fluence[[i, j, k, c]] as f64 / want;
                     n += 1;
                 }
             }
@@ -139,7 +149,7 @@ fn photon_energy_balances_and_is_deterministic() {
     for (l, light) in scene.lights.iter().enumerate() {
         let (a, sa) = with(1, light);
         let (b, sb) = with(2, light);
-        assert_eq!(a.irradiance, b.irradiance, "light {l}: volumes differ");
+        assert_eq!(a.fluence, b.fluence, "light {l}: volumes differ");
         assert_eq!(sa, sb, "light {l}: summaries differ");
         let imbalance = sa.energy_imbalance();
         // What the wavefront's patches carry in (its first step, emission).
@@ -175,7 +185,7 @@ fn photon_energy_balances_and_is_deterministic() {
     // Another seed draws other photons.
     let (a, _) = with(2, &scene.lights[0]);
     let (b, _) = photons(&scene.lights[0], &m, 20_000, 4);
-    assert_ne!(a.irradiance, b.irradiance);
+    assert_ne!(a.fluence, b.fluence);
 }
 
 /// The glass sphere of Fig. 7 (configs/glass-sphere.toml) at 64^3.
@@ -320,7 +330,7 @@ fn wavefront_and_photons_agree_on_the_glass_sphere_away_from_caustics() {
     let d = DVec3::new(0.2, -1.0, 0.1).normalize();
     let incident = 3.0; // W/m^2, summed over the channels
     let t = Instant::now();
-    let (wf, _) = simulate_light(light, &m, &Options::default(), &|_, _| {}).unwrap();
+    let (wf, _) = simulate_light(light, &m, &no_fresnel(), &|_, _| {}).unwrap();
     let t_wf = t.elapsed().as_secs_f64();
     // Two independent runs: their mean is the estimate, their difference
     // measures its noise.
@@ -341,7 +351,7 @@ fn wavefront_and_photons_agree_on_the_glass_sphere_away_from_caustics() {
     let g = &m.geometry;
     let h = g.voxel_size();
     let keep = |i: usize, j: usize, k: usize| {
-        let e: f64 = (0..3).map(|c| wf.irradiance[[i, j, k, c]] as f64).sum();
+        let e: f64 = (0..3).map(|c| wf.fluence[[i, j, k, c]] as f64).sum();
         let x = g.voxel_center(i, j, k);
         (0.25 * incident..=2.0 * incident).contains(&e)
             && ((x - centre).length() - radius).abs() > 2.0 * h
@@ -360,15 +370,7 @@ fn wavefront_and_photons_agree_on_the_glass_sphere_away_from_caustics() {
     println!("glass sphere: wavefront {t_wf:.2} s, 2 x {count} photons {t_ph:.2} s");
     let mut result = None;
     for size in [1, 2] {
-        let c = compare(
-            &wf.irradiance,
-            &pa.irradiance,
-            &pb.irradiance,
-            size,
-            keep,
-            region,
-            g,
-        );
+        let c = compare(&wf.fluence, &pa.fluence, &pb.fluence, size, keep, region, g);
         println!(
             "  {size}^3 blocks: {} compared ({} voxels), mean relative difference {:.4} (photon noise {:.4})",
             c.blocks,
@@ -395,11 +397,7 @@ fn wavefront_and_photons_agree_on_the_glass_sphere_away_from_caustics() {
     // (clear of the smoothed interface and of rays skimming along it) and
     // before the axial crossing of the rim rays (y < 0.1 from the centre).
     let (mut nv, mut ew, mut ep) = (0usize, 0.0, 0.0);
-    for ((i, j, k), _) in wf
-        .irradiance
-        .slice(ndarray::s![.., .., .., 0])
-        .indexed_iter()
-    {
+    for ((i, j, k), _) in wf.fluence.slice(ndarray::s![.., .., .., 0]).indexed_iter() {
         let x = g.voxel_center(i, j, k) - centre;
         let y = x.dot(d);
         let rho = (x - d * y).length();
@@ -409,9 +407,9 @@ fn wavefront_and_photons_agree_on_the_glass_sphere_away_from_caustics() {
         let Some(e) = sharp_sphere(1.5, radius, 0.05, y, rho) else {
             continue;
         };
-        let p = 0.5 * (pa.irradiance[[i, j, k, 0]] + pb.irradiance[[i, j, k, 0]]) as f64;
+        let p = 0.5 * (pa.fluence[[i, j, k, 0]] + pb.fluence[[i, j, k, 0]]) as f64;
         nv += 1;
-        ew += wf.irradiance[[i, j, k, 0]] as f64 / e - 1.0;
+        ew += wf.fluence[[i, j, k, 0]] as f64 / e - 1.0;
         ep += p / e - 1.0;
     }
     let (ew, ep) = (ew / nv as f64, ep / nv as f64);

@@ -14,7 +14,9 @@
 
 pub mod error;
 pub mod field;
+pub mod fresnel;
 pub mod geometry;
+pub mod interface;
 pub mod mesh;
 pub mod object;
 pub mod ray;

@@ -4,15 +4,16 @@
 //! intersection).
 //!
 //! The receiver is lit by the light volumes where it lies inside the
-//! grid: its radiance is `albedo / pi * sum_j E_j max(0, -l_j . n)`, with
-//! `E_j` and `l_j` the differential irradiance and direction of light `j`
-//! interpolated at the hit point, and `n` the plane normal on the eye's
-//! side. Outside the grid nothing refracts or shadows, so it is lit by the
+//! grid: its radiance is `albedo / pi * sum_j max(0, -F_j . n)` (per
+//! channel in proportion to the fluence), with `F_j` the net flux vector of
+//! light `j` interpolated at the hit point ([`eikon_wavefront::volume`]),
+//! and `n` the plane normal on the eye's side. Outside the grid nothing refracts or shadows, so it is lit by the
 //! lights directly: a directional light's irradiance, or a point or spot
 //! light's `P / (4 pi r^2)` (times the cone weight for a spot).
 
 use crate::environment::{Environment, EnvironmentError, LatLongMap};
-use eikon_grid::{Background, GridGeometry, Light, Receiver, Scene};
+use eikon_grid::{Background, GridGeometry, Light, Receiver, Scene, Trilinear};
+use eikon_wavefront::volume::mean_cosine;
 use eikon_wavefront::LightVolume;
 use glam::DVec3;
 use std::f64::consts::PI;
@@ -138,11 +139,9 @@ impl<'a> Surroundings<'a> {
         if self.grid.contains(x) && !self.volumes.is_empty() {
             let t = self.grid.trilinear(x);
             for v in self.volumes {
-                let irr = v.irradiance.as_slice().expect("standard layout");
-                let dirs = &v.direction[channel.min(v.direction.len() - 1)];
-                let l = t.vec3(dirs.as_slice().expect("standard layout"));
-                let l = l.normalize_or_zero();
-                e += t.vec3(irr) * (-l.dot(n)).max(0.0);
+                if let Some(light) = LightSample::at(v, &t, channel) {
+                    e += light.irradiance(n);
+                }
             }
         } else {
             for light in self.lights {
@@ -235,6 +234,46 @@ fn point_irradiance(position: DVec3, power: DVec3, x: DVec3, n: DVec3, weight: f
     }
     let cos = (-r.normalize().dot(n)).max(0.0);
     power * (weight * cos / (4.0 * PI * r2))
+}
+
+/// The light of one light volume at a point, as the renderer uses it (see
+/// [`eikon_wavefront::volume`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct LightSample {
+    /// RGB fluence rate.
+    pub fluence: DVec3,
+    /// Unit direction of the net flux (zero where it cancels).
+    pub direction: DVec3,
+    /// Mean cosine `|F| / phi`.
+    pub mean_cosine: f64,
+}
+
+impl LightSample {
+    /// Trilinear sample of volume `v` for colour channel `ch`; `None` where
+    /// it is dark.
+    #[inline]
+    pub fn at(v: &LightVolume, t: &Trilinear, ch: usize) -> Option<Self> {
+        let fluence = t.vec3(v.fluence.as_slice().expect("standard layout"));
+        if fluence.max_element() <= 0.0 {
+            return None;
+        }
+        let f = t.vec3(v.flux_of(ch).as_slice().expect("standard layout"));
+        let net = f.length();
+        let mean_cosine = mean_cosine(fluence.to_array(), net, ch, v.flux.len());
+        Some(Self {
+            fluence,
+            direction: f.normalize_or_zero(),
+            mean_cosine,
+        })
+    }
+
+    /// RGB irradiance on a surface whose normal `n` faces the light: the
+    /// net flux through it, `max(0, -F . n)`, shared among the channels in
+    /// proportion to their fluence (`|F| = mu phi`).
+    #[inline]
+    pub fn irradiance(&self, n: DVec3) -> DVec3 {
+        self.fluence * ((-self.direction.dot(n)).max(0.0) * self.mean_cosine)
+    }
 }
 
 #[cfg(test)]

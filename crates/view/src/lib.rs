@@ -2,7 +2,7 @@
 
 pub mod camera;
 pub mod environment;
-pub mod fresnel;
+pub use eikon_grid::fresnel;
 pub mod gpu;
 pub mod image;
 pub mod phase;

@@ -8,14 +8,13 @@
 //!   Henyey-Greenstein asymmetry (eqs 2, 6);
 //! * `[L_e r, g, b, 0]`: emitted radiance per unit length, stored only
 //!   when the medium emits anywhere;
-//! * per index channel, `[n_lo, n_hi]`: the index on the low and the high
-//!   side of the interface a boundary voxel belongs to, read along the
-//!   gradient a probe length either way from its centre (beyond the
-//!   smoothing) and extrapolated back to the surface where the index is
-//!   graded, for Fresnel's n1 and n2; elsewhere the voxel's own index
-//!   twice (no jump).
+//! * per index channel, `[n_lo, n_hi]`: the interface sides
+//!   ([`Interfaces`], shared with the light simulation), for Fresnel's n1
+//!   and n2.
 
-use eikon_grid::{GridGeometry, IndexField, Medium, Trilinear};
+use eikon_grid::interface::Interfaces;
+pub use eikon_grid::interface::Sides;
+use eikon_grid::{GridGeometry, Medium, Trilinear};
 use glam::{DVec3, Vec4};
 use rayon::prelude::*;
 
@@ -34,19 +33,10 @@ pub struct Sample {
     pub emission: DVec3,
 }
 
-/// The two sides of an interface at a point, for Fresnel.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Sides {
-    /// Index on the side the gradient points away from.
-    pub lo: f64,
-    /// Index on the side the gradient points to.
-    pub hi: f64,
-}
-
 /// Packed optical properties of a medium (see the module docs).
 pub struct Properties {
     pub(crate) texels: Vec<[Vec4; 2]>,
-    pub(crate) sides: Vec<Vec<[f32; 2]>>,
+    pub(crate) sides: Interfaces,
     pub(crate) emission: Option<Vec<Vec4>>,
     geometry: GridGeometry,
 }
@@ -79,48 +69,7 @@ impl Properties {
                 .map(|i| Vec4::new(em[3 * i], em[3 * i + 1], em[3 * i + 2], 0.0))
                 .collect()
         });
-        let sides = (0..medium.channels())
-            .map(|ch| {
-                let field = medium.field(ch);
-                let idx = medium.index[ch].as_slice().expect("standard layout");
-                (0..count)
-                    .into_par_iter()
-                    .map(|f| {
-                        let n = idx[4 * f];
-                        let grad = DVec3::new(
-                            idx[4 * f + 1] as f64,
-                            idx[4 * f + 2] as f64,
-                            idx[4 * f + 3] as f64,
-                        );
-                        if bnd[f] <= 0.0 || grad.length() == 0.0 {
-                            return [n, n];
-                        }
-                        let [nx, ny, nz] = g.dims;
-                        let (i, j, k) = (f / (ny * nz), (f / nz) % ny, f % nz);
-                        debug_assert!(i < nx);
-                        let c = g.voxel_center(i, j, k);
-                        let normal = grad.normalize();
-                        // Read a probe length out, and extrapolate back
-                        // linearly from twice as far where the index keeps
-                        // changing the same way (a graded index, like a
-                        // Luneburg lens or a heated layer, ends at an
-                        // object's surface without a jump); a plateau
-                        // reads as it is.
-                        let side = |s: f64| {
-                            let near = field.sample(c + normal * (s * probe)).0;
-                            let far = field.sample(c + normal * (2.0 * s * probe)).0;
-                            let here = n as f64;
-                            if (far - near) * (near - here) > 0.0 {
-                                (2.0 * near - far) as f32
-                            } else {
-                                near as f32
-                            }
-                        };
-                        [side(-1.0), side(1.0)]
-                    })
-                    .collect()
-            })
-            .collect();
+        let sides = Interfaces::new(medium, probe);
         Self {
             texels,
             sides,
@@ -166,15 +115,7 @@ impl Properties {
     /// already computed.
     #[inline]
     pub fn sides_at(&self, t: &Trilinear, ch: usize) -> Sides {
-        let s = &self.sides[ch];
-        let (mut lo, mut hi) = (0.0, 0.0);
-        for k in 0..8 {
-            let w = t.weight[k];
-            let v = s[t.cell[k]];
-            lo += w * v[0] as f64;
-            hi += w * v[1] as f64;
-        }
-        Sides { lo, hi }
+        self.sides.sides_at(t, ch)
     }
 }
 

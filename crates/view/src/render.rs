@@ -7,11 +7,11 @@
 //! constant at the step's start, and eq 1 is integrated exactly for that
 //! piece:
 //!
-//! * the source `S = albedo sigma_t sum_j p(l_j . -d, g) E_j + L_e` (eqs 2,
-//!   3, 6): in-scatter from every light volume `j` (differential
-//!   irradiance `E_j`, direction `l_j`) through the Henyey-Greenstein
-//!   phase, plus emission; it adds `alpha S (1 - exp(-sigma_t ds)) /
-//!   sigma_t`;
+//! * the source `S = albedo sigma_t sum_j p(l_j . -d, g mu_j) phi_j + L_e`
+//!   (eqs 2, 3, 6): in-scatter from every light volume `j` (fluence rate
+//!   `phi_j`, net flux direction `l_j` and mean cosine `mu_j`, see
+//!   [`eikon_wavefront::volume`]) through the Henyey-Greenstein phase, plus
+//!   emission; it adds `alpha S (1 - exp(-sigma_t ds)) / sigma_t`;
 //! * the attenuation `alpha` (eq 5) is multiplied by `exp(-sigma_t ds)`;
 //! * at a boundary (the indicator `delta`, eq 2) a fraction
 //!   `w = delta ds |cos i|` of one crossing is taken in this step (over a
@@ -37,7 +37,7 @@
 //! per-voxel clear distance lets it step straight as far as such a medium
 //! is known to extend around it.
 
-use crate::background::Surroundings;
+use crate::background::{LightSample, Surroundings};
 use crate::camera::Camera;
 use crate::fresnel;
 use crate::image::Image;
@@ -134,13 +134,11 @@ pub struct Renderer<'a> {
     eye_index: [f64; 3],
 }
 
-/// How far either side of a boundary voxel the interface sides are read
-/// ([`Properties`]): far enough out to clear the band (smoothing plus
-/// voxelization, about 4.5 voxels either side of the surface); walls
-/// thinner than this read too small a jump.
-pub(crate) fn probe_length(medium: &Medium) -> f64 {
-    (6.0 * medium.smoothing + 0.5).max(1.5) * medium.geometry.voxel_size()
-}
+// How far either side of a boundary voxel the interface sides are read
+// ([`Properties`]): far enough out to clear the band (smoothing plus
+// voxelization, about 4.5 voxels either side of the surface); walls
+// thinner than this read too small a jump.
+pub(crate) use eikon_grid::interface::probe_length;
 
 /// Where a ray is, and what it has gathered.
 struct Walk {
@@ -399,19 +397,17 @@ impl<'a> Renderer<'a> {
         let mut source = here.emission;
         if here.scatter.max_element() > 0.0 {
             for v in self.volumes {
-                let e = tri.vec3(v.irradiance.as_slice().expect("standard layout"));
-                if e.max_element() <= 0.0 {
+                let Some(light) = LightSample::at(v, &tri, ch) else {
                     continue;
-                }
-                let dirs = &v.direction[ch.min(v.direction.len() - 1)];
-                let l = tri
-                    .vec3(dirs.as_slice().expect("standard layout"))
-                    .normalize_or_zero();
-                if l != DVec3::ZERO {
-                    // Eq 6: the phase between the light's direction of
-                    // travel and the direction towards the eye.
-                    source += here.scatter * e * hg(l.dot(-d), here.g);
-                }
+                };
+                // Eq 6 with the first angular moment of the light: HG
+                // about the net flux direction with g scaled by the mean
+                // cosine (exact for one ray family, mu = 1), between the
+                // light's direction of travel and the direction towards
+                // the eye.
+                source += here.scatter
+                    * light.fluence
+                    * hg(light.direction.dot(-d), here.g * light.mean_cosine);
             }
         }
         // The radiance law: L / n^2 is what a ray carries unchanged (the

@@ -3,22 +3,27 @@
 //! Light simulation by adaptive wavefront tracing (Ihrke et al. 2007,
 //! sections 4.2 and 5.2). Each light emits a wavefront of four-particle
 //! patches where it meets the volume ([`light`]); then every step runs
-//! the four steps of the paper, as four calls in [`simulate_light`]:
+//! the steps of the paper as a few calls in [`simulate_light`]:
 //!
-//! 1. [`propagate`](propagate::propagate): corners move with eqs 14-15, flux is attenuated
-//!    with eq 18;
-//! 2. [`irradiance`](propagate::irradiance): each patch's differential irradiance is its
-//!    flux over its area (eq 17);
-//! 3. [`refine`](refine::refine): tessellation analysis (eliminate, retain, tessellate)
-//!    and the new patch list through a [`HistoPyramid`];
-//! 4. [`deposit`](voxelize::LightVolume::deposit): each patch deposits its midpoint's
-//!    irradiance and direction into the light volume, highest energy first.
+//! 1. [`propagate`](propagate::propagate): corners move with eqs 14-15; the tube each patch
+//!    sweeps is deposited into the light volume as track-length fluence and net flux
+//!    ([`deposit`], beyond the paper: every ray family adds, through caustics too); flux is
+//!    attenuated with eq 18 and by Fresnel transmission at interfaces (beyond the paper);
+//! 2. [`refine`](refine::refine): tessellation analysis (eliminate, retain, tessellate)
+//!    and the new patch list through a [`HistoPyramid`].
 //!
-//! [`photons`] is the brute-force baseline: photons with a track-length histogram.
+//! With `--deposit paper` ([`DepositRule::Paper`]) the paper's own steps run instead of
+//! the deposit in step 1: [`irradiance`](propagate::irradiance) (eq 17, flux over area),
+//! patches culled where they flip at a caustic, and
+//! [`PaperVolume::deposit`](voxelize::PaperVolume::deposit) keeping the highest-energy
+//! ray per cell (5.2.2).
+//!
+//! [`photons`] is the brute-force baseline: photons with the same track-length deposit.
 //!
 //! Everything is deterministic: the same scene gives the same volumes
 //! whatever the number of threads.
 
+pub mod deposit;
 pub mod gpu;
 pub mod histopyramid;
 pub mod light;
@@ -26,13 +31,52 @@ pub mod patch;
 pub mod photons;
 pub mod propagate;
 pub mod refine;
+pub mod volume;
 pub mod voxelize;
 
 pub use histopyramid::HistoPyramid;
 pub use patch::Patches;
-pub use voxelize::LightVolume;
+pub use volume::LightVolume;
 
+use deposit::Counters;
+use eikon_grid::interface::{probe_length, Interfaces};
 use eikon_grid::{Light, Medium, Method, Scene};
+use rayon::prelude::*;
+
+/// How the wavefront becomes a light volume.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DepositRule {
+    /// Track-length fluence and net flux of every patch, every step
+    /// ([`deposit`]); light passes through caustics.
+    #[default]
+    Fluence,
+    /// The paper's rule (5.2.2, 5.2.3): the highest-energy ray per cell as
+    /// a point value, patches culled at caustic flips ([`voxelize`]).
+    Paper,
+}
+
+/// Patches whose irradiance has fallen below this fraction of what the
+/// light would give at their place unobstructed are not split further
+/// (with the fluence deposit; [`refine::Rules::dim`]).
+pub const DIM_SPLIT: f64 = 0.05;
+
+/// Fixed-point units the whole power of a light deposits over one voxel
+/// length: a piece of a chord is rounded to `2^-40` of that.
+pub const UNITS_PER_CROSSING: f64 = (1u64 << 40) as f64;
+
+/// An upper bound of the power `light` can bring into `grid`, per channel
+/// the largest: a point or spot light's power, a directional light's
+/// irradiance over the cross-section of the grid's bounding sphere. The
+/// fixed-point scale of the deposit.
+pub fn power_bound(light: &Light, grid: &eikon_grid::GridGeometry) -> f64 {
+    let p = match light {
+        Light::Directional { power, .. } => {
+            *power * (std::f64::consts::PI * 0.25 * grid.diagonal() * grid.diagonal())
+        }
+        Light::Point { power, .. } | Light::Spot { power, .. } => *power,
+    };
+    p.max_element()
+}
 
 /// Settings of a simulation.
 #[derive(Clone, Copy, Debug)]
@@ -55,6 +99,12 @@ pub struct Options {
     pub max_depth: Option<u8>,
     /// Step limit per wavefront; `None` picks one from the volume size.
     pub max_steps: Option<usize>,
+    /// How the wavefront becomes a light volume.
+    pub deposit: DepositRule,
+    /// Fresnel transmission at interfaces (beyond the paper, whose eq 18
+    /// has none): the reflected part leaves the beam and is counted as
+    /// reflected.
+    pub fresnel: bool,
 }
 
 impl Default for Options {
@@ -68,6 +118,8 @@ impl Default for Options {
             max_patches: 8 << 20,
             max_depth: None,
             max_steps: None,
+            deposit: DepositRule::Fluence,
+            fresnel: true,
         }
     }
 }
@@ -148,7 +200,7 @@ pub struct Summary {
     pub exited: usize,
     /// Patches eliminated by the transmittance threshold.
     pub absorbed: usize,
-    /// Patches eliminated at a caustic.
+    /// Patches eliminated at a caustic (the paper's deposit only).
     pub caustic: usize,
     /// Patches still alive at the step limit.
     pub step_limit: usize,
@@ -161,19 +213,24 @@ pub struct Summary {
     pub absorbed_power: [f64; 3],
     /// RGB power carried out of the volume, W.
     pub exited_power: [f64; 3],
+    /// RGB power reflected at interfaces (Fresnel) and not traced, W.
+    pub reflected_power: [f64; 3],
     /// RGB power dropped with eliminated patches (threshold, caustics,
     /// step limit), W.
     pub culled_power: [f64; 3],
 }
 
 impl Summary {
-    /// `entered - (absorbed + exited + culled)` relative to `entered`, the
-    /// largest over the channels that carry power.
+    /// `entered - (absorbed + exited + reflected + culled)` relative to
+    /// `entered`, the largest over the channels that carry power.
     pub fn energy_imbalance(&self) -> f64 {
         (0..3)
             .filter(|&c| self.entered[c] > 0.0)
             .map(|c| {
-                let out = self.absorbed_power[c] + self.exited_power[c] + self.culled_power[c];
+                let out = self.absorbed_power[c]
+                    + self.exited_power[c]
+                    + self.reflected_power[c]
+                    + self.culled_power[c];
                 (self.entered[c] - out).abs() / self.entered[c]
             })
             .fold(0.0, f64::max)
@@ -264,6 +321,13 @@ impl Plan {
                 max_depth: opts
                     .max_depth
                     .unwrap_or_else(|| default_depth(light, grid, opts)),
+                cull_caustics: opts.deposit == DepositRule::Paper,
+                dim: if opts.deposit == DepositRule::Paper {
+                    0.0
+                } else {
+                    DIM_SPLIT
+                },
+                incident: refine::Incident::new(light, [1.0; 3]),
             },
             dt,
             max_steps: opts
@@ -300,6 +364,9 @@ impl Summary {
 /// either backend: emitted ([`light::emit`]), less what the medium absorbs
 /// around a light inside it, and tessellated until no patch exceeds the
 /// split size. Counts the entered, absorbed and ended power into `summary`.
+/// With a `tally` (the track-length deposit), light inside the volume also
+/// deposits the one-voxel sphere it starts on: straight chords from the
+/// light to each patch (wavefront group `group`).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn start_wavefront(
     light: &Light,
@@ -307,8 +374,9 @@ pub(crate) fn start_wavefront(
     field: &propagate::Bounded,
     opts: &Options,
     rules: &refine::Rules,
-    mask: [f64; 3],
+    (mask, group): ([f64; 3], Option<usize>),
     (p, next, scratch): (&mut Patches, &mut Patches, &mut refine::Scratch),
+    tally: Option<&Counters>,
     summary: &mut Summary,
 ) {
     let grid = &medium.geometry;
@@ -322,7 +390,14 @@ pub(crate) fn start_wavefront(
     if let Light::Point { position, .. } | Light::Spot { position, .. } = light {
         if grid.contains(*position) {
             let sigma = medium.sample_rgb(&medium.extinction, *position);
-            let kept = (-sigma * light::INNER_RADIUS_VOXELS * h).exp();
+            let depth = sigma * light::INNER_RADIUS_VOXELS * h;
+            let kept = (-depth).exp();
+            if let Some(t) = tally {
+                let at = [*position; 4];
+                (0..p.len()).into_par_iter().for_each(|i| {
+                    deposit::tube(t, &at, &p.positions(i), &p.flux[i], depth, group);
+                });
+            }
             for (f, e) in p.flux.iter_mut().zip(p.irradiance.iter_mut()) {
                 for c in 0..3 {
                     summary.absorbed_power[c] += f[c] * (1.0 - kept[c]);
@@ -357,18 +432,31 @@ pub fn simulate_light(
     opts.check()?;
     let grid = &medium.geometry;
     let groups = medium.channels();
-    let mut volume = LightVolume::new(grid, groups);
+    let paper = opts.deposit == DepositRule::Paper;
+    let mut paper_volume = paper.then(|| voxelize::PaperVolume::new(grid, groups));
+    let tally = (!paper).then(|| {
+        Counters::new(
+            grid,
+            groups,
+            [power_bound(light, grid); 3],
+            UNITS_PER_CROSSING,
+        )
+    });
+    let interfaces = opts
+        .fresnel
+        .then(|| Interfaces::new(medium, probe_length(medium)));
     let mut summary = Summary::default();
     let Plan {
-        rules,
+        mut rules,
         dt,
         max_steps,
     } = Plan::new(light, medium, opts);
     let (mut p, mut next) = (Patches::default(), Patches::default());
     let mut scratch = refine::Scratch::default();
-    let mut absorbed = Vec::new();
+    let mut losses = Vec::new();
     for g in 0..groups {
         let (mask, group) = group(g, groups);
+        rules.incident = refine::Incident::new(light, mask);
         let field = propagate::Bounded::new(medium, g);
         let empty = eikon_grid::EmptySpace::new(medium, g);
         start_wavefront(
@@ -377,27 +465,36 @@ pub fn simulate_light(
             &field,
             opts,
             &rules,
-            mask,
+            (mask, group),
             (&mut p, &mut next, &mut scratch),
+            tally.as_ref(),
             &mut summary,
         );
-        volume.deposit(&p, medium, &empty, group);
+        if let Some(v) = paper_volume.as_mut() {
+            v.deposit(&p, medium, &empty, group);
+        }
+        let step_of = propagate::Step {
+            medium,
+            field: &field,
+            empty: &empty,
+            method: opts.method,
+            dt,
+            interfaces: interfaces.as_ref(),
+            channel: g,
+            tally: tally.as_ref(),
+            group,
+        };
         let mut step = 0;
         while !p.is_empty() && step < max_steps {
             step += 1;
-            propagate::propagate(
-                &mut p,
-                medium,
-                &field,
-                &empty,
-                opts.method,
-                dt,
-                &mut absorbed,
-            );
-            for a in &absorbed {
-                add(&mut summary.absorbed_power, a);
+            propagate::propagate(&mut p, &step_of, &mut losses);
+            for l in &losses {
+                add(&mut summary.absorbed_power, &l.absorbed);
+                add(&mut summary.reflected_power, &l.reflected);
             }
-            propagate::irradiance(&mut p);
+            if paper {
+                propagate::irradiance(&mut p);
+            }
             let ended = refine::refine(
                 &mut p,
                 &mut next,
@@ -408,7 +505,9 @@ pub fn simulate_light(
                 &mut summary.held,
             );
             summary.add_ended(&ended);
-            volume.deposit(&p, medium, &empty, group);
+            if let Some(v) = paper_volume.as_mut() {
+                v.deposit(&p, medium, &empty, group);
+            }
             summary.peak_patches = summary.peak_patches.max(p.len());
             progress(step, p.len());
         }
@@ -418,5 +517,10 @@ pub fn simulate_light(
             add(&mut summary.culled_power, f);
         }
     }
+    let volume = match (tally, paper_volume) {
+        (Some(t), _) => t.into_volume(),
+        (None, Some(v)) => v.into_volume(),
+        (None, None) => unreachable!("one of the two deposits runs"),
+    };
     Ok((volume, summary))
 }

@@ -39,13 +39,14 @@
 //! or at the wavefront's step limit.
 //!
 //! # Estimator
-//! The track-length estimator of the fluence rate: a photon of flux `P`
-//! that travels a length `l` through a cell of volume `V` adds `P l / V`
-//! (W/m^2). For light from one direction the fluence rate is the
-//! irradiance across the beam, so the result compares directly with
-//! [`LightVolume::irradiance`](crate::LightVolume::irradiance); where rays
-//! from several directions overlap it is their sum, while the light volume
-//! keeps the strongest one.
+//! The track-length estimator of the fluence rate and the net flux
+//! ([`deposit`](crate::deposit)): a photon of flux `P` that travels a
+//! length `l` through a cell of volume `V` adds `P l / V` to its fluence
+//! and that times its direction to its flux vector, exactly as a
+//! wavefront chord does, so the two estimate the same
+//! [`LightVolume`]. Fresnel transmission at interfaces is applied per step
+//! as for a patch ([`Interfaces::transmittance`]), the reflected part
+//! counted as reflected.
 //!
 //! Each step's chord is split exactly among the cells it crosses (a 3D DDA)
 //! and each piece carries the flux integrated over it, with the step's
@@ -64,31 +65,22 @@
 //! fixed chunk of photons and added in chunk order. The volume and the
 //! summary are therefore bitwise the same for any thread count.
 
+use crate::deposit::Counters;
 use crate::light::{self, cone_weight, PlaneFrame};
 use crate::propagate::{step_depth, Bounded};
-use crate::{Error, Options, Summary};
+use crate::{Error, LightVolume, Options, Summary};
+use eikon_grid::interface::{probe_length, Interfaces};
 use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
 use eikon_grid::{EmptySpace, Form, GridGeometry, IndexField, Light, Medium, Method, RayState};
 use glam::DVec3;
-use ndarray::Array4;
 use rayon::prelude::*;
 use std::f64::consts::PI;
-use std::sync::atomic::{AtomicU64, Ordering};
 
-/// The photon estimate of one light.
-#[derive(Clone, Debug)]
-pub struct PhotonVolume {
-    /// RGB fluence rate per cell (the cell average), W/m^2,
-    /// `(nx, ny, nz, 3)`: the irradiance across the beam where light
-    /// arrives from one direction.
-    pub irradiance: Array4<f32>,
-}
-
-/// Fixed-point units that the brightest photon of a channel deposits by
-/// crossing one voxel edge-on (a path of one voxel length). Rounding each
-/// deposit to a unit then costs at most 2^-25 of such a deposit, and a
-/// 64-bit counter holds 2^40 (about 10^12) such crossings per cell before
-/// it could overflow.
+/// Fixed-point units that the brightest photon deposits by crossing one
+/// voxel edge-on (a path of one voxel length). Rounding each deposit to a
+/// unit then costs at most 2^-25 of such a deposit, and a 64-bit counter
+/// holds 2^39 (about 5 10^11) such crossings per cell before it could
+/// overflow.
 const UNITS_PER_CROSSING: f64 = (1u64 << 24) as f64;
 
 /// Photons per work item: the energy sums are taken per chunk and then
@@ -97,10 +89,11 @@ const CHUNK: usize = 1024;
 
 /// Trace `count` photons of `light` through `medium` (one set per colour
 /// channel with dispersion, each through its own index field, from the
-/// same draws) and estimate the fluence rate per cell. `seed` picks the random numbers: the same
+/// same draws) and estimate the fluence rate and the net flux per cell, the
+/// same [`LightVolume`] the wavefront writes. `seed` picks the random numbers: the same
 /// seed gives bitwise the same result whatever the number of threads.
 ///
-/// Of `opts`, `step`, `method`, `threshold` and `max_steps` apply, with
+/// Of `opts`, `step`, `method`, `threshold`, `max_steps` and `fresnel` apply, with
 /// the same meaning as for the wavefront. In the summary, `emitted` counts
 /// photons that entered the volume, `exited`, `absorbed` (below the
 /// threshold) and `step_limit` how they ended, `steps` is the longest
@@ -113,7 +106,7 @@ pub fn simulate_photons(
     count: usize,
     seed: u64,
     opts: &Options,
-) -> Result<(PhotonVolume, Summary), Error> {
+) -> Result<(LightVolume, Summary), Error> {
     opts.check()?;
     if count == 0 {
         return Err(Error::Option {
@@ -128,30 +121,22 @@ pub fn simulate_photons(
     let max_steps = opts
         .max_steps
         .unwrap_or((16.0 * grid.diagonal() * n_max / dt).ceil() as usize);
-    let [nx, ny, nz] = grid.dims;
-    let cells: Vec<AtomicU64> = (0..nx * ny * nz * 3).map(|_| AtomicU64::new(0)).collect();
     let clear = clear_cells(medium);
     let groups = medium.channels();
     let key = mix(seed.wrapping_add(GOLDEN));
     let mut summary = Summary::default();
-    let mut scale = [0.0; 3];
+    // Fixed-point scale: the largest photon flux of any channel over one
+    // voxel length gives UNITS_PER_CROSSING.
+    let white = Source::new(light, grid, count, [1.0; 3]);
+    let top = white.flux.iter().copied().fold(0.0, f64::max);
+    let tally = Counters::new(grid, groups, [top; 3], UNITS_PER_CROSSING);
+    let interfaces = opts
+        .fresnel
+        .then(|| Interfaces::new(medium, probe_length(medium)));
     for g in 0..groups {
-        let mask = if groups == 1 {
-            [1.0; 3]
-        } else {
-            let mut m = [0.0; 3];
-            m[g] = 1.0;
-            m
-        };
+        let (mask, group) = crate::group(g, groups);
         let source = Source::new(light, grid, count, mask);
         let strata = Strata::new(count, source.aspect());
-        // Fixed-point scale per channel: units per watt-metre, so that the
-        // largest photon flux over one voxel length gives UNITS_PER_CROSSING.
-        for (s, &f) in scale.iter_mut().zip(&source.flux) {
-            if f > 0.0 {
-                *s = UNITS_PER_CROSSING / (f * h);
-            }
-        }
         let tracer = Tracer {
             medium,
             grid,
@@ -162,7 +147,10 @@ pub fn simulate_photons(
             threshold: opts.threshold,
             max_steps,
             clear: &clear,
-            deposit: Deposit::new(grid, &cells, scale),
+            tally: &tally,
+            group,
+            interfaces: interfaces.as_ref(),
+            channel: g,
         };
         let tallies: Vec<Tally> = (0..count.div_ceil(CHUNK))
             .into_par_iter()
@@ -182,18 +170,7 @@ pub fn simulate_photons(
             t.add_to(&mut summary);
         }
     }
-    // Back from fixed point: units / scale is watt-metres, over the cell
-    // volume a fluence rate.
-    let volume = grid.spacing().x * grid.spacing().y * grid.spacing().z;
-    let irradiance = Array4::from_shape_fn((nx, ny, nz, 3), |(i, j, k, c)| {
-        let units = cells[((i * ny + j) * nz + k) * 3 + c].load(Ordering::Relaxed);
-        if scale[c] > 0.0 {
-            (units as f64 / scale[c] / volume) as f32
-        } else {
-            0.0
-        }
-    });
-    Ok((PhotonVolume { irradiance }, summary))
+    Ok((tally.into_volume(), summary))
 }
 
 // ---------------------------------------------------------------------------
@@ -409,6 +386,7 @@ struct Tally {
     entered: [f64; 3],
     absorbed: [f64; 3],
     exited: [f64; 3],
+    reflected: [f64; 3],
     culled: [f64; 3],
     photons: usize,
     exits: usize,
@@ -423,6 +401,7 @@ impl Tally {
             s.entered[c] += self.entered[c];
             s.absorbed_power[c] += self.absorbed[c];
             s.exited_power[c] += self.exited[c];
+            s.reflected_power[c] += self.reflected[c];
             s.culled_power[c] += self.culled[c];
         }
         s.emitted += self.photons;
@@ -447,7 +426,13 @@ struct Tracer<'a> {
     threshold: f64,
     max_steps: usize,
     clear: &'a [bool],
-    deposit: Deposit<'a>,
+    tally: &'a Counters,
+    /// The colour channel traced, with dispersion.
+    group: Option<usize>,
+    /// Interface sides for Fresnel transmission, when applied.
+    interfaces: Option<&'a Interfaces>,
+    /// Index channel traced.
+    channel: usize,
 }
 
 /// Per interpolation cell (the lower corner `i0` that
@@ -534,7 +519,7 @@ impl Tracer<'_> {
                 s.v = s.v.normalize_or_zero() * n;
                 s.x += s.v * (self.dt / (n * n));
                 s.opl += self.dt;
-                self.deposit.step(x0, s.x, &flux, DVec3::ZERO);
+                self.tally.chord(x0, s.x, &flux, DVec3::ZERO, self.group);
                 before = None;
             } else {
                 let b = before.unwrap_or_else(|| self.extinction_per_index(x0));
@@ -549,11 +534,29 @@ impl Tracer<'_> {
                 before = Some(after);
                 // Eq 18 over one step, exactly as for a patch.
                 let depth = step_depth(&self.medium.geometry, x0, s.x, b, after, self.dt);
-                self.deposit.step(x0, s.x, &flux, depth);
+                self.tally.chord(x0, s.x, &flux, depth, self.group);
                 for c in 0..3 {
                     let kept = flux[c] * (-depth[c]).exp();
                     t.absorbed[c] += flux[c] - kept;
                     flux[c] = kept;
+                }
+                // Fresnel over the step, exactly as for a patch.
+                if let Some(faces) = self.interfaces {
+                    let tr = faces.transmittance(
+                        self.medium,
+                        &self.field,
+                        (x0 + s.x) * 0.5,
+                        s.v,
+                        s.x - x0,
+                        self.channel,
+                    );
+                    if tr < 1.0 {
+                        for c in 0..3 {
+                            let kept = flux[c] * tr;
+                            t.reflected[c] += flux[c] - kept;
+                            flux[c] = kept;
+                        }
+                    }
                 }
             }
             if self.left(&s) {
@@ -568,125 +571,6 @@ impl Tracer<'_> {
             }
         }
         t.steps = t.steps.max(steps);
-    }
-}
-
-// ---------------------------------------------------------------------------
-// The track-length histogram.
-
-/// Fixed-point accumulation into the cells: `(nx, ny, nz, 3)` counters in
-/// standard order, each in units of `1 / scale[c]` watt-metres.
-struct Deposit<'a> {
-    cells: &'a [AtomicU64],
-    dims: [usize; 3],
-    min: DVec3,
-    inv_spacing: DVec3,
-    scale: [f64; 3],
-    grid: &'a GridGeometry,
-}
-
-impl<'a> Deposit<'a> {
-    fn new(grid: &'a GridGeometry, cells: &'a [AtomicU64], scale: [f64; 3]) -> Self {
-        Self {
-            cells,
-            dims: grid.dims,
-            min: grid.min,
-            inv_spacing: 1.0 / grid.spacing(),
-            scale,
-            grid,
-        }
-    }
-
-    /// Deposit the chord from `a` to `b` of a photon that carried `flux` at
-    /// `a` and loses optical depth `depth` over it: each cell it crosses
-    /// gets `int flux(t) dl` over its piece, with `flux(t) = flux
-    /// exp(-depth t)` for `t` from 0 at `a` to 1 at `b`.
-    #[inline]
-    fn step(&self, a: DVec3, b: DVec3, flux: &[f64; 3], depth: DVec3) {
-        let d = b - a;
-        let len = d.length();
-        if !(len > 0.0 && len.is_finite()) {
-            return;
-        }
-        let Some((t0, t1)) = self.grid.clip_line(a, d) else {
-            return;
-        };
-        let (t0, t1) = (t0.max(0.0), t1.min(1.0));
-        if t1 <= t0 {
-            return;
-        }
-        // Watt-metres per unit of t, in fixed-point units.
-        let w = [0, 1, 2].map(|c| flux[c] * len * self.scale[c]);
-        // Cell coordinates: cell (i, j, k) spans [i, i + 1) etc.
-        let g = (a - self.min) * self.inv_spacing;
-        let dg = d * self.inv_spacing;
-        let start = g + dg * t0;
-        let mut cell = [0i64; 3];
-        let mut step = [0i64; 3];
-        let mut next = [f64::INFINITY; 3];
-        let mut delta = [f64::INFINITY; 3];
-        for ax in 0..3 {
-            let hi = self.dims[ax] as i64 - 1;
-            cell[ax] = (start[ax].floor() as i64).clamp(0, hi);
-            if dg[ax] > 0.0 {
-                step[ax] = 1;
-                next[ax] = (cell[ax] as f64 + 1.0 - g[ax]) / dg[ax];
-                delta[ax] = 1.0 / dg[ax];
-            } else if dg[ax] < 0.0 {
-                step[ax] = -1;
-                next[ax] = (cell[ax] as f64 - g[ax]) / dg[ax];
-                delta[ax] = -1.0 / dg[ax];
-            }
-        }
-        let mut t = t0;
-        loop {
-            let ax = if next[0] <= next[1] && next[0] <= next[2] {
-                0
-            } else if next[1] <= next[2] {
-                1
-            } else {
-                2
-            };
-            let end = next[ax].min(t1);
-            if end > t {
-                self.add(cell, &w, depth, t, end);
-            }
-            if next[ax] >= t1 {
-                break;
-            }
-            cell[ax] += step[ax];
-            if cell[ax] < 0 || cell[ax] >= self.dims[ax] as i64 {
-                break;
-            }
-            next[ax] += delta[ax];
-            t = t.max(end);
-        }
-    }
-
-    /// Add `w int_{ta}^{tb} exp(-depth t) dt` to `cell`, per channel.
-    #[inline]
-    fn add(&self, cell: [i64; 3], w: &[f64; 3], depth: DVec3, ta: f64, tb: f64) {
-        let [i, j, k] = cell.map(|x| x as usize);
-        let base = ((i * self.dims[1] + j) * self.dims[2] + k) * 3;
-        for c in 0..3 {
-            if w[c] == 0.0 {
-                continue;
-            }
-            let tau = depth[c];
-            // exp(-tau ta) (1 - exp(-tau (tb - ta))) / tau, without the
-            // cancellation of the difference when tau is small.
-            let integral = if tau > 0.0 {
-                (-tau * ta).exp() * -(-tau * (tb - ta)).exp_m1() / tau
-            } else {
-                tb - ta
-            };
-            // Round to the nearest unit (truncation of a non-negative
-            // number, without a libm call).
-            let units = (w[c] * integral + 0.5) as u64;
-            if units > 0 {
-                self.cells[base + c].fetch_add(units, Ordering::Relaxed);
-            }
-        }
     }
 }
 
@@ -706,53 +590,6 @@ mod tests {
         assert_eq!(first(mix(7), 3), xs[0]);
         assert_ne!(first(mix(7), 4), xs[0]);
         assert_ne!(first(mix(8), 3), xs[0]);
-    }
-
-    /// Sum of every counter of `cells`, channel 0, back in watt-metres.
-    fn total(cells: &[AtomicU64], scale: f64) -> f64 {
-        cells
-            .iter()
-            .step_by(3)
-            .map(|c| c.load(Ordering::Relaxed) as f64)
-            .sum::<f64>()
-            / scale
-    }
-
-    #[test]
-    fn a_chord_deposits_its_length_inside_the_volume() {
-        let grid = GridGeometry::new([5, 4, 3], DVec3::ZERO, DVec3::new(5.0, 4.0, 3.0));
-        let cells: Vec<AtomicU64> = (0..5 * 4 * 3 * 3).map(|_| AtomicU64::new(0)).collect();
-        let scale = 1e9;
-        let dep = Deposit::new(&grid, &cells, [scale; 3]);
-        // From outside to outside, obliquely through several cells.
-        let (a, b) = (DVec3::new(-1.0, 0.3, 0.2), DVec3::new(6.0, 3.1, 2.9));
-        dep.step(a, b, &[2.0, 0.0, 0.0], DVec3::ZERO);
-        let (t0, t1) = grid.clip_line(a, b - a).unwrap();
-        let want = 2.0 * (b - a).length() * (t1.min(1.0) - t0.max(0.0));
-        let got = total(&cells, scale);
-        assert!((got - want).abs() < 1e-7, "{got} vs {want}");
-        // The cell of the middle of the chord got its share.
-        let mid = grid.world_to_voxel((a + b) * 0.5).round();
-        let idx = ((mid.x as usize * 4 + mid.y as usize) * 3 + mid.z as usize) * 3;
-        assert!(cells[idx].load(Ordering::Relaxed) > 0);
-    }
-
-    #[test]
-    fn an_attenuated_chord_deposits_the_mean_flux() {
-        let grid = GridGeometry::new([4, 1, 1], DVec3::ZERO, DVec3::new(4.0, 1.0, 1.0));
-        let cells: Vec<AtomicU64> = (0..4 * 3).map(|_| AtomicU64::new(0)).collect();
-        let scale = 1e12;
-        let dep = Deposit::new(&grid, &cells, [scale; 3]);
-        let tau = 2.0;
-        let (a, b) = (DVec3::new(0.0, 0.5, 0.5), DVec3::new(4.0, 0.5, 0.5));
-        dep.step(a, b, &[1.0; 3], DVec3::splat(tau));
-        // Each unit cell gets int exp(-tau x / 4) dx over it.
-        for i in 0..4 {
-            let x = i as f64;
-            let want = 4.0 / tau * ((-tau * x / 4.0).exp() - (-tau * (x + 1.0) / 4.0).exp());
-            let got = cells[i * 3].load(Ordering::Relaxed) as f64 / scale;
-            assert!((got - want).abs() < 1e-9, "cell {i}: {got} vs {want}");
-        }
     }
 
     #[test]

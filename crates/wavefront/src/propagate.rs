@@ -1,7 +1,10 @@
 //! Steps 1 and 2 of a simulation step: move every corner with the
-//! equal-time ray equation (eqs 14-15), attenuate the flux along the way
-//! (eq 18), then recompute each patch's differential irradiance from its
-//! new area (eq 17). Corners are kept on the eikonal shell `|v| = n`
+//! equal-time ray equation (eqs 14-15), deposit the tube the patch sweeps
+//! (the track-length fluence, [`deposit::tube`]), attenuate the flux along
+//! the way (eq 18) and by Fresnel transmission at interfaces
+//! ([`Interfaces::transmittance`], beyond the paper); with the paper's
+//! deposit, recompute each patch's differential irradiance from its new
+//! area (eq 17). Corners are kept on the eikonal shell `|v| = n`
 //! (`ray::step_rk4_on_shell`), which makes equal time equal optical path.
 //!
 //! # The attenuation integral
@@ -14,11 +17,11 @@
 //! that crosses the bounds is charged for its part inside only
 //! (`step_depth`).
 
+use crate::deposit::{self, Counters};
 use crate::patch::{area, Patches};
+use eikon_grid::interface::Interfaces;
 use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
-use eikon_grid::{
-    EmptySpace, Form, GridGeometry, IndexField, Medium, Method, RayState, VoxelField,
-};
+use eikon_grid::{EmptySpace, Form, GridGeometry, IndexField, Medium, Method, VoxelField};
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -86,20 +89,58 @@ pub(crate) fn step_depth(
     (if in0 { before } else { after }) * (dt * inside)
 }
 
+/// What one step of a wavefront reads and where it deposits.
+pub struct Step<'a> {
+    /// The medium (extinction, boundary indicator).
+    pub medium: &'a Medium,
+    /// The index field of the wavefront's channel.
+    pub field: &'a Bounded<'a>,
+    /// Its empty blocks.
+    pub empty: &'a EmptySpace,
+    /// Integrator.
+    pub method: Method,
+    /// Equal-time step, world units of optical path.
+    pub dt: f64,
+    /// Interface sides for Fresnel transmission; `None` leaves the flux
+    /// to eq 18 alone (the paper).
+    pub interfaces: Option<&'a Interfaces>,
+    /// Index channel of the wavefront (its interface sides).
+    pub channel: usize,
+    /// Where the track-length fluence goes; `None` for the paper's
+    /// deposit, which happens after the step.
+    pub tally: Option<&'a Counters>,
+    /// The wavefront's colour channel with dispersion.
+    pub group: Option<usize>,
+}
+
+/// Flux that left the beams in one step, per patch.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Loss {
+    /// RGB flux absorbed or scattered away (eq 18).
+    pub absorbed: [f64; 3],
+    /// RGB flux reflected at an interface (Fresnel).
+    pub reflected: [f64; 3],
+}
+
 /// Advance every patch by one equal-time step `dt` (optical path, world
-/// units) and attenuate its flux. `absorbed` receives, per patch, the RGB
-/// flux taken out of the beam in this step (absorbed or scattered away).
-pub fn propagate(
-    patches: &mut Patches,
-    medium: &Medium,
-    field: &Bounded,
-    empty: &EmptySpace,
-    method: Method,
-    dt: f64,
-    absorbed: &mut Vec<[f64; 3]>,
-) {
-    absorbed.clear();
-    absorbed.resize(patches.len(), [0.0; 3]);
+/// units), deposit the tube each patch sweeps into the tally, attenuate its
+/// flux (eq 18) and apply Fresnel transmission where it crosses an
+/// interface. `losses` receives, per patch, the flux taken out of the beam
+/// in this step.
+pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
+    let &Step {
+        medium,
+        field,
+        empty,
+        method,
+        dt,
+        interfaces,
+        channel,
+        tally,
+        group,
+    } = step;
+    losses.clear();
+    losses.resize(patches.len(), Loss::default());
     let [c0, c1, c2, c3] = &mut patches.corner;
     (
         c0.par_iter_mut(),
@@ -107,26 +148,26 @@ pub fn propagate(
         c2.par_iter_mut(),
         c3.par_iter_mut(),
         patches.flux.par_iter_mut(),
-        absorbed.par_iter_mut(),
+        losses.par_iter_mut(),
     )
         .into_par_iter()
         .for_each(|(a, b, c, d, flux, lost)| {
-            let mid = |s: [&RayState; 4]| (s[0].x + s[1].x + s[2].x + s[3].x) * 0.25;
+            let x0 = [a.x, b.x, c.x, d.x];
+            let m0 = (x0[0] + x0[1] + x0[2] + x0[3]) * 0.25;
             // Skip empty space: with every corner and the midpoint in an
             // empty block the step (under a cell long) is a straight line
             // in a constant index without loss, taken without sampling.
-            let m0 = mid([a, b, c, d]);
             if let Some(n) = empty.index_at(m0) {
-                if [&*a, &*b, &*c, &*d]
-                    .iter()
-                    .all(|s| empty.index_at(s.x) == Some(n))
-                {
+                if x0.iter().all(|&x| empty.index_at(x) == Some(n)) {
                     for s in [&mut *a, &mut *b, &mut *c, &mut *d] {
                         s.v = s.v.normalize_or_zero() * n;
                         s.x += s.v * (dt / (n * n));
                         s.opl += dt;
                     }
-                    *lost = [0.0; 3];
+                    if let Some(t) = tally {
+                        let x1 = [a.x, b.x, c.x, d.x];
+                        deposit::tube(t, &x0, &x1, flux, DVec3::ZERO, group);
+                    }
                     return;
                 }
             }
@@ -139,13 +180,28 @@ pub fn propagate(
                     _ => step_rk4_on_shell(field, Form::EqualTime, s, dt),
                 }
             }
-            let m1 = mid([a, b, c, d]);
+            let x1 = [a.x, b.x, c.x, d.x];
+            let m1 = (x1[0] + x1[1] + x1[2] + x1[3]) * 0.25;
             let after = extinction_per_index(medium, field, empty, m1);
             let depth = step_depth(&medium.geometry, m0, m1, before, after, dt);
+            if let Some(t) = tally {
+                deposit::tube(t, &x0, &x1, flux, depth, group);
+            }
             for ch in 0..3 {
                 let kept = flux[ch] * (-depth[ch]).exp();
-                lost[ch] = flux[ch] - kept;
+                lost.absorbed[ch] = flux[ch] - kept;
                 flux[ch] = kept;
+            }
+            if let Some(faces) = interfaces {
+                let v = (a.v + b.v + c.v + d.v) * 0.25;
+                let t = faces.transmittance(medium, field, (m0 + m1) * 0.5, v, m1 - m0, channel);
+                if t < 1.0 {
+                    for ch in 0..3 {
+                        let kept = flux[ch] * t;
+                        lost.reflected[ch] = flux[ch] - kept;
+                        flux[ch] = kept;
+                    }
+                }
             }
         });
 }

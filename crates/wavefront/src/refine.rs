@@ -61,6 +61,80 @@ pub struct Rules {
     /// patch straddling a discontinuity of the ray map (the silhouette of
     /// an object) stretches without bound, and so would its descendants.
     pub max_depth: u8,
+    /// Eliminate patches whose orientation has flipped (the paper's rule,
+    /// `--deposit paper`): the intensity law breaks down at a caustic. The
+    /// track-length deposit needs no area, so by default light carries on
+    /// through the focus and is split when it grows again.
+    pub cull_caustics: bool,
+    /// Do not split a patch whose irradiance has fallen below this fraction
+    /// of [`Rules::incident`] (0: split whatever it carries).
+    pub dim: f64,
+    /// The light's unobstructed irradiance, for [`Rules::dim`].
+    pub incident: Incident,
+}
+
+/// The irradiance (summed over the colour channels a wavefront carries) a
+/// light would give at a point with nothing in the way: across the beam of
+/// a directional light, `P w / (4 pi r^2)` from a point or spot light (`w`
+/// the cone weight).
+#[derive(Clone, Copy, Debug)]
+pub enum Incident {
+    /// A plane wave of this irradiance.
+    Uniform(f64),
+    /// A point or spot light.
+    Point {
+        /// Where it is.
+        position: glam::DVec3,
+        /// Its power.
+        power: f64,
+        /// Its cone (axis, half-angle and falloff in degrees).
+        cone: Option<(glam::DVec3, f64, f64)>,
+    },
+}
+
+impl Incident {
+    /// For `light`, with its channels weighted by `mask`.
+    pub fn new(light: &eikon_grid::Light, mask: [f64; 3]) -> Self {
+        use eikon_grid::Light;
+        let carried = |p: glam::DVec3| p.x * mask[0] + p.y * mask[1] + p.z * mask[2];
+        match light {
+            Light::Directional { power, .. } => Incident::Uniform(carried(*power)),
+            Light::Point { position, power } => Incident::Point {
+                position: *position,
+                power: carried(*power),
+                cone: None,
+            },
+            Light::Spot {
+                position,
+                direction,
+                angle,
+                falloff,
+                power,
+            } => Incident::Point {
+                position: *position,
+                power: carried(*power),
+                cone: Some((*direction, *angle, *falloff)),
+            },
+        }
+    }
+
+    /// The irradiance at `x`.
+    #[inline]
+    pub fn at(&self, x: glam::DVec3) -> f64 {
+        match *self {
+            Incident::Uniform(e) => e,
+            Incident::Point {
+                position,
+                power,
+                cone,
+            } => {
+                let d = x - position;
+                let r2 = d.length_squared();
+                power * crate::light::cone_weight(d / r2.sqrt(), cone)
+                    / (4.0 * std::f64::consts::PI * r2)
+            }
+        }
+    }
 }
 
 /// Reusable buffers of [`refine`].
@@ -77,17 +151,37 @@ fn fate(p: &Patches, i: usize, grid: &GridGeometry, rules: &Rules) -> Fate {
     let x = p.positions(i);
     let dir = p.direction(i);
     let mid = p.midpoint(i);
-    if !grid.contains(mid) && grid.clip_line(mid, dir).is_none_or(|(_, t1)| t1 <= 0.0) {
+    let gone = |x: glam::DVec3, d: glam::DVec3| {
+        !grid.contains(x) && grid.clip_line(x, d).is_none_or(|(_, t1)| t1 <= 0.0)
+    };
+    if gone(mid, dir) {
+        return Fate::Exit;
+    }
+    // A patch torn apart (its corners parting ways across a silhouette or a
+    // fold, its depth spent) can keep its midpoint inside long after every
+    // corner has left: it has left when each corner has.
+    if (0..4).all(|c| gone(x[c], p.corner[c][i].v)) {
         return Fate::Exit;
     }
     let (f, f0) = (p.flux[i], p.flux0[i]);
     if (0..3).all(|c| f[c] <= rules.threshold * f0[c]) {
         return Fate::Absorbed;
     }
-    if normal(&x).dot(dir) <= 0.0 {
+    if rules.cull_caustics && normal(&x).dot(dir) <= 0.0 {
         return Fate::Caustic;
     }
     if span(&x) > rules.split_span * (1.0 + 1e-9) && p.depth[i] < rules.max_depth {
+        if rules.dim > 0.0 {
+            // A patch spread so thin that its irradiance is a small part of
+            // what the light would give there unobstructed adds little to
+            // any cell: it is not worth more patches (it deposits along its
+            // corner rays once it is over two voxels across,
+            // `deposit::tube`).
+            let flux = f[0] + f[1] + f[2];
+            if flux < rules.dim * rules.incident.at(mid) * area(&x) {
+                return Fate::Retain;
+            }
+        }
         Fate::Split
     } else {
         Fate::Retain

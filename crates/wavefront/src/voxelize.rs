@@ -1,4 +1,6 @@
-//! Step 4: voxelization of the wavefront (5.2.2).
+//! The paper's voxelization of the wavefront (5.2.2), kept as
+//! `--deposit paper` so its results can be reproduced; the default is the
+//! track-length fluence of [`deposit`](crate::deposit).
 //!
 //! After every step each patch deposits into the cell that contains its
 //! midpoint; the cells under its corners are filled too where no midpoint
@@ -33,13 +35,14 @@
 //! once it flips (`refine`); the cell keeps the next best ray.
 //!
 //! # What is stored
-//! `irradiance` is the differential irradiance Delta E of eq 17-18 in
-//! W/m^2: the power per unit area crossing a surface normal to `direction`.
-//! A renderer turns it into in-scattered radiance (eqs 3-4, 6) as
-//! `L_s = albedo * sigma_t * p(direction, omega) * irradiance`, with the
-//! phase function `p` in 1/sr, per unit length of the eye ray.
+//! The kept ray's differential irradiance Delta E of eqs 17-18 (the power
+//! per unit area crossing a surface normal to its direction) and that
+//! direction. [`PaperVolume::into_volume`] hands them on as a
+//! [`LightVolume`] of one ray family per cell: fluence `Delta E`, flux
+//! vector `Delta E` times the direction.
 
 use crate::patch::{area, Patches};
+use crate::volume::LightVolume;
 use eikon_grid::{EmptySpace, GridGeometry, Medium};
 use glam::DVec3;
 use ndarray::{Array3, Array4};
@@ -193,15 +196,16 @@ fn corner_deposits(
     out
 }
 
-/// The light volume of one light source.
+/// The paper's light volume of one light source, being deposited.
 #[derive(Clone, Debug)]
-pub struct LightVolume {
-    /// RGB differential irradiance per cell, W/m^2, `(nx, ny, nz, 3)`.
-    pub irradiance: Array4<f32>,
+pub struct PaperVolume {
+    /// RGB differential irradiance per cell, W per scene unit^2,
+    /// `(nx, ny, nz, 3)`.
+    irradiance: Array4<f32>,
     /// Unit direction of travel per cell and index channel,
     /// `(nx, ny, nz, 3)` each: one array, or three (R, G, B) when the light
     /// was traced with dispersion.
-    pub direction: Vec<Array4<f32>>,
+    direction: Vec<Array4<f32>>,
     /// Energy of the ray kept so far, per cell and wavefront group.
     best: Vec<Array3<f32>>,
     /// Tier of the ray kept so far (see `Deposit::tier`).
@@ -212,7 +216,7 @@ pub struct LightVolume {
     pending_corners: Vec<[Option<Deposit>; 4]>,
 }
 
-impl LightVolume {
+impl PaperVolume {
     /// An empty (dark) volume on `grid` for `groups` wavefronts (1, or 3
     /// with dispersion: one per colour channel).
     pub fn new(grid: &GridGeometry, groups: usize) -> Self {
@@ -229,46 +233,12 @@ impl LightVolume {
         }
     }
 
-    /// A finished light volume from its arrays (read back from disk, say):
-    /// `irradiance` `(nx, ny, nz, 3)`, and one or three `direction` arrays
-    /// of the same shape. Errors name the array whose shape is wrong.
-    pub fn from_arrays(
-        grid: &GridGeometry,
-        irradiance: Array4<f32>,
-        direction: Vec<Array4<f32>>,
-    ) -> Result<Self, String> {
-        let [nx, ny, nz] = grid.dims;
-        let want = [nx, ny, nz, 3];
-        if irradiance.shape() != want {
-            return Err(format!(
-                "irradiance has shape {:?}, the grid needs {want:?}",
-                irradiance.shape()
-            ));
-        }
-        if !(direction.len() == 1 || direction.len() == 3) {
-            return Err(format!(
-                "{} direction arrays: need 1, or 3 with dispersion",
-                direction.len()
-            ));
-        }
-        if let Some(d) = direction.iter().find(|d| d.shape() != want) {
-            return Err(format!(
-                "direction has shape {:?}, the grid needs {want:?}",
-                d.shape()
-            ));
-        }
-        let groups = direction.len();
-        Ok(Self {
-            irradiance: irradiance.as_standard_layout().into_owned(),
-            direction: direction
-                .into_iter()
-                .map(|d| d.as_standard_layout().into_owned())
-                .collect(),
-            best: (0..groups).map(|_| Array3::zeros((nx, ny, nz))).collect(),
-            tier: (0..groups).map(|_| Array3::zeros((nx, ny, nz))).collect(),
-            pending: Vec::new(),
-            pending_corners: Vec::new(),
-        })
+    /// The kept rays as a [`LightVolume`]: fluence the differential
+    /// irradiance, flux vector that times the direction (for each group,
+    /// the mean over the colour channels without dispersion, the group's
+    /// channel with it).
+    pub fn into_volume(self) -> LightVolume {
+        LightVolume::from_rays(self.irradiance, self.direction)
     }
 
     /// Deposit every patch of a wavefront. `group` is the wavefront's

@@ -66,8 +66,11 @@ pub struct GpuRenderer<'a> {
     params: wgpu::Buffer,
     /// idx0..2, propa, propb, emission, sides0..2.
     medium_views: Vec<wgpu::TextureView>,
-    /// Per pass: irradiance, direction 0..2.
+    /// Per pass: fluence, flux vector 0..2.
     volume_views: Vec<[wgpu::TextureView; 4]>,
+    /// Per pass: how many flux arrays its volume has (1, or 3 with
+    /// dispersion).
+    volume_arrays: Vec<u32>,
     skip: wgpu::Buffer,
     env: wgpu::Buffer,
     rays: wgpu::Buffer,
@@ -282,6 +285,7 @@ impl<'a> GpuRenderer<'a> {
         };
         let sides: Vec<wgpu::Texture> = properties
             .sides
+            .sides
             .iter()
             .enumerate()
             .map(|(c, s)| {
@@ -309,21 +313,23 @@ impl<'a> GpuRenderer<'a> {
 
         // One pass per light volume; a dark placeholder without any.
         let mut volume_views = Vec::new();
+        let mut volume_arrays = Vec::new();
         for (j, v) in volumes.iter().enumerate() {
             let irr = vec3_texture(
                 gpu,
-                &format!("irradiance {j}"),
+                &format!("fluence {j}"),
                 dims,
-                v.irradiance.as_slice().expect("standard layout"),
+                v.fluence.as_slice().expect("standard layout"),
             );
+            volume_arrays.push(v.flux.len() as u32);
             let dirs: Vec<wgpu::Texture> = v
-                .direction
+                .flux
                 .iter()
                 .enumerate()
                 .map(|(c, d)| {
                     vec3_texture(
                         gpu,
-                        &format!("direction {j}.{c}"),
+                        &format!("flux {j}.{c}"),
                         dims,
                         d.as_slice().expect("standard layout"),
                     )
@@ -342,6 +348,7 @@ impl<'a> GpuRenderer<'a> {
         if volumes.is_empty() {
             let dark = flat_texture(gpu, "no light volume", tiny, r32, 4, &[0.0; 4]);
             volume_views.push([view(&dark), view(&dark), view(&dark), view(&dark)]);
+            volume_arrays.push(1);
             textures.push(dark);
         }
 
@@ -563,6 +570,7 @@ impl<'a> GpuRenderer<'a> {
             params,
             medium_views,
             volume_views,
+            volume_arrays,
             skip,
             env,
             rays,
@@ -620,7 +628,12 @@ impl<'a> GpuRenderer<'a> {
                 for (j, vol) in self.volume_views.iter().enumerate() {
                     let pass = gpu.uniform(
                         "view pass",
-                        &[[u32::from(j == 0), u32::from(self.lit), s0, s1 - s0]],
+                        &[[
+                            u32::from(j == 0),
+                            u32::from(self.lit),
+                            self.volume_arrays[j],
+                            s1 - s0,
+                        ]],
                     );
                     let mut entries = vec![
                         wgpu::BindGroupEntry {

@@ -75,8 +75,8 @@ struct Params {
 }
 
 struct Pass {
-    // base pass (light-independent terms), a light volume bound, first ray
-    // of the chunk (unused), samples in the chunk.
+    // base pass (light-independent terms), a light volume bound, flux
+    // arrays of the volume (1, or 3 with dispersion), samples in the chunk.
     p: vec4<u32>,
 }
 
@@ -94,11 +94,12 @@ struct Pass {
 @group(0) @binding(8) var sides0: texture_3d<f32>;
 @group(0) @binding(9) var sides1: texture_3d<f32>;
 @group(0) @binding(10) var sides2: texture_3d<f32>;
-// This pass's light volume: irradiance E, direction l per index channel.
-@group(0) @binding(11) var irr: texture_3d<f32>;
-@group(0) @binding(12) var dir0: texture_3d<f32>;
-@group(0) @binding(13) var dir1: texture_3d<f32>;
-@group(0) @binding(14) var dir2: texture_3d<f32>;
+// This pass's light volume (eikon_wavefront::volume): fluence phi, net
+// flux vector F per index channel.
+@group(0) @binding(11) var flu: texture_3d<f32>;
+@group(0) @binding(12) var flux0: texture_3d<f32>;
+@group(0) @binding(13) var flux1: texture_3d<f32>;
+@group(0) @binding(14) var flux2: texture_3d<f32>;
 // Empty-space skipping (macrocell.rs): per channel the blocks'
 // [n, sigma rgb] bits (NONE where not uniform), then per channel the
 // voxels' clear distances, four bytes to a word.
@@ -177,12 +178,37 @@ fn sides_at(ch: u32, t: Tri) -> vec2<f32> {
     }
 }
 
-fn dir_at(ch: u32, t: Tri) -> vec3<f32> {
+fn flux_at(ch: u32, t: Tri) -> vec3<f32> {
     switch ch {
-        case 1u: { return load4(dir1, t).xyz; }
-        case 2u: { return load4(dir2, t).xyz; }
-        default: { return load4(dir0, t).xyz; }
+        case 1u: { return load4(flux1, t).xyz; }
+        case 2u: { return load4(flux2, t).xyz; }
+        default: { return load4(flux0, t).xyz; }
     }
+}
+
+// The light of this pass's volume at a point (background.rs LightSample):
+// RGB fluence, unit net flux direction, mean cosine |F| / phi (phi the
+// channel's own with dispersion, else the mean of the three).
+struct LightSample {
+    fluence: vec3<f32>,
+    dir: vec3<f32>,
+    mu: f32,
+}
+
+fn light_at(ch: u32, t: Tri) -> LightSample {
+    var s: LightSample;
+    s.fluence = load4(flu, t).xyz;
+    let f = flux_at(ch, t);
+    s.dir = normalize_or_zero(f);
+    var family = (s.fluence.x + s.fluence.y + s.fluence.z) / 3.0;
+    if PASS.p.z == 3u {
+        family = s.fluence[ch];
+    }
+    s.mu = 0.0;
+    if family > 0.0 {
+        s.mu = min(length(f) / family, 1.0);
+    }
+    return s;
 }
 
 fn idx_texel(ch: u32, g: vec3<i32>) -> vec4<f32> {
@@ -367,8 +393,9 @@ fn direct(i: u32, x: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
     return l.c.xyz * (w * cosr / (4.0 * PI * r2));
 }
 
-// Lambertian receiver: albedo / pi * sum_j E_j max(0, -l_j . n) inside the
-// grid (light volumes), direct lighting outside.
+// Lambertian receiver: albedo / pi * sum_j max(0, -F_j . n) (shared among
+// the channels by fluence) inside the grid (light volumes), direct lighting
+// outside.
 fn receiver_radiance(x: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
     if P.skip.x == 0u {
         return vec3<f32>(0.0);
@@ -377,9 +404,8 @@ fn receiver_radiance(x: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
     let n = select(-rn, rn, dot(d, rn) < 0.0);
     var e = vec3<f32>(0.0);
     if contains(x) && PASS.p.y != 0u {
-        let t = tri(x);
-        let l = normalize_or_zero(dir_at(ch, t));
-        e += load4(irr, t).xyz * max(-dot(l, n), 0.0);
+        let s = light_at(ch, tri(x));
+        e += s.fluence * (max(-dot(s.dir, n), 0.0) * s.mu);
     } else if PASS.p.x != 0u {
         for (var i = 0u; i < P.image.w; i++) {
             e += direct(i, x, n);
@@ -518,14 +544,11 @@ fn gather(x: vec3<f32>, n: f32, grad: vec3<f32>, d: vec3<f32>, stp: f32, ch: u32
     }
     let scatter = b.xyz;
     if max3(scatter) > 0.0 && PASS.p.y != 0u {
-        let e = load4(irr, t).xyz;
-        if max3(e) > 0.0 {
-            let l = normalize_or_zero(dir_at(ch, t));
-            if !is_zero(l) {
-                // Eq 6: the phase between the light's direction of travel
-                // and the direction towards the eye.
-                source += scatter * e * hg(dot(l, -d), b.w);
-            }
+        let s = light_at(ch, t);
+        if max3(s.fluence) > 0.0 {
+            // Eq 6 with the light's first angular moment: HG about the net
+            // flux direction, g scaled by the mean cosine.
+            source += scatter * s.fluence * hg(dot(s.dir, -d), b.w * s.mu);
         }
     }
     // The radiance law (render.rs): radiance arising where the index is n

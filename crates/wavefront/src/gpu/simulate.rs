@@ -554,8 +554,9 @@ impl<'a> GpuSimulator<'a> {
                 &field,
                 opts,
                 &rules,
-                mask,
+                (mask, group),
                 (&mut p, &mut next, &mut scratch),
+                None,
                 &mut summary,
             );
             let n0 = p.len();
@@ -801,8 +802,7 @@ impl<'a> GpuSimulator<'a> {
             directions.push(read_rgb(gpu, &dir, grid.dims)?);
         }
         let irradiance = read_rgb(gpu, &irr, grid.dims)?;
-        let volume = LightVolume::from_arrays(grid, irradiance, directions)
-            .expect("arrays of the grid's shape");
+        let volume = LightVolume::from_rays(irradiance, directions);
         Ok((volume, summary))
     }
 }
