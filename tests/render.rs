@@ -248,9 +248,15 @@ resolution = [21, 21]
 type = "constant"
 color = [0, 0, 0]
 "#;
-    let (scene, medium, volumes) = setup(text);
-    let (img, cam) = render(&scene, &medium, &volumes, Options::default());
+    let (scene, medium, _) = setup(text);
+    // The light volume of the plane wave exactly (the simulation's own
+    // accuracy is tested in tests/fluence.rs): fluence 2, flux 2 l.
     let l = DVec3::new(0.3, -1.0, 0.2).normalize();
+    let [nx, ny, nz] = medium.geometry.dims;
+    let fluence = ndarray::Array4::from_elem((nx, ny, nz, 3), 2.0f32);
+    let flux = ndarray::Array4::from_shape_fn((nx, ny, nz, 3), |(_, _, _, c)| 2.0 * l[c] as f32);
+    let volumes = vec![LightVolume::from_arrays(&medium.geometry, fluence, vec![flux]).unwrap()];
+    let (img, cam) = render(&scene, &medium, &volumes, Options::default());
     let want = 0.6 / std::f64::consts::PI * 2.0 * (-l.y);
     let (mut inside, mut outside, mut worst) = (0, 0, 0.0f64);
     for y in 0..cam.height() {

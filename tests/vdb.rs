@@ -115,8 +115,9 @@ fn export_writes_grids_that_vdb_rs_and_numpy_read_back_exactly() {
             "grad_n",
             "density",
             "sigma_t",
-            "irradiance",
-            "direction"
+            "fluence",
+            "fluence_rgb",
+            "flux"
         ]
     );
     assert_eq!(
@@ -311,8 +312,9 @@ fn openvdb_tools_read_our_files_exactly() {
                 "grad_n",
                 "density",
                 "sigma_t",
-                "irradiance",
-                "direction",
+                "fluence",
+                "fluence_rgb",
+                "flux",
             ] {
                 assert!(text.contains(&format!("Name: {name}\n")), "{name}: {text}");
             }
@@ -326,7 +328,7 @@ fn openvdb_tools_read_our_files_exactly() {
         for (file, half, _) in &files {
             let report = pyopenvdb_check(&py, file, &npy, *half);
             assert!(
-                report.contains("irradiance") && report.contains("exact"),
+                report.contains("fluence") && report.contains("exact"),
                 "{report}"
             );
         }
@@ -349,7 +351,7 @@ fn dispersion_and_several_lights_get_one_grid_each() {
         "--npy",
         s(&npy),
         "--grids",
-        "n,grad_n,irradiance,direction",
+        "n,grad_n,fluence,flux",
     ]);
     let info = vdb::inspect(&file).unwrap();
     let names: Vec<&str> = info.grids.iter().map(|g| g.name.as_str()).collect();
@@ -362,21 +364,24 @@ fn dispersion_and_several_lights_get_one_grid_each() {
             "grad_n_r",
             "grad_n_g",
             "grad_n_b",
-            "irradiance",
-            "irradiance_0",
-            "irradiance_1",
-            "direction_0_r",
-            "direction_0_g",
-            "direction_0_b",
-            "direction_1_r",
-            "direction_1_g",
-            "direction_1_b",
+            "fluence",
+            "fluence_rgb",
+            "fluence_0",
+            "fluence_rgb_0",
+            "fluence_1",
+            "fluence_rgb_1",
+            "flux_0_r",
+            "flux_0_g",
+            "flux_0_b",
+            "flux_1_r",
+            "flux_1_g",
+            "flux_1_b",
         ]
     );
-    // The total irradiance is the sum of the lights'.
-    let e: Array4<f32> = read_npy(npy.join("irradiance.npy")).unwrap();
-    let e0: Array4<f32> = read_npy(npy.join("irradiance_0.npy")).unwrap();
-    let e1: Array4<f32> = read_npy(npy.join("irradiance_1.npy")).unwrap();
+    // The total fluence is the sum of the lights'.
+    let e: Array4<f32> = read_npy(npy.join("fluence_rgb.npy")).unwrap();
+    let e0: Array4<f32> = read_npy(npy.join("fluence_rgb_0.npy")).unwrap();
+    let e1: Array4<f32> = read_npy(npy.join("fluence_rgb_1.npy")).unwrap();
     assert_eq!(e, &e0 + &e1);
     let n_b = vdb::read_float_grid(&file, "n_b").unwrap();
     let a: Array3<f32> = read_npy(npy.join("n_b.npy")).unwrap();
@@ -404,19 +409,12 @@ fn export_errors_are_clear() {
         ],
         &[
             "--grids: unknown grid `dennsity`",
-            "n, grad_n, sigma_t, irradiance, direction",
+            "n, grad_n, sigma_t, fluence, flux",
         ],
     );
     expect_error(
-        &[
-            "export",
-            s(&scene),
-            "--vdb",
-            s(&out),
-            "--grids",
-            "irradiance",
-        ],
-        &["--grids irradiance: needs --light"],
+        &["export", s(&scene), "--vdb", s(&out), "--grids", "fluence"],
+        &["--grids fluence: needs --light"],
     );
     expect_error(
         &["export", s(&scene)],

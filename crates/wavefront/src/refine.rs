@@ -154,13 +154,16 @@ fn fate(p: &Patches, i: usize, grid: &GridGeometry, rules: &Rules) -> Fate {
     let gone = |x: glam::DVec3, d: glam::DVec3| {
         !grid.contains(x) && grid.clip_line(x, d).is_none_or(|(_, t1)| t1 <= 0.0)
     };
-    if gone(mid, dir) {
-        return Fate::Exit;
-    }
-    // A patch torn apart (its corners parting ways across a silhouette or a
-    // fold, its depth spent) can keep its midpoint inside long after every
-    // corner has left: it has left when each corner has.
-    if (0..4).all(|c| gone(x[c], p.corner[c][i].v)) {
+    if rules.cull_caustics {
+        // The paper's deposit reads the midpoint only.
+        if gone(mid, dir) {
+            return Fate::Exit;
+        }
+    } else if (0..4).all(|c| gone(x[c], p.corner[c][i].v)) {
+        // The track-length deposit lights every cell a patch covers, so a
+        // patch across the bounds stays until each corner has left (and a
+        // patch torn apart, its midpoint inside long after its corners
+        // parted ways across a silhouette, goes then too).
         return Fate::Exit;
     }
     let (f, f0) = (p.flux[i], p.flux0[i]);
