@@ -11,6 +11,7 @@ pub fn medium(text: &str) -> (Scene, Medium) {
 
 /// A glass sphere (n = 1.5, absorbing blue most) under a directional, a
 /// point and a spot light, on a 64^3 grid.
+#[allow(dead_code)] // not every test binary uses it
 pub const GLASS_SPHERE: &str = r#"
 [grid]
 resolution = 64

@@ -394,7 +394,7 @@ const MAX_PARTS: usize = 4;
 fn box_parts(centre: f64, width: f64) -> [(f64, f64); MAX_PARTS] {
     let mut out = [(0.0, 0.0); MAX_PARTS];
     let w = width.min((MAX_PARTS - 1) as f64);
-    if !(w > 1e-9) || !centre.is_finite() {
+    if w.is_nan() || w <= 1e-9 || !centre.is_finite() {
         out[0] = (1.0, 0.0);
         return out;
     }
@@ -435,19 +435,18 @@ impl Counters {
     /// the cell whose first counter is `base` (flux-vector array `group`).
     #[inline]
     fn add(&self, base: usize, group: usize, fluence: [f64; 3], flux: [f64; 3]) {
-        for c in 0..3 {
+        for (counter, x) in self.fluence[base..base + 3].iter().zip(fluence) {
             // Round to the nearest unit (truncation of a non-negative
             // number, without a libm call).
-            let units = (fluence[c] + 0.5) as u64;
+            let units = (x + 0.5) as u64;
             if units > 0 {
-                self.fluence[base + c].fetch_add(units, Ordering::Relaxed);
+                counter.fetch_add(units, Ordering::Relaxed);
             }
         }
-        let fx = &self.flux[group];
-        for c in 0..3 {
-            let units = flux[c].round() as i64;
+        for (counter, x) in self.flux[group][base..base + 3].iter().zip(flux) {
+            let units = x.round() as i64;
             if units != 0 {
-                fx[base + c].fetch_add(units, Ordering::Relaxed);
+                counter.fetch_add(units, Ordering::Relaxed);
             }
         }
     }
@@ -536,14 +535,14 @@ impl Sink {
         // difference when tau is small.
         let mut fluence = [0.0; 3];
         let mut along = 0.0;
-        for c in 0..3 {
+        for (c, out) in fluence.iter_mut().enumerate() {
             let tau = self.depth[c];
             let weight = if tau > 0.0 {
                 (-tau * ta).exp() * -(-tau * (tb - ta)).exp_m1() / tau
             } else {
                 tb - ta
             };
-            fluence[c] = self.w[c] * weight;
+            *out = self.w[c] * weight;
             along += self.wf[c] * weight;
         }
         put.put(base, fluence, (self.u * along).to_array());

@@ -551,10 +551,10 @@ impl Tracer<'_> {
                         self.channel,
                     );
                     if tr < 1.0 {
-                        for c in 0..3 {
-                            let kept = flux[c] * tr;
-                            t.reflected[c] += flux[c] - kept;
-                            flux[c] = kept;
+                        for (f, r) in flux.iter_mut().zip(t.reflected.iter_mut()) {
+                            let kept = *f * tr;
+                            *r += *f - kept;
+                            *f = kept;
                         }
                     }
                 }

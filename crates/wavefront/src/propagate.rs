@@ -196,10 +196,10 @@ pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
                 let v = (a.v + b.v + c.v + d.v) * 0.25;
                 let t = faces.transmittance(medium, field, (m0 + m1) * 0.5, v, m1 - m0, channel);
                 if t < 1.0 {
-                    for ch in 0..3 {
-                        let kept = flux[ch] * t;
-                        lost.reflected[ch] = flux[ch] - kept;
-                        flux[ch] = kept;
+                    for (f, r) in flux.iter_mut().zip(lost.reflected.iter_mut()) {
+                        let kept = *f * t;
+                        *r = *f - kept;
+                        *f = kept;
                     }
                 }
             }
