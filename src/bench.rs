@@ -84,7 +84,16 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
     let (runs, frames) = (args.runs, args.frames);
     let scene = Scene::parse(text, name)?;
     let medium = Medium::build(&scene)?;
-    let opts = eikon_wavefront::Options::default();
+    // The CPU runs the default deposit; the GPU simulator runs the
+    // paper's (reported as `deposit`).
+    let opts = match &backend {
+        Backend::Gpu(_) => eikon_wavefront::Options {
+            deposit: eikon_wavefront::DepositRule::Paper,
+            fresnel: false,
+            ..eikon_wavefront::Options::default()
+        },
+        Backend::Cpu => eikon_wavefront::Options::default(),
+    };
     eikon_wavefront::check_scene(&scene, &medium, &opts)?;
     let quiet = |_: usize, _: usize| {};
     let mut sims = Vec::new();
@@ -151,6 +160,10 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
         "dims": medium.geometry.dims,
         "backend": backend.name(),
         "device": backend.describe(),
+        "deposit": match opts.deposit {
+            eikon_wavefront::DepositRule::Fluence => "fluence",
+            eikon_wavefront::DepositRule::Paper => "paper",
+        },
         "simulate_seconds": median(sims.clone()),
         "simulate_runs": sims,
         "peak_patches": patches,

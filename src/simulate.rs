@@ -234,10 +234,18 @@ pub fn run(args: Args) -> Result<()> {
     args.options()?;
     let scene = Scene::load(&args.scene)?;
     let medium = build_medium(&scene)?;
+    let gpu_asked = args.backend.backend == Some(crate::backend::BackendArg::Gpu);
     let backend = if args.method == SimMethod::Photons {
-        if args.backend.backend == Some(crate::backend::BackendArg::Gpu) {
+        if gpu_asked {
             bail!(
                 "--backend gpu: photons run on the CPU only (--method wavefront runs on the GPU)"
+            );
+        }
+        Backend::Cpu
+    } else if !eikon_wavefront::gpu::GpuSimulator::runs(&args.options()?) {
+        if gpu_asked {
+            bail!(
+                "--backend gpu: the GPU light simulation runs --deposit paper --no-fresnel only; the default fluence deposit with Fresnel runs on the CPU (--backend cpu)"
             );
         }
         Backend::Cpu
@@ -280,12 +288,26 @@ pub fn simulate(
     }
     crate::backend::announce();
     let started = Instant::now();
-    // The GPU uploads the medium once for every light.
+    // The GPU uploads the medium once for every light. It runs the paper's
+    // deposit only: other settings simulate on the CPU (the render that
+    // follows may still use the GPU).
+    let on_gpu = eikon_wavefront::gpu::GpuSimulator::runs(&opts);
     let gpu = match backend {
-        Backend::Gpu(g) if args.method == SimMethod::Wavefront => {
+        Backend::Gpu(g) if args.method == SimMethod::Wavefront && on_gpu => {
             Some(eikon_wavefront::gpu::GpuSimulator::new(g, medium)?)
         }
+        Backend::Gpu(_) if args.method == SimMethod::Wavefront && !args.quiet && !args.json => {
+            eprintln!(
+                "the light simulation runs on the CPU: the GPU simulator runs --deposit paper --no-fresnel only"
+            );
+            None
+        }
         _ => None,
+    };
+    let sim_backend = if gpu.is_some() {
+        backend.describe()
+    } else {
+        Backend::Cpu.describe()
     };
     let mut results: Vec<(LightVolume, Summary, f64)> = Vec::new();
     for (i, light) in scene.lights.iter().enumerate() {
@@ -383,7 +405,7 @@ pub fn simulate(
             "seed": (args.method == SimMethod::Photons).then_some(args.seed),
         },
         "lights": lights,
-        "backend": backend.describe(),
+        "backend": sim_backend,
         "seconds": wall,
     });
     write_atomic(&args.output.join(SIDECAR), |w| {
@@ -401,7 +423,7 @@ pub fn simulate(
             "{}",
             serde_json::to_string_pretty(&json!({
                 "output": args.output.display().to_string(),
-                "backend": backend.describe(),
+                "backend": sim_backend,
                 "lights": summaries,
                 "seconds": wall,
             }))?

@@ -20,6 +20,7 @@
 //! over one voxel length; rounding each piece to a unit then costs at most
 //! half a unit.
 
+use crate::patch::span;
 use crate::volume::LightVolume;
 use eikon_grid::GridGeometry;
 use glam::DVec3;
@@ -247,7 +248,7 @@ impl Counters {
 }
 
 /// Most sub-patches along one side of a patch (see [`tube`]).
-pub const MAX_SUBPATCHES: usize = 4;
+pub const MAX_SUBPATCHES: usize = 8;
 /// Sub-patch size, voxels: a patch is cut into sub-patches no larger than
 /// this, each deposited with its own footprint.
 pub const SUBPATCH_SIZE: f64 = 0.5;
@@ -255,7 +256,7 @@ pub const SUBPATCH_SIZE: f64 = 0.5;
 /// Sub-patches along the two sides of a patch whose corners sweep from
 /// `x0` to `x1`: enough that none exceeds [`SUBPATCH_SIZE`] voxels on the
 /// longer of each pair of opposite edges, before or after the step; `None`
-/// where that would take more than [`MAX_SUBPATCHES`] (a patch over two
+/// where that would take more than [`MAX_SUBPATCHES`] (a patch over four
 /// voxels across: see [`tube`]).
 #[inline]
 pub fn subpatches(x0: &[DVec3; 4], x1: &[DVec3; 4], voxel: f64) -> Option<(usize, usize)> {
@@ -297,12 +298,14 @@ pub fn subpatches(x0: &[DVec3; 4], x1: &[DVec3; 4], voxel: f64) -> Option<(usize
 /// focus or a fold needs nothing special: the chords pass through it, and
 /// a patch whose orientation flips deposits as before.
 ///
-/// A patch over two voxels across has grown past the split size without
-/// being split (its tessellation depth is spent, typically where it
-/// straddles an object's silhouette and its corners part ways): its
-/// interior no longer maps its rays, and a footprint would smear its light
-/// across the gap. Its flux then goes along its four corner rays, a
-/// quarter each: true rays, as photons are.
+/// A patch can grow past the split size without being split (its
+/// tessellation depth spent, or too dim to be worth it: `refine`). Up to
+/// four voxels across, if it is still about a parallelogram, its footprint
+/// is cut as above. Beyond that, or when it is far from a parallelogram
+/// (typically where it straddles an object's silhouette and its corners
+/// part ways), its interior no longer maps its rays and a footprint would
+/// smear its light across the gap: its flux then goes along its four
+/// corner rays, a quarter each, true rays as photons are.
 pub fn tube(
     tally: &Counters,
     x0: &[DVec3; 4],
@@ -311,7 +314,15 @@ pub fn tube(
     depth: DVec3,
     group: Option<usize>,
 ) {
-    let Some((ns, nt)) = subpatches(x0, x1, tally.grid.voxel_size()) else {
+    let voxel = tally.grid.voxel_size();
+    let torn = |(ns, nt): (usize, usize)| {
+        // Over two voxels across and far from a parallelogram: the
+        // bilinear interior does not follow the rays (`x0 - x1 + x2 - x3`
+        // is zero for a parallelogram).
+        let twist = (x1[0] - x1[1] + x1[2] - x1[3]).length();
+        ns.max(nt) as f64 * SUBPATCH_SIZE > 2.0 && twist > 0.5 * span(x1)
+    };
+    let Some((ns, nt)) = subpatches(x0, x1, voxel).filter(|&n| !torn(n)) else {
         let f = flux.map(|x| x * 0.25);
         for c in 0..4 {
             tally.chord(x0[c], x1[c], &f, depth, group);

@@ -1,6 +1,9 @@
 //! The light simulator on the GPU: every step of [`crate::simulate_light`]
-//! as wgpu compute kernels (`simulate.wgsl`), with the same physics,
-//! conventions and units, in f32.
+//! with the paper's deposit (`--deposit paper --no-fresnel`: the
+//! highest-energy ray per cell, patches culled at caustics, no Fresnel) as
+//! wgpu compute kernels (`simulate.wgsl`), with the same physics,
+//! conventions and units, in f32. The default track-length fluence deposit
+//! with Fresnel transmission runs on the CPU only ([`GpuSimulator::runs`]).
 //!
 //! Per wavefront, emission (`light::emit`), the absorption inside a
 //! point light's start sphere and the pre-step tessellation run on the CPU
@@ -479,7 +482,16 @@ impl<'a> GpuSimulator<'a> {
         )
     }
 
-    /// Simulate one light (see [`crate::simulate_light`]).
+    /// Whether the GPU simulator runs `opts`: the paper's deposit
+    /// (highest-energy ray, culling at caustics) without Fresnel. The
+    /// track-length fluence deposit and Fresnel transmission (the defaults)
+    /// are not yet ported to WGSL.
+    pub fn runs(opts: &Options) -> bool {
+        opts.deposit == crate::DepositRule::Paper && !opts.fresnel
+    }
+
+    /// Simulate one light (see [`crate::simulate_light`]) with the paper's
+    /// deposit; other options are refused ([`Self::runs`]).
     pub fn simulate(
         &self,
         light: &Light,
@@ -487,6 +499,12 @@ impl<'a> GpuSimulator<'a> {
         progress: Progress,
     ) -> Result<(LightVolume, Summary), Error> {
         opts.check()?;
+        if !Self::runs(opts) {
+            return Err(Error::Option {
+                option: "backend",
+                message: "the GPU light simulation runs the paper's deposit without Fresnel only (--deposit paper --no-fresnel); the default fluence deposit with Fresnel runs on the CPU (--backend cpu)".into(),
+            });
+        }
         let medium = self.medium;
         let grid = &medium.geometry;
         let gpu = self.gpu;
