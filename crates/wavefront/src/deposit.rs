@@ -203,6 +203,41 @@ impl Counters {
         }
     }
 
+    /// The fixed-point scales: fluence units per watt-unit of length, per
+    /// channel, and flux-vector units per watt-unit of length (what a
+    /// piece's amounts are multiplied by before they are rounded).
+    pub fn scales(&self) -> ([f64; 3], f64) {
+        (self.scale, self.flux_scale)
+    }
+
+    /// Add fixed-point units counted elsewhere (the GPU simulator's
+    /// counters) to the fluence counters of `channel`: one value per cell,
+    /// standard order. Wrapping, as the atomic adds are.
+    pub fn add_fluence_units(&mut self, channel: usize, units: &[u64]) {
+        assert_eq!(units.len() * 3, self.fluence.len(), "one value per cell");
+        self.fluence
+            .par_chunks_mut(3)
+            .zip(units.par_iter())
+            .for_each(|(cell, &u)| {
+                let c = cell[channel].get_mut();
+                *c = c.wrapping_add(u);
+            });
+    }
+
+    /// Add fixed-point units counted elsewhere to component `component` of
+    /// wavefront group `group`'s flux-vector counters: one value per cell,
+    /// standard order, two's complement. Wrapping, as the atomic adds are.
+    pub fn add_flux_units(&mut self, group: usize, component: usize, units: &[i64]) {
+        let flux = &mut self.flux[group];
+        assert_eq!(units.len() * 3, flux.len(), "one value per cell");
+        flux.par_chunks_mut(3)
+            .zip(units.par_iter())
+            .for_each(|(cell, &u)| {
+                let c = cell[component].get_mut();
+                *c = c.wrapping_add(u);
+            });
+    }
+
     /// The finished light volume: counters back to watt-units of length,
     /// over the cell volume.
     pub fn into_volume(self) -> LightVolume {

@@ -60,6 +60,11 @@ pub enum DepositRule {
 /// (with the fluence deposit; [`refine::Rules::dim`]).
 pub const DIM_SPLIT: f64 = 0.05;
 
+/// Patches carrying less than this fraction of what one voxel of the
+/// light's unobstructed beam carries end (with the fluence deposit;
+/// [`refine::Rules::faint`]), counted as culled.
+pub const FAINT: f64 = 1e-4;
+
 /// Fixed-point units the whole power of a light deposits over one voxel
 /// length: a piece of a chord is rounded to `2^-40` of that.
 pub const UNITS_PER_CROSSING: f64 = (1u64 << 40) as f64;
@@ -318,9 +323,13 @@ impl Plan {
                 split_span: opts.split * h,
                 threshold: opts.threshold,
                 max_patches: opts.max_patches,
-                max_depth: opts
-                    .max_depth
-                    .unwrap_or_else(|| default_depth(light, grid, opts)),
+                max_depth: opts.max_depth.unwrap_or_else(|| {
+                    if opts.deposit == DepositRule::Paper {
+                        default_depth(light, grid, opts)
+                    } else {
+                        fluence_depth(light, grid, opts)
+                    }
+                }),
                 cull_caustics: opts.deposit == DepositRule::Paper,
                 dim: if opts.deposit == DepositRule::Paper {
                     0.0
@@ -328,6 +337,11 @@ impl Plan {
                     DIM_SPLIT
                 },
                 incident: refine::Incident::new(light, [1.0; 3]),
+                faint: if opts.deposit == DepositRule::Paper {
+                    0.0
+                } else {
+                    FAINT * h * h
+                },
             },
             dt,
             max_steps: opts
@@ -409,15 +423,68 @@ pub(crate) fn start_wavefront(
     }
     summary.emitted += p.len();
     // Patches that start far from a point light are larger than the
-    // split size: tessellate them before the first step.
+    // split size: tessellate them before the first step. With the fluence
+    // deposit the tessellation budget counts from here (see
+    // [`fluence_depth`]).
+    let fluence = !rules.cull_caustics;
+    let start_rules = refine::Rules {
+        max_depth: if fluence { 16 } else { rules.max_depth },
+        ..*rules
+    };
     for _ in 0..16 {
         let before = p.len();
-        let ended = refine::refine(p, next, scratch, field, grid, rules, &mut summary.held);
+        let ended = refine::refine(
+            p,
+            next,
+            scratch,
+            field,
+            grid,
+            &start_rules,
+            &mut summary.held,
+        );
         summary.add_ended(&ended);
         if p.len() == before {
             break;
         }
     }
+    if fluence {
+        p.depth.iter_mut().for_each(|d| *d = 0);
+    }
+}
+
+/// Tessellation limit with the fluence deposit, counted from the wavefront
+/// as it enters the volume (patches about a voxel across): four levels,
+/// as for a plane wave ([`default_depth`]), plus what a spherical wave
+/// needs to grow from the nearest point of the volume to the farthest (from
+/// the one-voxel sphere it starts on when the light is inside). Counted
+/// from emission instead, a light far outside spends its levels on
+/// reaching the volume, and one inside on nothing: the budget then either
+/// starves or lets light fanned out behind a caustic split without end
+/// (a spot through a superquadric grew past a million patches).
+pub fn fluence_depth(light: &Light, grid: &eikon_grid::GridGeometry, opts: &Options) -> u8 {
+    let position = match light {
+        Light::Directional { .. } => return 4,
+        Light::Point { position, .. } | Light::Spot { position, .. } => *position,
+    };
+    let h = grid.voxel_size();
+    let near = (position.clamp(grid.min, grid.max) - position)
+        .length()
+        .max(light::INNER_RADIUS_VOXELS * h);
+    let far = (0..8)
+        .map(|i| {
+            let c = glam::DVec3::new(
+                if i & 1 == 0 { grid.min.x } else { grid.max.x },
+                if i & 2 == 0 { grid.min.y } else { grid.max.y },
+                if i & 4 == 0 { grid.min.z } else { grid.max.z },
+            );
+            (c - position).length()
+        })
+        .fold(0.0, f64::max);
+    let grow = (far / near * opts.patch_size / opts.split)
+        .log2()
+        .ceil()
+        .max(0.0);
+    4 + grow.min(12.0) as u8
 }
 
 /// Simulate one light: its wavefront (or, with dispersion, one wavefront

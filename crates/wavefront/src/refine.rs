@@ -71,6 +71,10 @@ pub struct Rules {
     pub dim: f64,
     /// The light's unobstructed irradiance, for [`Rules::dim`].
     pub incident: Incident,
+    /// Eliminate a patch whose flux is below this many times the
+    /// unobstructed irradiance at its midpoint (an area, world units^2; 0:
+    /// never).
+    pub faint: f64,
 }
 
 /// The irradiance (summed over the colour channels a wavefront carries) a
@@ -168,6 +172,14 @@ fn fate(p: &Patches, i: usize, grid: &GridGeometry, rules: &Rules) -> Fate {
     }
     let (f, f0) = (p.flux[i], p.flux0[i]);
     if (0..3).all(|c| f[c] <= rules.threshold * f0[c]) {
+        return Fate::Absorbed;
+    }
+    // A patch that has been split and dimmed until it carries less than
+    // `faint` of what a voxel of the unobstructed light carries cannot
+    // change any cell by more than that fraction: light trapped and
+    // bouncing in absorbing glass would otherwise keep splitting for
+    // thousands of steps. It ends as absorbed, its flux counted as culled.
+    if rules.faint > 0.0 && f[0] + f[1] + f[2] < rules.faint * rules.incident.at(mid) {
         return Fate::Absorbed;
     }
     if rules.cull_caustics && normal(&x).dot(dir) <= 0.0 {
