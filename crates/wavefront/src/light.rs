@@ -5,8 +5,7 @@
 //! light and the volume: outside the bounds light travels straight in the
 //! ambient medium, so moving a patch's four corners the same distance along
 //! their rays keeps them on one wavefront. Patches whose central ray never
-//! meets the volume carry no light into it and are not emitted (a plane
-//! wave's patch is emitted when any of its corners' rays meets it).
+//! meets the volume carry no light into it and are not emitted.
 //!
 //! * Directional light: a plane wave tiled by square patches of the
 //!   requested size; each carries `irradiance * area`.
@@ -153,18 +152,11 @@ fn directional<F: IndexField + ?Sized>(
         for i in 0..na {
             let (a, b) = (a0 + i as f64 * size, b0 + j as f64 * size);
             let at = |da: f64, db: f64, s: f64| u * (a + da) + w * (b + db) + d * s;
-            // Emitted when its centre's or any corner's ray meets the
-            // volume: a patch across the volume's silhouette lights the part
-            // of the edge cells it covers (its chords are clipped to the
-            // bounds), which a centre-only test would leave half dark. It
-            // starts where the first of those rays enters.
-            let t0 = [(0.5, 0.5), (0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)]
-                .iter()
-                .filter_map(|&(fa, fb)| grid.clip_line(at(fa * size, fb * size, s0), d))
-                .filter(|&(_, t1)| t1 > 0.0)
-                .map(|(t0, _)| t0)
-                .fold(f64::INFINITY, f64::min);
-            if !t0.is_finite() {
+            let mid = at(0.5 * size, 0.5 * size, s0);
+            let Some((t0, t1)) = grid.clip_line(mid, d) else {
+                continue;
+            };
+            if t1 <= 0.0 {
                 continue;
             }
             let s = s0 + (t0 - margin).max(0.0);
