@@ -84,16 +84,7 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
     let (runs, frames) = (args.runs, args.frames);
     let scene = Scene::parse(text, name)?;
     let medium = Medium::build(&scene)?;
-    // The CPU runs the default deposit; the GPU simulator runs the
-    // paper's (reported as `deposit`).
-    let opts = match &backend {
-        Backend::Gpu(_) => eikon_wavefront::Options {
-            deposit: eikon_wavefront::DepositRule::Paper,
-            fresnel: false,
-            ..eikon_wavefront::Options::default()
-        },
-        Backend::Cpu => eikon_wavefront::Options::default(),
-    };
+    let opts = eikon_wavefront::Options::default();
     eikon_wavefront::check_scene(&scene, &medium, &opts)?;
     let quiet = |_: usize, _: usize| {};
     let mut sims = Vec::new();

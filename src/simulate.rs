@@ -242,13 +242,6 @@ pub fn run(args: Args) -> Result<()> {
             );
         }
         Backend::Cpu
-    } else if !eikon_wavefront::gpu::GpuSimulator::runs(&args.options()?) {
-        if gpu_asked {
-            bail!(
-                "--backend gpu: the GPU light simulation runs --deposit paper --no-fresnel only; the default fluence deposit with Fresnel runs on the CPU (--backend cpu)"
-            );
-        }
-        Backend::Cpu
     } else {
         args.backend.select(args.json)?
     };
@@ -288,19 +281,10 @@ pub fn simulate(
     }
     crate::backend::announce();
     let started = Instant::now();
-    // The GPU uploads the medium once for every light. It runs the paper's
-    // deposit only: other settings simulate on the CPU (the render that
-    // follows may still use the GPU).
-    let on_gpu = eikon_wavefront::gpu::GpuSimulator::runs(&opts);
+    // The GPU uploads the medium once for every light.
     let gpu = match backend {
-        Backend::Gpu(g) if args.method == SimMethod::Wavefront && on_gpu => {
+        Backend::Gpu(g) if args.method == SimMethod::Wavefront => {
             Some(eikon_wavefront::gpu::GpuSimulator::new(g, medium)?)
-        }
-        Backend::Gpu(_) if args.method == SimMethod::Wavefront && !args.quiet && !args.json => {
-            eprintln!(
-                "the light simulation runs on the CPU: the GPU simulator runs --deposit paper --no-fresnel only"
-            );
-            None
         }
         _ => None,
     };

@@ -163,10 +163,6 @@ fn the_backend_is_said_and_the_gpu_simulation_agrees_with_the_cpu() {
             "--backend",
             backend,
             "--json",
-            // The GPU simulator runs the paper's deposit.
-            "--deposit",
-            "paper",
-            "--no-fresnel",
         ]);
         (o, out)
     };
@@ -196,31 +192,12 @@ fn the_backend_is_said_and_the_gpu_simulation_agrees_with_the_cpu() {
             );
         }
     }
-    // The default fluence deposit asked of the GPU: a clear refusal.
-    expect_error(
-        &[
-            "simulate",
-            &scene,
-            "-o",
-            dir.path().join("never").to_str().unwrap(),
-            "--backend",
-            "gpu",
-        ],
-        &[
-            "--backend gpu",
-            "--deposit paper --no-fresnel",
-            "--backend cpu",
-        ],
-    );
     // Without the flag the choice is said on stderr.
     let o = eikon(&[
         "simulate",
         &scene,
         "-o",
         dir.path().join("auto").to_str().unwrap(),
-        "--deposit",
-        "paper",
-        "--no-fresnel",
     ]);
     assert!(o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);

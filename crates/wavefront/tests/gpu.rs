@@ -71,6 +71,7 @@ fn gpu_histopyramid_equals_the_cpu_one() {
 // The light simulator on the GPU.
 
 use eikon_grid::{Medium, Scene};
+use eikon_wavefront::gpu::GpuSimulator;
 use eikon_wavefront::{DepositRule, LightVolume, Options, Summary};
 use glam::DVec3;
 use std::f64::consts::PI;
@@ -81,9 +82,14 @@ fn medium(text: &str) -> (Scene, Medium) {
     (scene, m)
 }
 
-/// The options the GPU simulator runs: the paper's deposit (5.2.2, the
-/// highest-energy ray per cell, patches culled at caustics) without
-/// Fresnel. The default fluence deposit runs on the CPU only.
+/// The default options: the track-length fluence deposit with Fresnel
+/// transmission.
+fn fluence() -> Options {
+    Options::default()
+}
+
+/// The paper's deposit (5.2.2, the highest-energy ray per cell, patches
+/// culled at caustics) without Fresnel.
 fn paper() -> Options {
     Options {
         deposit: DepositRule::Paper,
@@ -92,19 +98,23 @@ fn paper() -> Options {
     }
 }
 
-fn run_gpu(gpu: &Gpu, scene: &Scene, m: &Medium, light: usize) -> (LightVolume, Summary) {
+fn run_gpu(
+    gpu: &Gpu,
+    scene: &Scene,
+    m: &Medium,
+    light: usize,
+    opts: &Options,
+) -> (LightVolume, Summary) {
     let t = std::time::Instant::now();
-    let out =
-        eikon_wavefront::gpu::simulate_light(gpu, &scene.lights[light], m, &paper(), &|_, _| {})
-            .unwrap();
+    let out = eikon_wavefront::gpu::simulate_light(gpu, &scene.lights[light], m, opts, &|_, _| {})
+        .unwrap();
     println!("GPU: {:.2} s, {:?}", t.elapsed().as_secs_f64(), out.1);
     out
 }
 
-fn run_cpu(scene: &Scene, m: &Medium, light: usize) -> (LightVolume, Summary) {
+fn run_cpu(scene: &Scene, m: &Medium, light: usize, opts: &Options) -> (LightVolume, Summary) {
     let t = std::time::Instant::now();
-    let out =
-        eikon_wavefront::simulate_light(&scene.lights[light], m, &paper(), &|_, _| {}).unwrap();
+    let out = eikon_wavefront::simulate_light(&scene.lights[light], m, opts, &|_, _| {}).unwrap();
     println!("CPU: {:.2} s, {:?}", t.elapsed().as_secs_f64(), out.1);
     out
 }
@@ -150,57 +160,143 @@ power = [20, 10, 5]
     )
 }
 
-/// Relative irradiance error of every cell at least 3 voxels from a point
-/// light at `p` against `P exp(-sigma r) / (4 pi r^2)` (channel 0).
-fn point_light_errors(m: &Medium, vol: &LightVolume, p: DVec3, power: f64, sigma: f64) -> Vec<f64> {
+/// The average of `f` over cell `c` of `g`: 4-point Gauss-Legendre per
+/// axis, as the CPU test (the fluence deposit stores cell averages).
+fn cell_average(g: &eikon_grid::GridGeometry, c: [usize; 3], f: impl Fn(DVec3) -> f64) -> f64 {
+    let (x, w) = (
+        [
+            -0.861_136_311_594_052_6,
+            -0.339_981_043_584_856_3,
+            0.339_981_043_584_856_3,
+            0.861_136_311_594_052_6,
+        ],
+        [
+            0.347_854_845_137_453_9,
+            0.652_145_154_862_546_1,
+            0.652_145_154_862_546_1,
+            0.347_854_845_137_453_9,
+        ],
+    );
+    let centre = g.voxel_center(c[0], c[1], c[2]);
+    let half = g.spacing() * 0.5;
+    let mut sum = 0.0;
+    for a in 0..4 {
+        for b in 0..4 {
+            for d in 0..4 {
+                let p = centre + half * DVec3::new(x[a], x[b], x[d]);
+                sum += w[a] * w[b] * w[d] * f(p);
+            }
+        }
+    }
+    sum / 8.0
+}
+
+/// Relative fluence error of every cell at least 3 voxels from a point
+/// light at `p` against `P exp(-sigma r) / (4 pi r^2)` (channel 0), the
+/// cell average with `average`, else at the centre (the paper's deposit
+/// reads a ray at the centre).
+fn point_light_errors(
+    m: &Medium,
+    vol: &LightVolume,
+    p: DVec3,
+    (power, sigma): (f64, f64),
+    average: bool,
+) -> Vec<f64> {
     let g = &m.geometry;
     let h = g.voxel_size();
+    let law = |x: DVec3| {
+        let r = (x - p).length();
+        power * (-sigma * r).exp() / (4.0 * PI * r * r)
+    };
     let mut errs = Vec::new();
     for ((i, j, k), e) in vol.fluence.slice(ndarray::s![.., .., .., 0]).indexed_iter() {
-        let r = (g.voxel_center(i, j, k) - p).length();
-        if r < 3.0 * h {
+        let c = g.voxel_center(i, j, k);
+        if (c - p).length() < 3.0 * h {
             continue;
         }
-        let want = power * (-sigma * r).exp() / (4.0 * PI * r * r);
+        let want = if average {
+            cell_average(g, [i, j, k], law)
+        } else {
+            law(c)
+        };
         errs.push((*e as f64 / want - 1.0).abs());
     }
     errs
 }
 
-/// The CPU test's 1/r^2 criterion on the GPU (40^3 here, 64^3 there): the
-/// median relative error over the cells at least 3 voxels from the light
-/// is at most 1% (measured on lavapipe: 5.3e-4; every cell reached), and
-/// the colour channels scale with the power.
+/// The CPU test's 1/r^2 criterion on the GPU (32^3 here, 64^3 there), for
+/// both deposits: the median relative error over the cells at least 3
+/// voxels from the light is at most 1% (measured on lavapipe: fluence
+/// 6.9e-3 against the cell averages, the CPU's own error at 32^3 to 1e-5;
+/// paper 6.1e-4 against the centre values; every cell reached), and the
+/// colour channels scale with the power. With the fluence deposit the
+/// volume is the CPU's to f32 rounding (the same patch lists), the cells
+/// about the light where the chords to the start sphere go (deposited on
+/// the CPU) included: measured median relative difference 1.3e-6, largest
+/// within 3 voxels of the light 8.6e-7, total fluence 9e-9; asserted 1e-5,
+/// 1e-4, 1e-5.
 #[test]
 fn gpu_point_light_falls_off_as_inverse_square() {
     let Some(gpu) = gpu() else { return };
     let p = DVec3::new(0.013, -0.021, 0.007);
     let (scene, m) = medium(&format!(
-        "[grid]\nresolution = 40\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
+        "[grid]\nresolution = 32\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
          [[light]]\ntype = \"point\"\nposition = [{}, {}, {}]\npower = [2, 1, 0.5]\n",
         p.x, p.y, p.z
     ));
-    let (vol, summary) = run_gpu(&gpu, &scene, &m, 0);
-    let errs = point_light_errors(&m, &vol, p, 2.0, 0.0);
-    let holes = errs.iter().filter(|&&e| e == 1.0).count();
-    let med = median(errs.clone());
-    println!(
-        "GPU 1/r^2: {} voxels, median relative error {med:.2e}, {holes} never reached; {} patches at peak",
-        errs.len(),
-        summary.peak_patches
-    );
-    assert!(med <= 0.01, "median relative error {med}");
-    assert_eq!(holes, 0);
-    let e = |c| vol.fluence[[6, 25, 31, c]] as f64;
-    assert!((e(1) / e(0) - 0.5).abs() < 1e-5 && (e(2) / e(0) - 0.25).abs() < 1e-5);
+    for (opts, average) in [(fluence(), true), (paper(), false)] {
+        let (vol, summary) = run_gpu(&gpu, &scene, &m, 0, &opts);
+        let errs = point_light_errors(&m, &vol, p, (2.0, 0.0), average);
+        let holes = errs.iter().filter(|&&e| e == 1.0).count();
+        let med = median(errs.clone());
+        println!(
+            "GPU 1/r^2 ({:?}): {} voxels, median relative error {med:.2e}, {holes} never reached; {} patches at peak",
+            opts.deposit,
+            errs.len(),
+            summary.peak_patches
+        );
+        assert!(
+            med <= 0.01,
+            "{:?}: median relative error {med}",
+            opts.deposit
+        );
+        assert_eq!(holes, 0);
+        let e = |c| vol.fluence[[6, 20, 25, c]] as f64;
+        assert!((e(1) / e(0) - 0.5).abs() < 1e-5 && (e(2) / e(0) - 0.25).abs() < 1e-5);
+        if opts.deposit == DepositRule::Fluence {
+            let (cv, _) = run_cpu(&scene, &m, 0, &opts);
+            let cpu_med = median(point_light_errors(&m, &cv, p, (2.0, 0.0), true));
+            let a = agreement(&cv, &vol);
+            let g = &m.geometry;
+            let mut near: f64 = 0.0;
+            for ((i, j, k), &c) in cv.fluence.slice(ndarray::s![.., .., .., 0]).indexed_iter() {
+                if (g.voxel_center(i, j, k) - p).length() < 3.0 * g.voxel_size() {
+                    near = near.max((vol.fluence[[i, j, k, 0]] as f64 / c as f64 - 1.0).abs());
+                }
+            }
+            let total =
+                |v: &LightVolume| v.fluence.iter().step_by(3).map(|&x| x as f64).sum::<f64>();
+            let rel = total(&vol) / total(&cv) - 1.0;
+            println!(
+                "CPU median relative error {cpu_med:.2e}; GPU vs CPU: median {:.1e}, near the light {near:.1e}, total {rel:.1e}, lit differ {}",
+                a.median, a.lit_differs
+            );
+            assert!(a.median < 1e-5, "{}", a.median);
+            assert!(near < 1e-4, "{near}");
+            assert!(rel.abs() < 1e-5, "{rel}");
+            assert_eq!(a.lit_differs, 0);
+        }
+    }
 }
 
-/// Beer-Lambert on the GPU: a plane wave along x through an absorbing
-/// medium (sigma 1.5, 3, 0 per channel), every cell within 1% of
-/// `3 exp(-sigma d)` (measured: worst 6.3e-6, transmission down to
-/// 0.0025); and a point light inside absorbing matter within 1% median
-/// of `P exp(-sigma r) / (4 pi r^2)` (measured: 1.1e-3). Energy balances
-/// to 1e-6 (measured: 0 and 1.8e-9).
+/// Beer-Lambert on the GPU with the fluence deposit, the CPU tests'
+/// criteria (32^3 here, 64^3 there): a plane wave along x through an
+/// absorbing medium (sigma 1.5, 3, 0 per channel), every cell within 1% of
+/// `3 exp(-sigma d)` (measured: worst 1.5e-3, transmission down to
+/// 0.0025), its flux vector along the beam; and a point light inside
+/// absorbing matter within 1% median of the cell average of
+/// `P exp(-sigma r) / (4 pi r^2)` (measured: 7.2e-3, as the CPU at 32^3:
+/// 7.2e-3). Energy balances to 1e-6 (measured: 0 and 1.9e-9).
 #[test]
 fn gpu_plane_wave_decays_by_beer_lambert() {
     let Some(gpu) = gpu() else { return };
@@ -211,7 +307,7 @@ fn gpu_plane_wave_decays_by_beer_lambert() {
          [[light]]\ntype = \"directional\"\ndirection = [1, 0, 0]\npower = [3, 3, 3]\n",
         2.0 * sigma
     ));
-    let (vol, summary) = run_gpu(&gpu, &scene, &m, 0);
+    let (vol, summary) = run_gpu(&gpu, &scene, &m, 0, &fluence());
     let g = &m.geometry;
     let mut worst: f64 = 0.0;
     for ((i, j, k), _) in vol.fluence.slice(ndarray::s![.., .., .., 0]).indexed_iter() {
@@ -239,8 +335,8 @@ fn gpu_plane_wave_decays_by_beer_lambert() {
          [[light]]\ntype = \"point\"\nposition = [{}, {}, {}]\npower = [2, 2, 2]\n",
         p.x, p.y, p.z
     ));
-    let (vol, summary) = run_gpu(&gpu, &scene, &m, 0);
-    let med = median(point_light_errors(&m, &vol, p, 2.0, sigma));
+    let (vol, summary) = run_gpu(&gpu, &scene, &m, 0, &fluence());
+    let med = median(point_light_errors(&m, &vol, p, (2.0, sigma), true));
     println!(
         "GPU point light in absorbing matter: median relative error {med:.2e}, imbalance {:.1e}",
         summary.energy_imbalance()
@@ -249,9 +345,63 @@ fn gpu_plane_wave_decays_by_beer_lambert() {
     assert!(summary.energy_imbalance() < 1e-6, "{summary:?}");
 }
 
-/// The CPU test's Luneburg criterion on the GPU (48^3 here): the
-/// irradiance peak of a plane wave through a Luneburg lens lies within one
-/// voxel of the focus on its far surface (measured: 0.77 voxel).
+/// Fresnel on the GPU as on the CPU (`tests/fluence.rs`): a plane wave at
+/// normal incidence through a clear glass slab crosses two interfaces and
+/// keeps `(1 - R)^2` of its power within 0.5% (measured: 5.5e-4), what it
+/// loses counted as reflected (the balance within 1e-6), as on the CPU
+/// (within 1e-5 of the entered power; measured 1e-6); the paper's deposit
+/// with Fresnel reflects as much; without Fresnel nothing is reflected.
+#[test]
+fn gpu_slab_transmits_one_minus_r_squared() {
+    let Some(gpu) = gpu() else { return };
+    let (scene, m) = medium(
+        "[grid]\nresolution = 32\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
+         [[object]]\nshape = { type = \"box\", center = [0.0, -0.05, 0.0], size = [4.0, 0.7, 4.0] }\nindex = 1.5\n\
+         [[light]]\ntype = \"directional\"\ndirection = [0.0, -1.0, 0.0]\npower = [1, 1, 1]\n",
+    );
+    let sim = GpuSimulator::new(&gpu, &m).unwrap();
+    let (_, s) = sim
+        .simulate(&scene.lights[0], &fluence(), &|_, _| {})
+        .unwrap();
+    let r = ((1.5f64 - 1.0) / 2.5).powi(2);
+    let want = (1.0 - r) * (1.0 - r);
+    let got = s.exited_power[0] / s.entered[0];
+    println!(
+        "GPU slab: transmitted {got:.6}, (1 - R)^2 = {want:.6}; reflected {:.6}; imbalance {:.1e}",
+        s.reflected_power[0] / s.entered[0],
+        s.energy_imbalance()
+    );
+    assert!((got / want - 1.0).abs() < 0.005, "{got} vs {want}");
+    assert!(s.energy_imbalance() < 1e-6, "{}", s.energy_imbalance());
+    let paper_fresnel = Options {
+        fresnel: true,
+        ..paper()
+    };
+    for opts in [fluence(), paper_fresnel] {
+        let (_, g) = sim.simulate(&scene.lights[0], &opts, &|_, _| {}).unwrap();
+        let (_, c) = run_cpu(&scene, &m, 0, &opts);
+        let diff = (g.reflected_power[0] - c.reflected_power[0]).abs() / c.entered[0];
+        println!(
+            "{:?}: reflected GPU {:.6}, CPU {:.6} of the entered power",
+            opts.deposit,
+            g.reflected_power[0] / g.entered[0],
+            c.reflected_power[0] / c.entered[0]
+        );
+        assert!(diff < 1e-5, "{:?}: {diff}", opts.deposit);
+    }
+    let opts = Options {
+        fresnel: false,
+        ..fluence()
+    };
+    let (_, s) = sim.simulate(&scene.lights[0], &opts, &|_, _| {}).unwrap();
+    assert_eq!(s.reflected_power, [0.0; 3]);
+    assert!((s.exited_power[0] / s.entered[0] - 1.0).abs() < 1e-6);
+}
+
+/// The CPU test's Luneburg criterion on the GPU (48^3 here), for both
+/// deposits: the fluence peak of a plane wave through a Luneburg lens lies
+/// within one voxel of the focus on its far surface (measured: 0.77 voxel
+/// with either).
 #[test]
 fn gpu_luneburg_lens_focuses_a_plane_wave_on_its_far_surface() {
     let Some(gpu) = gpu() else { return };
@@ -260,40 +410,28 @@ fn gpu_luneburg_lens_focuses_a_plane_wave_on_its_far_surface() {
          [[object]]\nshape = { type = \"sphere\", center = [0, 0, 0], radius = 0.8 }\nindex = { type = \"luneburg\" }\n\
          [[light]]\ntype = \"directional\"\ndirection = [0, 0, 1]\npower = [1, 1, 1]\n",
     );
-    let (vol, _) = run_gpu(&gpu, &scene, &m, 0);
-    let (mut best, mut at) = (0.0f32, (0, 0, 0));
-    for ((i, j, k), &e) in vol.fluence.slice(ndarray::s![.., .., .., 0]).indexed_iter() {
-        if e > best {
-            (best, at) = (e, (i, j, k));
+    let sim = GpuSimulator::new(&gpu, &m).unwrap();
+    for opts in [fluence(), paper()] {
+        let (vol, _) = sim.simulate(&scene.lights[0], &opts, &|_, _| {}).unwrap();
+        let (mut best, mut at) = (0.0f32, (0, 0, 0));
+        for ((i, j, k), &e) in vol.fluence.slice(ndarray::s![.., .., .., 0]).indexed_iter() {
+            if e > best {
+                (best, at) = (e, (i, j, k));
+            }
         }
-    }
-    let g = &m.geometry;
-    let c = g.voxel_center(at.0, at.1, at.2);
-    let miss = (c - DVec3::new(0.0, 0.0, 0.8)).length() / g.voxel_size();
-    println!("GPU Luneburg: peak {best:.1} W/m^2 at {c}, {miss:.2} voxel from the focus");
-    assert!(miss <= 1.0, "peak {miss} voxels from the focus");
-}
-
-/// Energy on the GPU, as the CPU test: for each light of the glass-sphere
-/// scene (32^3), entered = absorbed + exited + culled within 0.5%
-/// (measured: 5e-10, 2.8e-9, 1.2e-9; the tallies are exact fixed point,
-/// what is left is f32 rounding of the fluxes), and blue is absorbed most.
-#[test]
-fn gpu_energy_is_accounted_for() {
-    let Some(gpu) = gpu() else { return };
-    let (scene, m) = medium(&glass_sphere(32, ""));
-    let sim = eikon_wavefront::gpu::GpuSimulator::new(&gpu, &m).unwrap();
-    for (l, light) in scene.lights.iter().enumerate() {
-        let (_, s) = sim.simulate(light, &paper(), &|_, _| {}).unwrap();
-        let imbalance = s.energy_imbalance();
-        println!("GPU light {l}: imbalance {imbalance:.2e}; {s:?}");
-        assert!(imbalance <= 0.005, "light {l}: imbalance {imbalance}");
-        let frac = |c: usize| s.absorbed_power[c] / s.entered[c];
-        assert!(frac(2) > frac(1) && frac(1) > frac(0), "absorbed fractions");
+        let g = &m.geometry;
+        let c = g.voxel_center(at.0, at.1, at.2);
+        let miss = (c - DVec3::new(0.0, 0.0, 0.8)).length() / g.voxel_size();
+        println!(
+            "GPU Luneburg ({:?}): peak {best:.1} W/m^2 at {c}, {miss:.2} voxel from the focus",
+            opts.deposit
+        );
+        assert!(miss <= 1.0, "peak {miss} voxels from the focus");
     }
 }
 
 /// How far apart two light volumes are, over the cells lit in either.
+#[derive(Debug)]
 struct Agreement {
     lit_cpu: usize,
     lit_gpu: usize,
@@ -304,14 +442,27 @@ struct Agreement {
     /// Fraction of cells lit in both within 1% and within 10%.
     within_1: f64,
     within_10: f64,
-    /// Fraction of cells lit in both whose directions agree to 1 degree.
+    /// Fraction of cells lit in both whose flux vectors (group 0) point
+    /// within 1 degree of each other.
     aligned: f64,
+    /// Median of |F_gpu - F_cpu| / |F_cpu| over the cells with a flux
+    /// vector, and the fraction of them within 1%, over every group.
+    flux_median: f64,
+    flux_within_1: f64,
 }
 
 fn agreement(cpu: &LightVolume, gpu: &LightVolume) -> Agreement {
     let (mut errs, mut lit_cpu, mut lit_gpu, mut lit_differs, mut aligned) =
         (Vec::new(), 0, 0, 0, 0);
+    let mut flux_errs = Vec::new();
     let shape = cpu.fluence.shape();
+    let vec = |v: &LightVolume, g: usize, i, j, k| {
+        DVec3::new(
+            v.flux[g][[i, j, k, 0]] as f64,
+            v.flux[g][[i, j, k, 1]] as f64,
+            v.flux[g][[i, j, k, 2]] as f64,
+        )
+    };
     for i in 0..shape[0] {
         for j in 0..shape[1] {
             for k in 0..shape[2] {
@@ -325,22 +476,22 @@ fn agreement(cpu: &LightVolume, gpu: &LightVolume) -> Agreement {
                 }
                 if a > 0.0 && b > 0.0 {
                     errs.push((b / a - 1.0).abs());
-                    let d = |v: &LightVolume| {
-                        DVec3::new(
-                            v.flux[0][[i, j, k, 0]] as f64,
-                            v.flux[0][[i, j, k, 1]] as f64,
-                            v.flux[0][[i, j, k, 2]] as f64,
-                        )
-                        .normalize_or_zero()
-                    };
+                    let d = |v: &LightVolume| vec(v, 0, i, j, k).normalize_or_zero();
                     if d(cpu).dot(d(gpu)) > 1f64.to_radians().cos() {
                         aligned += 1;
+                    }
+                }
+                for g in 0..cpu.flux.len() {
+                    let (fc, fg) = (vec(cpu, g, i, j, k), vec(gpu, g, i, j, k));
+                    if fc.length() > 0.0 {
+                        flux_errs.push((fg - fc).length() / fc.length());
                     }
                 }
             }
         }
     }
     let n = errs.len() as f64;
+    let nf = flux_errs.len() as f64;
     Agreement {
         lit_cpu,
         lit_gpu,
@@ -349,69 +500,149 @@ fn agreement(cpu: &LightVolume, gpu: &LightVolume) -> Agreement {
         within_10: errs.iter().filter(|&&e| e <= 0.1).count() as f64 / n,
         aligned: aligned as f64 / n,
         median: median(errs),
+        flux_within_1: flux_errs.iter().filter(|&&e| e <= 0.01).count() as f64 / nf,
+        flux_median: median(flux_errs),
     }
 }
 
-/// GPU against CPU on the glass sphere (40^3, directional light). The GPU
-/// runs the same physics in f32 instead of f64, so patches near a
-/// tessellation threshold or a caustic can take the other fate and the
-/// lists drift apart behind the sphere, where the light field is
-/// multi-valued and the highest-energy rule may keep another ray. Measured
-/// on lavapipe: median relative irradiance difference 1.2e-7 over the
-/// cells lit in both, 99.6% within 1%, 99.94% within 10%, directions within
-/// 1 degree in 99.8%, no cell lit in one volume only; absorbed and exited
-/// power within 0.1%. Asserted: median < 1e-4, > 95% within 1%, > 97%
-/// within 10%, > 98% aligned, < 0.5% of the cells lit differently, powers
-/// within 1%.
+/// GPU against CPU with the fluence deposit and Fresnel, for each light of
+/// the glass-sphere scene (24^3: a directional light, a point light inside
+/// the grid whose start sphere's chords are deposited on the CPU, a spot
+/// light outside).
+///
+/// Energy: entered = absorbed + exited + reflected + culled within 1e-6
+/// (the tallies are exact fixed point, what is left is f32 rounding of the
+/// fluxes; measured: 5.9e-9, 2.8e-9, 2.3e-9), blue is absorbed most, the
+/// glass reflects, and each category agrees with the CPU's within 1e-3 of
+/// the entered power (measured: worst 1.1e-5, 2.9e-7, 1.2e-6).
+///
+/// Volumes: the GPU runs the same physics in f32 instead of f64, so a
+/// patch at a tessellation threshold takes the other fate now and then and
+/// the lists drift apart behind the sphere (the directional light's peaks
+/// at 8725 patches against the CPU's 8831); every ray family is deposited,
+/// through the caustics too, so a cell sums many patches and a different
+/// tessellation moves its fluence a little rather than swapping one ray
+/// for another. Where the lists stay the same (the point and spot lights)
+/// the volumes agree to f32 rounding. Measured on lavapipe, per light:
+/// median relative fluence difference over the cells lit in both 5.0e-4,
+/// 2.0e-6, 2.6e-6; within 1% 97.4%, 100%, 99.98%; flux vectors
+/// `|F_gpu - F_cpu| / |F_cpu|` median 5.9e-4, 2.3e-6, 3.3e-6, within 1%
+/// 97.0%, 100%, 99.98%; directions within 1 degree in 99.96%, 100%, 99.98%;
+/// no cell lit in one volume only. Asserted (the directional light's
+/// numbers with room for another device's f32 to split other patches):
+/// medians < 2e-3, within 1% > 95%, aligned > 98%, under 0.1% of the
+/// cells lit differently.
 #[test]
-fn gpu_volumes_match_the_cpu() {
+fn gpu_fluence_energy_and_volumes_match_the_cpu() {
     let Some(gpu) = gpu() else { return };
-    let (scene, m) = medium(&glass_sphere(40, ""));
-    for l in [0] {
-        let (cv, cs) = run_cpu(&scene, &m, l);
-        let (gv, gs) = run_gpu(&gpu, &scene, &m, l);
+    let (scene, m) = medium(&glass_sphere(24, ""));
+    let sim = GpuSimulator::new(&gpu, &m).unwrap();
+    let opts = fluence();
+    for (l, light) in scene.lights.iter().enumerate() {
+        let t = std::time::Instant::now();
+        let (gv, s) = sim.simulate(light, &opts, &|_, _| {}).unwrap();
+        let gpu_time = t.elapsed().as_secs_f64();
+        let (cv, cs) = run_cpu(&scene, &m, l, &opts);
+        let imbalance = s.energy_imbalance();
+        println!("GPU light {l}: {gpu_time:.2} s, imbalance {imbalance:.2e}; {s:?}");
+        assert!(imbalance <= 1e-6, "light {l}: imbalance {imbalance}");
+        let frac = |c: usize| s.absorbed_power[c] / s.entered[c];
+        assert!(frac(2) > frac(1) && frac(1) > frac(0), "absorbed fractions");
+        assert!(s.reflected_power.iter().all(|&r| r > 0.0));
+        let mut worst: f64 = 0.0;
+        for c in 0..3 {
+            assert_eq!(s.entered[c], cs.entered[c]);
+            for (a, b) in [
+                (s.absorbed_power[c], cs.absorbed_power[c]),
+                (s.exited_power[c], cs.exited_power[c]),
+                (s.reflected_power[c], cs.reflected_power[c]),
+                (s.culled_power[c], cs.culled_power[c]),
+            ] {
+                worst = worst.max((a - b).abs() / cs.entered[c]);
+            }
+        }
         let a = agreement(&cv, &gv);
         println!(
-            "light {l}: lit cpu {} gpu {} differ {}; median {:.1e}, within 1% {:.4}, within 10% {:.4}, aligned {:.4}; steps {} / {}, peak {} / {}",
+            "light {l}: energy categories vs CPU: worst {worst:.1e} of the entered power; lit cpu {} gpu {} differ {}; median {:.1e}, within 1% {:.4}, within 10% {:.4}, aligned {:.4}; flux median {:.1e}, within 1% {:.4}; steps {} / {}, peak {} / {}",
             a.lit_cpu, a.lit_gpu, a.lit_differs, a.median, a.within_1, a.within_10, a.aligned,
-            cs.steps, gs.steps, cs.peak_patches, gs.peak_patches
+            a.flux_median, a.flux_within_1, cs.steps, s.steps, cs.peak_patches, s.peak_patches
         );
-        assert!(a.median < 1e-4, "median {}", a.median);
+        assert!(worst < 1e-3, "light {l}: {worst}");
         assert!(
-            a.within_1 > 0.95 && a.within_10 > 0.97,
-            "within 1% {}, 10% {}",
+            a.median < 2e-3 && a.flux_median < 2e-3,
+            "light {l}: median {}, flux {}",
+            a.median,
+            a.flux_median
+        );
+        assert!(
+            a.within_1 > 0.95 && a.flux_within_1 > 0.95,
+            "light {l}: within 1% {}, flux {}",
             a.within_1,
-            a.within_10
+            a.flux_within_1
         );
-        assert!(a.aligned > 0.98, "aligned {}", a.aligned);
-        assert!(
-            a.lit_differs * 200 < a.lit_cpu,
-            "{} cells lit differently",
-            a.lit_differs
-        );
-        for c in 0..3 {
-            let rel = |x: f64, y: f64| (x - y).abs() / y.abs().max(1e-12);
-            assert!(rel(gs.absorbed_power[c], cs.absorbed_power[c]) < 0.01);
-            assert!(rel(gs.exited_power[c], cs.exited_power[c]) < 0.01);
-        }
+        assert!(a.aligned > 0.98, "light {l}: aligned {}", a.aligned);
+        assert!(a.lit_differs * 1000 < a.lit_cpu, "light {l}: {a:?}");
     }
 }
 
-/// The patch limit and the Euler integrator on the GPU as on the CPU: with
-/// `max_patches` 3000 on the glass sphere (32^3) splits are held back,
-/// the earlier patches in the list getting the room first (ranks from a
-/// HistoPyramid of the split flags); the list never exceeds the limit, and
-/// the volumes agree with the CPU's (a little less closely than in
-/// `gpu_volumes_match_the_cpu`: which splits are held depends on every
-/// fate before them in the list). Measured on lavapipe: held 14070 (GPU)
-/// vs 12181 (CPU), peak 3000 on both; median 1.2e-7, 95.7% within 1%,
-/// 97.2% within 10%. Euler: median 1.2e-7, 99.8% within 1%, no cell lit
-/// differently.
+/// GPU against CPU on the glass sphere with the paper's deposit (40^3,
+/// directional light). The GPU runs the same physics in f32 instead of
+/// f64, so patches near a tessellation threshold or a caustic can take the
+/// other fate and the lists drift apart behind the sphere, where the light
+/// field is multi-valued and the highest-energy rule may keep another ray.
+/// Measured on lavapipe: median relative irradiance difference 1.2e-7 over
+/// the cells lit in both, 99.7% within 1%, 99.95% within 10%, directions
+/// within 1 degree in 99.8%, no cell lit in one volume only; absorbed and
+/// exited power within 0.1%. Asserted: median < 1e-4, over 95% within
+/// 1%, over 97% within 10%, over 98% aligned, under 0.5% of the cells lit
+/// differently, powers within 1%.
+#[test]
+fn gpu_paper_volumes_match_the_cpu() {
+    let Some(gpu) = gpu() else { return };
+    let (scene, m) = medium(&glass_sphere(40, ""));
+    let (cv, cs) = run_cpu(&scene, &m, 0, &paper());
+    let (gv, gs) = run_gpu(&gpu, &scene, &m, 0, &paper());
+    let a = agreement(&cv, &gv);
+    println!(
+        "paper: lit cpu {} gpu {} differ {}; median {:.1e}, within 1% {:.4}, within 10% {:.4}, aligned {:.4}; steps {} / {}, peak {} / {}",
+        a.lit_cpu, a.lit_gpu, a.lit_differs, a.median, a.within_1, a.within_10, a.aligned,
+        cs.steps, gs.steps, cs.peak_patches, gs.peak_patches
+    );
+    assert!(a.median < 1e-4, "median {}", a.median);
+    assert!(
+        a.within_1 > 0.95 && a.within_10 > 0.97,
+        "within 1% {}, 10% {}",
+        a.within_1,
+        a.within_10
+    );
+    assert!(a.aligned > 0.98, "aligned {}", a.aligned);
+    assert!(
+        a.lit_differs * 200 < a.lit_cpu,
+        "{} cells lit differently",
+        a.lit_differs
+    );
+    for c in 0..3 {
+        let rel = |x: f64, y: f64| (x - y).abs() / y.abs().max(1e-12);
+        assert!(rel(gs.absorbed_power[c], cs.absorbed_power[c]) < 0.01);
+        assert!(rel(gs.exited_power[c], cs.exited_power[c]) < 0.01);
+    }
+}
+
+/// The patch limit and the Euler integrator on the GPU as on the CPU, with
+/// the paper's deposit: with `max_patches` 3000 on the glass sphere (32^3)
+/// splits are held back, the earlier patches in the list getting the room
+/// first (ranks from a HistoPyramid of the split flags); the list never
+/// exceeds the limit, and the volumes agree with the CPU's (a little less
+/// closely than in `gpu_paper_volumes_match_the_cpu`: which splits are held
+/// depends on every fate before them in the list). Measured on lavapipe:
+/// held 14070 (GPU) vs 12181 (CPU), peak 3000 on both; median 1.2e-7,
+/// 95.7% within 1%, 97.2% within 10%. Euler: median 1.2e-7, 99.9% within
+/// 1%, no cell lit differently.
 #[test]
 fn gpu_patch_limit_and_euler_match_the_cpu() {
     let Some(gpu) = gpu() else { return };
     let (scene, m) = medium(&glass_sphere(32, ""));
-    let sim = eikon_wavefront::gpu::GpuSimulator::new(&gpu, &m).unwrap();
+    let sim = GpuSimulator::new(&gpu, &m).unwrap();
     for opts in [
         Options {
             max_patches: 3000,
@@ -444,47 +675,56 @@ fn gpu_patch_limit_and_euler_match_the_cpu() {
 }
 
 /// Repeated GPU runs give bitwise the same volumes and summary (energy
-/// tallies in fixed point, deposits by atomics with deterministic ties),
-/// with dispersion (three wavefronts) on the glass sphere; and they agree
-/// with the CPU's (measured: median relative difference 1.2e-7, 99.7% of
-/// the cells within 1%).
+/// tallies and the fluence deposit in fixed point, the paper's deposit by
+/// atomics with deterministic ties), with dispersion (three wavefronts) on
+/// the glass sphere (20^3), for both deposits; and they agree with the
+/// CPU's (measured: fluence median 1.3e-4, 98.6% of the cells within 1%,
+/// flux vectors median 1.7e-4, 98.6% within 1%; paper median 2.5e-5,
+/// 99.3% within 1%; asserted: the fluence deposit's bounds of
+/// `gpu_fluence_energy_and_volumes_match_the_cpu`, the paper's as before,
+/// median < 1e-4).
 #[test]
 fn gpu_runs_are_bitwise_repeatable_with_dispersion() {
     let Some(gpu) = gpu() else { return };
     let text =
-        glass_sphere(32, "dispersion = true").replace("index = 1.5", "index = [1.48, 1.5, 1.54]");
+        glass_sphere(20, "dispersion = true").replace("index = 1.5", "index = [1.48, 1.5, 1.54]");
     let (scene, m) = medium(&text);
     assert_eq!(m.channels(), 3);
-    let sim = eikon_wavefront::gpu::GpuSimulator::new(&gpu, &m).unwrap();
-    let run = || {
-        sim.simulate(&scene.lights[0], &paper(), &|_, _| {})
-            .unwrap()
-    };
-    let (a, sa) = run();
-    let (b, sb) = run();
-    assert_eq!(a.flux.len(), 3);
-    assert!(a.fluence == b.fluence, "irradiance differs between runs");
-    assert!(a.flux == b.flux, "directions differ between runs");
-    assert_eq!(sa, sb);
-    // Each channel's wavefront went its own way through the glass.
-    assert!(a.flux[0] != a.flux[2]);
-    let (cv, _) = run_cpu(&scene, &m, 0);
-    let ag = agreement(&cv, &a);
-    println!(
-        "dispersion vs CPU: median {:.1e}, within 1% {:.4}",
-        ag.median, ag.within_1
-    );
-    assert!(ag.median < 1e-4);
+    let sim = GpuSimulator::new(&gpu, &m).unwrap();
+    for (opts, bound) in [(fluence(), 2e-3), (paper(), 1e-4)] {
+        let run = || sim.simulate(&scene.lights[0], &opts, &|_, _| {}).unwrap();
+        let (a, sa) = run();
+        let (b, sb) = run();
+        assert_eq!(a.flux.len(), 3);
+        assert!(a.fluence == b.fluence, "fluence differs between runs");
+        assert!(a.flux == b.flux, "flux vectors differ between runs");
+        assert_eq!(sa, sb);
+        // Each channel's wavefront went its own way through the glass.
+        assert!(a.flux[0] != a.flux[2]);
+        let (cv, _) = run_cpu(&scene, &m, 0, &opts);
+        let ag = agreement(&cv, &a);
+        println!(
+            "dispersion ({:?}) vs CPU: median {:.1e}, within 1% {:.4}, flux median {:.1e}, within 1% {:.4}",
+            opts.deposit, ag.median, ag.within_1, ag.flux_median, ag.flux_within_1
+        );
+        assert!(ag.median < bound, "{ag:?}");
+        if opts.deposit == DepositRule::Fluence {
+            assert!(ag.flux_median < bound, "{ag:?}");
+            assert!(ag.within_1 > 0.95 && ag.flux_within_1 > 0.95, "{ag:?}");
+        }
+    }
 }
 
 /// A light volume larger than one storage binding: with bindings limited
-/// to 128 KiB, the 32^3 volume's irradiance (384 KiB interleaved) only
-/// fits as one buffer per channel. A plane wave through an absorbing slab
-/// (index 1, sigma 2 over x in [-0.5, 0.25]) keeps `3 exp(-sigma d)` to 1%
-/// in every cell (but those within a cell of its faces, where the
-/// trilinear extinction ramps), and the result is bitwise that of the run with
-/// the device's limits (measured: worst 3.2e-6). A limit below one channel
-/// is a clear error.
+/// to 128 KiB, the 32^3 volume's arrays (384 KiB interleaved per channel
+/// triple, 256 KiB per 64-bit counter) only fit as one buffer per channel
+/// and word. A plane wave through an absorbing slab (index 1, sigma 2 over
+/// x in [-0.5, 0.25]) keeps `3 exp(-sigma d)` to 1% in every cell (but
+/// those within a cell of its faces, where the trilinear extinction
+/// ramps), with either deposit, and the result is bitwise that of the run
+/// with the device's limits (measured: worst 6.5e-4 with the fluence
+/// deposit, 3.2e-6 with the paper's). A limit below one channel is a clear
+/// error.
 #[test]
 fn gpu_volume_larger_than_a_binding() {
     let Some(gpu) = gpu() else { return };
@@ -494,38 +734,41 @@ fn gpu_volume_larger_than_a_binding() {
          [[light]]\ntype = \"directional\"\ndirection = [1, 0, 0]\npower = [3, 3, 3]\n",
     );
     let cells = m.geometry.voxel_count() as u64;
-    let small =
-        eikon_wavefront::gpu::GpuSimulator::with_binding_limit(&gpu, &m, cells * 4).unwrap();
-    let full = eikon_wavefront::gpu::GpuSimulator::new(&gpu, &m).unwrap();
-    let opts = paper();
-    let (a, sa) = small.simulate(&scene.lights[0], &opts, &|_, _| {}).unwrap();
-    let (b, sb) = full.simulate(&scene.lights[0], &opts, &|_, _| {}).unwrap();
-    println!(
-        "patch limit {} vs {}; {sa:?}",
-        small.patch_limit(),
-        full.patch_limit()
-    );
-    assert_eq!(sa.held, 0);
-    assert!(a.fluence == b.fluence && a.flux == b.flux);
-    assert_eq!(sa, sb);
-    // Behind the slab: exp(-2 * 0.75).
-    let g = &m.geometry;
-    let mut worst: f64 = 0.0;
-    for ((i, j, k), &e) in a.fluence.slice(ndarray::s![.., .., .., 0]).indexed_iter() {
-        let x = g.voxel_center(i, j, k).x;
-        // Within a cell of a face the trilinear extinction ramps.
-        let h = g.voxel_size();
-        if (x + 0.5).abs() < h || (x - 0.25).abs() < h {
-            continue;
+    let small = GpuSimulator::with_binding_limit(&gpu, &m, cells * 4).unwrap();
+    let full = GpuSimulator::new(&gpu, &m).unwrap();
+    for opts in [fluence(), paper()] {
+        let (a, sa) = small.simulate(&scene.lights[0], &opts, &|_, _| {}).unwrap();
+        let (b, sb) = full.simulate(&scene.lights[0], &opts, &|_, _| {}).unwrap();
+        println!(
+            "patch limit {} vs {}; {sa:?}",
+            small.patch_limit(),
+            full.patch_limit()
+        );
+        assert_eq!(sa.held, 0);
+        assert!(a.fluence == b.fluence && a.flux == b.flux);
+        assert_eq!(sa, sb);
+        // Behind the slab: exp(-2 * 0.75).
+        let g = &m.geometry;
+        let mut worst: f64 = 0.0;
+        for ((i, j, k), &e) in a.fluence.slice(ndarray::s![.., .., .., 0]).indexed_iter() {
+            let x = g.voxel_center(i, j, k).x;
+            // Within a cell of a face the trilinear extinction ramps.
+            let h = g.voxel_size();
+            if (x + 0.5).abs() < h || (x - 0.25).abs() < h {
+                continue;
+            }
+            let depth = (x.min(0.25) - (-0.5)).max(0.0);
+            let want = 3.0 * (-2.0 * depth).exp();
+            worst = worst.max((e as f64 / want - 1.0).abs());
         }
-        let depth = (x.min(0.25) - (-0.5)).max(0.0);
-        let want = 3.0 * (-2.0 * depth).exp();
-        worst = worst.max((e as f64 / want - 1.0).abs());
+        println!(
+            "slab ({:?}): worst relative error {worst:.2e}",
+            opts.deposit
+        );
+        assert!(worst <= 0.01, "worst {worst}");
+        assert!(sa.energy_imbalance() < 1e-6);
     }
-    println!("slab: worst relative error {worst:.2e}");
-    assert!(worst <= 0.01, "worst {worst}");
-    assert!(sa.energy_imbalance() < 1e-6);
-    let err = eikon_wavefront::gpu::GpuSimulator::with_binding_limit(&gpu, &m, cells * 4 - 4)
+    let err = GpuSimulator::with_binding_limit(&gpu, &m, cells * 4 - 4)
         .err()
         .expect("too small a binding")
         .to_string();
@@ -536,10 +779,11 @@ fn gpu_volume_larger_than_a_binding() {
     );
 }
 
-/// A 256^3 volume (64 MiB per channel buffer, 256 MiB per medium
-/// texture; lavapipe binds at most 128 MiB): the first 24 steps of a plane
-/// wave through an absorbing medium keep Beer-Lambert to 1% in the cells
-/// they reached (measured on lavapipe: 11 s, worst 8.6e-7).
+/// A 256^3 volume (64 MiB per counter buffer, 256 MiB per medium texture;
+/// lavapipe binds at most 128 MiB): the first 24 steps of a plane wave
+/// through an absorbing medium keep Beer-Lambert to 1% in the cells they
+/// swept, with either deposit (measured on lavapipe: fluence 15 s with
+/// the interfaces' upload, worst 6.4e-6; paper 4.5 s, worst 8.6e-7).
 #[test]
 #[ignore]
 fn gpu_256_cubed() {
@@ -552,41 +796,48 @@ fn gpu_256_cubed() {
          [[light]]\ntype = \"directional\"\ndirection = [1, 0, 0]\npower = [3, 3, 3]\n"
     ));
     println!("medium: {:.1} s", t.elapsed().as_secs_f64());
-    let t = std::time::Instant::now();
-    let opts = Options {
-        max_steps: Some(24),
-        ..paper()
-    };
-    let (vol, s) =
-        eikon_wavefront::gpu::simulate_light(&gpu, &scene.lights[0], &m, &opts, &|_, _| {})
-            .unwrap();
-    println!(
-        "GPU 256^3, 24 steps: {:.1} s; {s:?}",
-        t.elapsed().as_secs_f64()
-    );
-    let g = &m.geometry;
-    let (mut worst, mut reached) = (0.0f64, 0usize);
-    for ((i, j, k), &e) in vol.fluence.slice(ndarray::s![.., .., .., 0]).indexed_iter() {
-        if e == 0.0 {
-            continue;
+    let sim = GpuSimulator::new(&gpu, &m).unwrap();
+    for opts in [fluence(), paper()] {
+        let t = std::time::Instant::now();
+        let opts = Options {
+            max_steps: Some(24),
+            ..opts
+        };
+        let (vol, s) = sim.simulate(&scene.lights[0], &opts, &|_, _| {}).unwrap();
+        println!(
+            "GPU 256^3 ({:?}), 24 steps: {:.1} s; {s:?}",
+            opts.deposit,
+            t.elapsed().as_secs_f64()
+        );
+        let g = &m.geometry;
+        let (mut worst, mut reached) = (0.0f64, 0usize);
+        for ((i, j, k), &e) in vol.fluence.slice(ndarray::s![.., .., .., 0]).indexed_iter() {
+            // The fluence deposit's last cells are swept part way.
+            if e == 0.0 || (opts.deposit == DepositRule::Fluence && i >= 11) {
+                continue;
+            }
+            reached += 1;
+            let d = g.voxel_center(i, j, k).x - g.min.x;
+            worst = worst.max((e as f64 / (3.0 * (-sigma * d).exp()) - 1.0).abs());
         }
-        reached += 1;
-        let d = g.voxel_center(i, j, k).x - g.min.x;
-        worst = worst.max((e as f64 / (3.0 * (-sigma * d).exp()) - 1.0).abs());
+        println!("{reached} cells reached, worst relative error {worst:.2e}");
+        assert!(reached >= 256 * 256 * 11, "{reached}");
+        assert!(worst <= 0.01);
+        assert!(s.energy_imbalance() < 1e-6);
     }
-    println!("{reached} cells reached, worst relative error {worst:.2e}");
-    assert!(reached >= 256 * 256 * 12, "{reached}");
-    assert!(worst <= 0.01);
-    assert!(s.energy_imbalance() < 1e-6);
 }
 
 /// Times the 128^3 glass-sphere scene (configs/glass-sphere.toml) on the
-/// GPU (without the medium upload) and on the CPU:
+/// GPU (without the medium upload) and on the CPU, with either deposit:
 /// `cargo test --release -p eikon-wavefront --test gpu -- --ignored --nocapture`.
-/// Measured on lavapipe (2 cores shared with other jobs): upload 0.4 s,
-/// GPU 21.6 s, CPU 10-15 s; median relative difference 1.2e-7, 98.8% of
-/// the cells within 1%, 99.7% within 10%, 99.8% aligned, 210 cells lit in
-/// one volume only.
+/// Measured on lavapipe (2 cores shared with other jobs): upload 0.6 s.
+/// Fluence deposit with Fresnel: GPU 252 s, CPU 52 s (10642 steps: 47
+/// patches trapped in the glass run to the step limit on both); median
+/// relative fluence difference 1.7e-3, 94.8% of the cells within 1%,
+/// 99.6% within 10%, flux vectors median 1.9e-3, 94.3% within 1%, 98.4%
+/// aligned, no cell lit in one volume only. Paper's deposit: GPU 13 s, CPU
+/// 9 s; median 1.2e-7, 98.8% within 1%, 99.7% within 10%, 99.8% aligned,
+/// 218 cells lit in one volume only.
 #[test]
 #[ignore]
 fn time_glass_sphere_128() {
@@ -598,17 +849,18 @@ fn time_glass_sphere_128() {
     let scene = Scene::load(std::path::Path::new(path)).unwrap();
     let m = Medium::build(&scene).unwrap();
     let t = std::time::Instant::now();
-    let sim = eikon_wavefront::gpu::GpuSimulator::new(&gpu, &m).unwrap();
+    let sim = GpuSimulator::new(&gpu, &m).unwrap();
     println!("upload: {:.2} s", t.elapsed().as_secs_f64());
-    let t = std::time::Instant::now();
-    let (gv, gs) = sim
-        .simulate(&scene.lights[0], &paper(), &|_, _| {})
-        .unwrap();
-    println!("GPU simulation: {:.2} s; {gs:?}", t.elapsed().as_secs_f64());
-    let (cv, _) = run_cpu(&scene, &m, 0);
-    let a = agreement(&cv, &gv);
-    println!(
-        "128^3: median {:.1e}, within 1% {:.4}, within 10% {:.4}, aligned {:.4}, lit differ {}",
-        a.median, a.within_1, a.within_10, a.aligned, a.lit_differs
-    );
+    for opts in [fluence(), paper()] {
+        let t = std::time::Instant::now();
+        let (gv, gs) = sim.simulate(&scene.lights[0], &opts, &|_, _| {}).unwrap();
+        println!(
+            "GPU simulation ({:?}): {:.2} s; {gs:?}",
+            opts.deposit,
+            t.elapsed().as_secs_f64()
+        );
+        let (cv, _) = run_cpu(&scene, &m, 0, &opts);
+        let a = agreement(&cv, &gv);
+        println!("128^3 ({:?}): {a:?}", opts.deposit);
+    }
 }

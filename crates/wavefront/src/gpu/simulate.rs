@@ -1,44 +1,72 @@
 //! The light simulator on the GPU: every step of [`crate::simulate_light`]
-//! with the paper's deposit (`--deposit paper --no-fresnel`: the
-//! highest-energy ray per cell, patches culled at caustics, no Fresnel) as
-//! wgpu compute kernels (`simulate.wgsl`), with the same physics,
-//! conventions and units, in f32. The default track-length fluence deposit
-//! with Fresnel transmission runs on the CPU only ([`GpuSimulator::runs`]).
+//! as wgpu compute kernels (`simulate.wgsl`), with the same physics,
+//! conventions and units, in f32, for both deposit rules
+//! ([`DepositRule`]) and with or without Fresnel transmission.
 //!
 //! Per wavefront, emission (`light::emit`), the absorption inside a
-//! point light's start sphere and the pre-step tessellation run on the CPU
-//! exactly as there; the patches are then uploaded and every step runs on
-//! the GPU: propagate (eqs 14-15, 18) and irradiance (eq 17), tessellation
-//! analysis, the split grants (in patch order, by the rank of each split
-//! read off a HistoPyramid of the split flags), the HistoPyramid of the
-//! counts and its walk (compaction and expansion in one pass), and the
-//! deposits by the highest-energy rule (atomics on packed keys, ties to the
-//! lowest patch index as the CPU's in-order apply). The only read-back per
-//! step is the new list's length.
+//! point light's start sphere (and, with the fluence deposit, the chords
+//! from the light to its start sphere) and the pre-step tessellation run on
+//! the CPU exactly as there; the patches are then uploaded and every step
+//! runs on the GPU: propagate (eqs 14-15, 18, Fresnel at interfaces) with,
+//! for the fluence deposit, the tube each patch sweeps deposited in the
+//! same kernel (`deposit::tube`: sub-patches, box footprints, chords cut
+//! among the cells by a 3D DDA, summed per cell in a small per-thread
+//! cache), tessellation analysis (`refine::fate`, the deposit's own
+//! rules: caustics culled with the paper's only, exit when every corner
+//! has left, faint and dim patches), the split grants (in patch order, by
+//! the rank of each split read off a HistoPyramid of the split flags), the
+//! HistoPyramid of the counts and its walk (compaction and expansion in one
+//! pass), and, with the paper's deposit, the highest-energy rule (atomics
+//! on packed keys, ties to the lowest patch index as the CPU's in-order
+//! apply) and the irradiance of eq 17. The only read-back per step is the
+//! new list's length.
 //!
-//! Energy tallies are 64-bit fixed point (two u32 atomics with carry), so
-//! the summary does not depend on scheduling; the volumes are the same
-//! bit for bit from run to run.
+//! The fluence deposit adds to 64-bit fixed-point counters as
+//! [`Counters`] does (fluence per cell and channel, the flux vector per
+//! cell, component and wavefront group in two's complement; the same
+//! scales), each as two u32 words added with a carry; the energy tallies
+//! (absorbed, exited, culled, reflected) are 64-bit fixed point the same
+//! way. Integer addition commutes, so neither depends on the order the
+//! threads run in: the volumes and the summary are the same bit for bit
+//! from run to run. At the end the words are read back and added to the
+//! CPU's counters (which hold the start sphere's chords), and
+//! [`Counters::into_volume`] converts them as on the CPU.
 //!
 //! # Memory
-//! The index field (with its gradient) and the extinction are 3D textures
-//! (no storage binding limit); the light volume is one storage buffer per
-//! colour channel and per direction component (`4 nx ny nz` bytes each),
-//! so a 256^3 volume (64 MiB per buffer) fits lavapipe's 128 MiB binding
-//! limit. The patch lists grow as needed up to that limit (64 bytes of
-//! corner positions per patch: 2M patches at 128 MiB); `max_patches` is
-//! lowered to what fits, and anything that still does not fit is a
-//! [`GpuError::TooLarge`].
+//! The index field (with its gradient), the extinction and, with Fresnel,
+//! the interface sides with the boundary indicator (one per index channel,
+//! uploaded with the first simulation that asks for it) are rgba32float 3D
+//! textures (no storage binding limit; 16 bytes per cell each). The light
+//! volume is one storage buffer of one word per cell (`4 nx ny nz` bytes)
+//! for each array: with the fluence deposit twelve (the low and the high
+//! words of three fluence channels and of three flux-vector components, 48
+//! bytes per cell; the flux words are read back and cleared per wavefront
+//! group), with the paper's nine (keys, stamps, owners, irradiance and
+//! direction, 36 bytes per cell). So a 256^3 volume (64 MiB per buffer, 768
+//! MiB for the fluence counters, 256 MiB per texture) fits lavapipe's 128
+//! MiB binding limit. The patch lists grow as needed up to that limit (64
+//! bytes of corner positions per patch: 2M patches at 128 MiB);
+//! `max_patches` is lowered to what fits, and anything that still does not
+//! fit is a [`GpuError::TooLarge`].
 //!
 //! # Differences from the CPU
-//! * f32 throughout the steps (the CPU steps in f64; emission and the
-//!   pre-step tessellation are the CPU's, rounded once on upload). Patches
-//!   at a tessellation threshold or at a caustic can take the other fate,
-//!   and the lists drift apart where the light field is multi-valued; the
-//!   volumes agree closely elsewhere (numbers in `tests/gpu.rs`; on the
-//!   128^3 glass sphere: median relative irradiance difference 1.2e-7,
-//!   98.8% of the cells within 1%, lists peaking at 64.4k patches against
-//!   the CPU's 65.1k).
+//! * f32 throughout the steps and the deposit (the CPU works in f64;
+//!   emission and the pre-step tessellation are the CPU's, rounded once on
+//!   upload, and the start sphere's chords the CPU's own units). Patches
+//!   at a tessellation threshold or, with the paper's deposit, at a
+//!   caustic can take the other fate, and the lists drift apart where the
+//!   light field is multi-valued. With the fluence deposit every cell sums
+//!   many patches, so a different tessellation moves its value a little:
+//!   on the glass sphere (24^3, Fresnel) the median relative fluence
+//!   difference is 5e-4 for a directional light, whose lists part behind
+//!   the sphere, and 2e-6 for the point and spot lights, whose lists stay
+//!   the same (numbers in `tests/gpu.rs`; 1.7e-3 at 128^3). With the
+//!   paper's deposit a cell holds one ray: median relative irradiance
+//!   difference 1.2e-7 on the 128^3 glass sphere, 98.8% of the cells
+//!   within 1%, lists peaking at 64.6k patches against the CPU's 65.3k.
+//! * A piece of a chord is summed in f32 before it is rounded to units
+//!   (the CPU: f64), which moves a cell's counter by about 1e-7 of itself;
+//!   `1 - exp(-x)` is a series below x = 0.01 (the CPU: `exp_m1`).
 //! * Corners 1 to 3 are stored relative to corner 0, and each step moves
 //!   them by the difference of their displacements: f32 rounding of the
 //!   absolute positions (about 1e-5 of a voxel per step at 128^3) would
@@ -48,26 +76,33 @@
 //!   1e-9).
 //! * Energy tallies are exact sums of the f32 fluxes (64-bit fixed point at
 //!   2^-52 of the largest channel's power); the balance holds to about
-//!   1e-9 instead of 1e-15.
+//!   1e-8 instead of 1e-15.
+//! * On a software adapter (lavapipe) the fluence deposit is several times
+//!   slower than the CPU backend: one thread per patch with a varying
+//!   number of chords diverges on its SIMD lanes.
 
+use crate::deposit::Counters;
 use crate::patch::Patches;
-use crate::Summary;
+use crate::refine::Incident;
+use crate::{power_bound, DepositRule, Summary, UNITS_PER_CROSSING};
 use crate::{propagate, refine, Error, LightVolume, Options, Progress};
 use eikon_gpu::{groups, Gpu, GpuError};
+use eikon_grid::interface::{probe_length, Interfaces};
 use eikon_grid::{EmptySpace, Light, Medium, Method};
 use glam::DVec3;
 use ndarray::Array4;
+use std::sync::OnceLock;
 
 const SOURCE: &str = include_str!("simulate.wgsl");
 
 /// Bytes of the largest per-patch array (four corner positions).
 const PATCH_BYTES: u64 = 64;
 /// Storage buffers bound at once (groups 0 to 2 of `simulate.wgsl`).
-const STORAGE_BUFFERS: u32 = 21;
+const STORAGE_BUFFERS: u32 = 24;
 /// Most pyramid levels (4^15 entries).
 const MAX_LEVELS: usize = 16;
 
-const KERNELS: [&str; 13] = [
+const KERNELS: [&str; 14] = [
     "propagate",
     "analyse",
     "reduce_splits",
@@ -81,6 +116,7 @@ const KERNELS: [&str; 13] = [
     "corner_owner",
     "corner_write",
     "cull_rest",
+    "propagate_tube",
 ];
 const PROPAGATE: usize = 0;
 const ANALYSE: usize = 1;
@@ -90,14 +126,21 @@ const REDUCE_COUNTS: usize = 4;
 const EXPAND: usize = 5;
 const DEPOSIT: usize = 6; // six kernels: midpoints (3 passes), corners (3)
 const CULL_REST: usize = 12;
+const PROPAGATE_TUBE: usize = 13;
 
-/// Stats words (see `simulate.wgsl`).
-const STATS_WORDS: usize = 24;
-const S_EXITED: usize = 18;
-const S_ABSORBED: usize = 19;
-const S_CAUSTIC: usize = 20;
-const S_HELD: usize = 21;
-const S_KEPT: u64 = 22;
+/// Stats words (see `simulate.wgsl`): four energy categories (absorbed,
+/// exited, culled, reflected) per channel in 64-bit fixed point, then
+/// counts.
+const STATS_WORDS: usize = 30;
+const S_EXITED: usize = 24;
+const S_ABSORBED: usize = 25;
+const S_CAUSTIC: usize = 26;
+const S_HELD: usize = 27;
+const S_KEPT: u64 = 28;
+
+/// Storage buffers of the light volume (group 2): the paper's deposit
+/// binds 9 of them, the fluence deposit's counters all 12.
+const VOLUME_BUFFERS: usize = 12;
 
 /// Simulate one light on the GPU: [`crate::simulate_light`]'s result
 /// computed by [`GpuSimulator`] (which uploads `medium` first).
@@ -121,6 +164,12 @@ pub struct GpuSimulator<'a> {
     /// Per index channel: its texture view and empty-space table.
     index: Vec<(wgpu::TextureView, wgpu::Buffer)>,
     extinction: wgpu::TextureView,
+    /// Per index channel, the interface sides and the boundary indicator
+    /// for Fresnel, `(n_lo, n_hi, delta, 0)` per cell: uploaded with the
+    /// first simulation that asks for Fresnel.
+    fresnel: OnceLock<Vec<wgpu::TextureView>>,
+    /// Bound in place of those without Fresnel.
+    no_fresnel: wgpu::TextureView,
     /// Largest storage binding, bytes.
     binding_limit: u64,
     /// Blocks of the empty-space tables and their inverse size.
@@ -300,9 +349,12 @@ fn dispatch(pass: &mut wgpu::ComputePass, k: &wgpu::ComputePipeline, items: usiz
     pass.dispatch_workgroups(x, y, 1);
 }
 
-/// The uniform block of `simulate.wgsl` (`Params`), as 40 words.
+/// Words of the uniform block of `simulate.wgsl` (`Params`).
+const PARAMS_WORDS: usize = 64;
+
+/// The uniform block of `simulate.wgsl` (`Params`).
 #[derive(Clone, Copy)]
-struct Params([u32; 40]);
+struct Params([u32; PARAMS_WORDS]);
 
 impl Params {
     fn f(&mut self, at: usize, v: f64) {
@@ -377,8 +429,11 @@ impl<'a> GpuSimulator<'a> {
             let mut g0 = vec![uniform_entry(0), texture_entry(1), texture_entry(2)];
             g0.push(storage_entry(3, true));
             g0.extend((4..9).map(|b| storage_entry(b, false)));
+            g0.push(texture_entry(9));
             let g1: Vec<_> = (0..6).map(|b| storage_entry(b, false)).collect();
-            let g2: Vec<_> = (0..9).map(|b| storage_entry(b, false)).collect();
+            let g2: Vec<_> = (0..VOLUME_BUFFERS as u32)
+                .map(|b| storage_entry(b, false))
+                .collect();
             [
                 make("simulator medium", &g0),
                 make("simulator patches", &g1),
@@ -416,7 +471,7 @@ impl<'a> GpuSimulator<'a> {
                 .collect::<Vec<_>>()
         })?;
         let (_, empty_dims, inv_block) = empty_table(medium, 0);
-        let (index, extinction) = gpu.checked("uploading the medium", || {
+        let (index, extinction, no_fresnel) = gpu.checked("uploading the medium", || {
             let index = (0..medium.channels())
                 .map(|c| {
                     let data = medium.index[c].as_slice().expect("contiguous");
@@ -430,7 +485,8 @@ impl<'a> GpuSimulator<'a> {
             for (o, e) in rgba.chunks_exact_mut(4).zip(ext.chunks_exact(3)) {
                 o[..3].copy_from_slice(e);
             }
-            (index, texture(gpu, "extinction", g.dims, &rgba))
+            let none = texture(gpu, "no interfaces", [1, 1, 1], &[0.0; 4]);
+            (index, texture(gpu, "extinction", g.dims, &rgba), none)
         })?;
         Ok(Self {
             gpu,
@@ -439,6 +495,8 @@ impl<'a> GpuSimulator<'a> {
             kernels,
             index,
             extinction,
+            fresnel: OnceLock::new(),
+            no_fresnel,
             binding_limit,
             empty_dims,
             inv_block,
@@ -482,16 +540,40 @@ impl<'a> GpuSimulator<'a> {
         )
     }
 
-    /// Whether the GPU simulator runs `opts`: the paper's deposit
-    /// (highest-energy ray, culling at caustics) without Fresnel. The
-    /// track-length fluence deposit and Fresnel transmission (the defaults)
-    /// are not yet ported to WGSL.
-    pub fn runs(opts: &Options) -> bool {
-        opts.deposit == crate::DepositRule::Paper && !opts.fresnel
+    /// Whether the GPU simulator runs `opts`: every deposit rule, with or
+    /// without Fresnel (kept for callers that choose a backend by it).
+    pub fn runs(_opts: &Options) -> bool {
+        true
     }
 
-    /// Simulate one light (see [`crate::simulate_light`]) with the paper's
-    /// deposit; other options are refused ([`Self::runs`]).
+    /// The Fresnel textures of every index channel (see [`Self::fresnel`]),
+    /// computed ([`Interfaces::new`], as the CPU) and uploaded on first use.
+    fn fresnel_textures(&self) -> Result<&[wgpu::TextureView], GpuError> {
+        if let Some(v) = self.fresnel.get() {
+            return Ok(v);
+        }
+        let medium = self.medium;
+        let g = &medium.geometry;
+        let faces = Interfaces::new(medium, probe_length(medium));
+        let boundary = medium.boundary.as_slice().expect("standard layout");
+        let views = self.gpu.checked("uploading the interfaces", || {
+            faces
+                .sides
+                .iter()
+                .map(|sides| {
+                    let mut rgba = vec![0f32; g.voxel_count() * 4];
+                    for ((o, s), &d) in rgba.chunks_exact_mut(4).zip(sides).zip(boundary) {
+                        o[..3].copy_from_slice(&[s[0], s[1], d]);
+                    }
+                    texture(self.gpu, "interfaces", g.dims, &rgba)
+                })
+                .collect::<Vec<_>>()
+        })?;
+        Ok(self.fresnel.get_or_init(|| views))
+    }
+
+    /// Simulate one light (see [`crate::simulate_light`]): the same
+    /// wavefronts, deposit rule and Fresnel transmission as the CPU.
     pub fn simulate(
         &self,
         light: &Light,
@@ -499,49 +581,78 @@ impl<'a> GpuSimulator<'a> {
         progress: Progress,
     ) -> Result<(LightVolume, Summary), Error> {
         opts.check()?;
-        if !Self::runs(opts) {
-            return Err(Error::Option {
-                option: "backend",
-                message: "the GPU light simulation runs the paper's deposit without Fresnel only (--deposit paper --no-fresnel); the default fluence deposit with Fresnel runs on the CPU (--backend cpu)".into(),
-            });
-        }
         let medium = self.medium;
         let grid = &medium.geometry;
         let gpu = self.gpu;
         let ngroups = medium.channels();
         let cells = grid.voxel_count();
+        let fluence = opts.deposit == DepositRule::Fluence;
         let mut summary = Summary::default();
         let crate::Plan {
-            rules,
+            mut rules,
             dt,
             max_steps,
         } = crate::Plan::new(light, medium, opts);
         let max_patches = opts.max_patches.min(self.patch_limit());
+        let fresnel = if opts.fresnel {
+            Some(self.fresnel_textures()?)
+        } else {
+            None
+        };
+        // The fluence deposit's counters on the CPU: the chords from a light
+        // inside the volume to its start sphere are deposited there, and
+        // the GPU's counters are added to them at the end, so the
+        // conversion is `Counters::into_volume` itself.
+        let mut tally = fluence.then(|| {
+            Counters::new(
+                grid,
+                ngroups,
+                [power_bound(light, grid); 3],
+                UNITS_PER_CROSSING,
+            )
+        });
+        let (fl_scale, flux_scale) = tally.as_ref().map_or(([0.0; 3], 0.0), Counters::scales);
 
-        // The light volume: one buffer per channel and component.
-        let vol = |label| gpu.storage_empty(label, cells as u64 * 4);
-        let key = vol("deposit keys");
-        let stamp = vol("deposit stamps");
-        let owner = vol("deposit owners");
-        let irr = [
-            vol("irradiance R"),
-            vol("irradiance G"),
-            vol("irradiance B"),
-        ];
-        let dir = [vol("direction x"), vol("direction y"), vol("direction z")];
+        // The light volume: one buffer of one word per cell for each array
+        // (see `simulate.wgsl`, group 2).
+        let vol = |label: &str| gpu.storage_empty(label, cells as u64 * 4);
+        let volume: Vec<wgpu::Buffer> = if fluence {
+            let mut v: Vec<_> = ["fluence lo", "fluence hi"]
+                .into_iter()
+                .flat_map(|w| (0..3).map(move |c| (w, c)))
+                .map(|(w, c)| vol(&format!("{w} {c}")))
+                .collect();
+            v.extend(
+                ["flux lo", "flux hi"]
+                    .into_iter()
+                    .flat_map(|w| (0..3).map(move |c| (w, c)))
+                    .map(|(w, c)| vol(&format!("{w} {c}"))),
+            );
+            v
+        } else {
+            let mut v: Vec<_> = [
+                "deposit keys",
+                "deposit stamps",
+                "deposit owners",
+                "irradiance R",
+                "irradiance G",
+                "irradiance B",
+                "direction x",
+                "direction y",
+                "direction z",
+            ]
+            .into_iter()
+            .map(vol)
+            .collect();
+            v.extend((0..3).map(|_| gpu.storage_empty("unused", 4)));
+            v
+        };
         let volume_group = self.bind(
             2,
-            &[
-                key.as_entire_binding(),
-                stamp.as_entire_binding(),
-                owner.as_entire_binding(),
-                irr[0].as_entire_binding(),
-                irr[1].as_entire_binding(),
-                irr[2].as_entire_binding(),
-                dir[0].as_entire_binding(),
-                dir[1].as_entire_binding(),
-                dir[2].as_entire_binding(),
-            ],
+            &volume
+                .iter()
+                .map(|b| b.as_entire_binding())
+                .collect::<Vec<_>>(),
         );
         let level_groups: Vec<wgpu::BindGroup> = (0..MAX_LEVELS as u32)
             .map(|l| {
@@ -552,7 +663,7 @@ impl<'a> GpuSimulator<'a> {
         let stats = gpu.storage_empty("stats", STATS_WORDS as u64 * 4);
         let params_buf = gpu.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("params"),
-            size: 160,
+            size: PARAMS_WORDS as u64 * 4,
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
@@ -564,7 +675,9 @@ impl<'a> GpuSimulator<'a> {
         let mut scratch = refine::Scratch::default();
         for g in 0..ngroups {
             let (mask, group) = crate::group(g, ngroups);
-            // Emission and the pre-step tessellation are the CPU's own.
+            rules.incident = Incident::new(light, mask);
+            // Emission, the start sphere's deposit and the pre-step
+            // tessellation are the CPU's own.
             let field = propagate::Bounded::new(medium, g);
             crate::start_wavefront(
                 light,
@@ -574,7 +687,7 @@ impl<'a> GpuSimulator<'a> {
                 &rules,
                 (mask, group),
                 (&mut p, &mut next, &mut scratch),
-                None,
+                tally.as_ref(),
                 &mut summary,
             );
             let n0 = p.len();
@@ -601,7 +714,7 @@ impl<'a> GpuSimulator<'a> {
                 .max(1e-300);
             let scale = 2f64.powi((52.0 - biggest.log2().ceil()).clamp(-120.0, 120.0) as i32);
 
-            let mut params = Params([0; 40]);
+            let mut params = Params([0; PARAMS_WORDS]);
             params.v(0, grid.min);
             params.v(4, grid.spacing());
             params.v(8, 1.0 / grid.spacing());
@@ -624,6 +737,31 @@ impl<'a> GpuSimulator<'a> {
             // split size must not split on a rounding error.
             params.f(35, rules.split_span * (1.0 + 1e-5));
             params.f(36, scale);
+            params.0[38] = u32::from(fluence);
+            params.0[39] = u32::from(opts.fresnel);
+            params.v(40, DVec3::from_array(fl_scale));
+            params.f(43, flux_scale);
+            match rules.incident {
+                Incident::Uniform(e) => params.f(47, e),
+                Incident::Point {
+                    position,
+                    power,
+                    cone,
+                } => {
+                    params.v(44, position);
+                    params.f(47, power);
+                    params.0[51] = 1;
+                    if let Some((axis, angle, falloff)) = cone {
+                        params.v(48, axis);
+                        params.0[51] = 2;
+                        params.f(52, angle);
+                        params.f(53, falloff);
+                    }
+                }
+            }
+            params.f(54, rules.dim);
+            params.f(55, rules.faint);
+            params.f(56, grid.voxel_size());
 
             // Upload the list.
             let cap = (2 * n0).max(4096).min(self.patch_limit());
@@ -654,17 +792,20 @@ impl<'a> GpuSimulator<'a> {
                     .write_buffer(&sets[0].aux, 0, bytemuck::cast_slice(&aux));
             }
             let mut pyr_cap = cap;
+            // The paper's deposit keeps each patch's five deposits of a step.
+            let dep_bytes = if fluence { 0 } else { 40 };
             let make_pyramid = |n: usize| {
                 let words = pyramid_size(n) as u64;
                 (
                     gpu.storage_empty("counts pyramid", words * 4),
                     gpu.storage_empty("splits pyramid", words * 4),
                     gpu.storage_empty("fates", n as u64 * 4),
-                    gpu.storage_empty("deposits", n as u64 * 40),
+                    gpu.storage_empty("deposits", n as u64 * dep_bytes),
                 )
             };
             let (mut levels, mut splits, mut fates, mut deps) = make_pyramid(pyr_cap);
             let (view, empty) = &self.index[g];
+            let faces = fresnel.map_or(&self.no_fresnel, |f| &f[g]);
             let bind_medium = |levels: &wgpu::Buffer,
                                splits: &wgpu::Buffer,
                                fates: &wgpu::Buffer,
@@ -681,6 +822,7 @@ impl<'a> GpuSimulator<'a> {
                         splits.as_entire_binding(),
                         fates.as_entire_binding(),
                         deps.as_entire_binding(),
+                        wgpu::BindingResource::TextureView(faces),
                     ],
                 )
             };
@@ -694,12 +836,23 @@ impl<'a> GpuSimulator<'a> {
             {
                 let mut enc = gpu.device.create_command_encoder(&Default::default());
                 enc.clear_buffer(&stats, 0, None);
-                enc.clear_buffer(&key, 0, None);
-                enc.clear_buffer(&dir[0], 0, None);
-                enc.clear_buffer(&dir[1], 0, None);
-                enc.clear_buffer(&dir[2], 0, None);
+                if fluence {
+                    // This group's flux vectors (the fluence adds up over
+                    // the groups).
+                    for b in &volume[6..12] {
+                        enc.clear_buffer(b, 0, None);
+                    }
+                } else {
+                    // The keys and the directions (the irradiance of the
+                    // other channels stays).
+                    enc.clear_buffer(&volume[0], 0, None);
+                    for b in &volume[6..9] {
+                        enc.clear_buffer(b, 0, None);
+                    }
+                }
                 gpu.queue.submit([enc.finish()]);
             }
+            let step_kernel = if fluence { PROPAGATE_TUBE } else { PROPAGATE };
 
             // The loop: one submission and one read-back (the new list's
             // length) per step.
@@ -728,11 +881,13 @@ impl<'a> GpuSimulator<'a> {
                             dispatch(&mut pass, &self.kernels[EXPAND], n);
                         }
                         pass.set_bind_group(1, &patch_groups[cur], &[]);
-                        for k in DEPOSIT..DEPOSIT + 6 {
-                            dispatch(&mut pass, &self.kernels[k], n);
+                        if !fluence {
+                            for k in DEPOSIT..DEPOSIT + 6 {
+                                dispatch(&mut pass, &self.kernels[k], n);
+                            }
                         }
                         if stepping {
-                            dispatch(&mut pass, &self.kernels[PROPAGATE], n);
+                            dispatch(&mut pass, &self.kernels[step_kernel], n);
                             dispatch(&mut pass, &self.kernels[ANALYSE], n);
                             for (kernel, base) in [(REDUCE_SPLITS, false), (REDUCE_COUNTS, true)] {
                                 if base {
@@ -812,25 +967,57 @@ impl<'a> GpuSimulator<'a> {
                 summary.absorbed_power[c] += energy(0, c);
                 summary.exited_power[c] += energy(1, c);
                 summary.culled_power[c] += energy(2, c);
+                summary.reflected_power[c] += energy(3, c);
             }
             summary.exited += s[S_EXITED] as usize;
             summary.absorbed += s[S_ABSORBED] as usize;
             summary.caustic += s[S_CAUSTIC] as usize;
             summary.held += s[S_HELD] as usize;
-            directions.push(read_rgb(gpu, &dir, grid.dims)?);
+            match tally.as_mut() {
+                Some(t) => {
+                    for a in 0..3 {
+                        let units = read_u64(gpu, &volume[6 + a], &volume[9 + a], cells)?;
+                        let units: Vec<i64> = units.into_iter().map(|u| u as i64).collect();
+                        t.add_flux_units(g, a, &units);
+                    }
+                }
+                None => directions.push(read_rgb(gpu, &volume[6..9], grid.dims)?),
+            }
         }
-        let irradiance = read_rgb(gpu, &irr, grid.dims)?;
-        let volume = LightVolume::from_rays(irradiance, directions);
+        let volume = match tally {
+            Some(mut t) => {
+                for c in 0..3 {
+                    let units = read_u64(gpu, &volume[c], &volume[3 + c], cells)?;
+                    t.add_fluence_units(c, &units);
+                }
+                t.into_volume()
+            }
+            None => {
+                let irradiance = read_rgb(gpu, &volume[3..6], grid.dims)?;
+                LightVolume::from_rays(irradiance, directions)
+            }
+        };
         Ok((volume, summary))
     }
 }
 
-/// Three per-component buffers interleaved into `(nx, ny, nz, 3)`.
-fn read_rgb(
+/// A 64-bit counter per cell from its low and high words.
+fn read_u64(
     gpu: &Gpu,
-    bufs: &[wgpu::Buffer; 3],
-    dims: [usize; 3],
-) -> Result<Array4<f32>, GpuError> {
+    lo: &wgpu::Buffer,
+    hi: &wgpu::Buffer,
+    cells: usize,
+) -> Result<Vec<u64>, GpuError> {
+    let (lo, hi) = (gpu.read::<u32>(lo, cells)?, gpu.read::<u32>(hi, cells)?);
+    Ok(lo
+        .into_iter()
+        .zip(hi)
+        .map(|(l, h)| l as u64 | (h as u64) << 32)
+        .collect())
+}
+
+/// Three per-component buffers interleaved into `(nx, ny, nz, 3)`.
+fn read_rgb(gpu: &Gpu, bufs: &[wgpu::Buffer], dims: [usize; 3]) -> Result<Array4<f32>, GpuError> {
     let cells = dims[0] * dims[1] * dims[2];
     let mut out = Array4::zeros((dims[0], dims[1], dims[2], 3));
     let flat = out.as_slice_mut().expect("contiguous");

@@ -1,7 +1,10 @@
 // The wavefront light simulator on the GPU (Ihrke et al. 2007, 5.2): the
-// same four steps, definitions and units as the CPU modules `propagate`,
-// `refine` and `voxelize` (see their docs), in f32. One thread per patch
-// (or per output slot of the HistoPyramid walk).
+// same steps, definitions and units as the CPU modules `propagate`,
+// `deposit`, `refine` and `voxelize` (see their docs), in f32. One thread
+// per patch (or per output slot of the HistoPyramid walk). Two deposit
+// rules (`DepositRule`): the track-length fluence deposit inside the
+// propagate kernel (`propagate_tube`, 64-bit fixed-point counters), or the
+// paper's highest-energy ray per cell (the `mid_*` and `corner_*` kernels).
 //
 // Patch list, structure of arrays (`src` is the live list, `dst` the one
 // the walk writes):
@@ -17,7 +20,9 @@
 // The medium: index channel (n, grad(n^2 / 2)) and RGB extinction as 3D
 // textures of texel (k, j, i) for cell (i, j, k) (z fastest, like the CPU
 // arrays), read with textureLoad and interpolated by hand exactly as
-// `VoxelField::sample` and `GridGeometry::trilinear` do.
+// `VoxelField::sample` and `GridGeometry::trilinear` do. With Fresnel, the
+// interface sides of the index channel and the boundary indicator as a
+// third texture, (n_lo, n_hi, delta, 0) per cell (`eikon_grid::interface`).
 
 struct Params {
     grid_min: vec3<f32>,
@@ -40,8 +45,23 @@ struct Params {
     split_span: f32,
     scale: f32,        // fixed-point scale of the energy tallies
     stamp: u32,        // deposit phase id (midpoints; corners use stamp + 1)
+    fluence: u32,      // 1: the track-length deposit (`DepositRule::Fluence`), 0: the paper's
+    fresnel: u32,      // 1: Fresnel transmission at interfaces
+    fl_scale: vec3<f32>, // fluence units per W of length, per channel (`Counters`)
+    flux_scale: f32,   // flux-vector units per W of length
+    inc_pos: vec3<f32>,  // `refine::Incident`: a point or spot light's position
+    inc_power: f32,    // its power, or a plane wave's irradiance
+    cone_axis: vec3<f32>, // a spot light's axis
+    inc_kind: u32,     // 0 plane wave, 1 point light, 2 spot light
+    cone_angle: f32,   // half-angle, degrees
+    cone_falloff: f32, // falloff band, degrees
+    dim: f32,          // `Rules::dim`
+    faint: f32,        // `Rules::faint`
+    voxel: f32,        // the smallest cell edge
     pad0: u32,
     pad1: u32,
+    pad2: u32,
+    pad3: vec4<u32>,
 }
 
 struct Level {
@@ -63,6 +83,7 @@ struct Level {
 // its midpoint's, slots 1..4 its corners'. The passes after the first
 // read them instead of recomputing; the winner recomputes its value.
 @group(0) @binding(8) var<storage, read_write> deps: array<vec2<u32>>;
+@group(0) @binding(9) var fresnel_tex: texture_3d<f32>;
 
 @group(1) @binding(0) var<storage, read_write> pos: array<vec4<f32>>;
 @group(1) @binding(1) var<storage, read_write> vel: array<vec4<f32>>;
@@ -71,6 +92,13 @@ struct Level {
 @group(1) @binding(4) var<storage, read_write> dvel: array<vec4<f32>>;
 @group(1) @binding(5) var<storage, read_write> daux: array<vec4<f32>>;
 
+// The light volume. Paper's deposit: the packed key, stamp and owner of
+// each cell, then its irradiance and direction (bindings 0 to 8; 9 to 11
+// unused). Fluence deposit: 64-bit fixed-point counters as (lo, hi) words
+// in separate buffers of one word per cell (each fits a storage binding
+// wherever one channel does): fluence per channel (lo 0-2, hi 3-5) and the
+// flux vector of the wavefront group per component (lo 6-8, hi 9-11),
+// two's complement. No entry point uses both sets.
 @group(2) @binding(0) var<storage, read_write> key: array<atomic<u32>>;
 @group(2) @binding(1) var<storage, read_write> stamp: array<atomic<u32>>;
 @group(2) @binding(2) var<storage, read_write> owner: array<atomic<u32>>;
@@ -81,19 +109,34 @@ struct Level {
 @group(2) @binding(7) var<storage, read_write> dir1: array<f32>;
 @group(2) @binding(8) var<storage, read_write> dir2: array<f32>;
 
+@group(2) @binding(0) var<storage, read_write> fl_lo0: array<atomic<u32>>;
+@group(2) @binding(1) var<storage, read_write> fl_lo1: array<atomic<u32>>;
+@group(2) @binding(2) var<storage, read_write> fl_lo2: array<atomic<u32>>;
+@group(2) @binding(3) var<storage, read_write> fl_hi0: array<atomic<u32>>;
+@group(2) @binding(4) var<storage, read_write> fl_hi1: array<atomic<u32>>;
+@group(2) @binding(5) var<storage, read_write> fl_hi2: array<atomic<u32>>;
+@group(2) @binding(6) var<storage, read_write> fx_lo0: array<atomic<u32>>;
+@group(2) @binding(7) var<storage, read_write> fx_lo1: array<atomic<u32>>;
+@group(2) @binding(8) var<storage, read_write> fx_lo2: array<atomic<u32>>;
+@group(2) @binding(9) var<storage, read_write> fx_hi0: array<atomic<u32>>;
+@group(2) @binding(10) var<storage, read_write> fx_hi1: array<atomic<u32>>;
+@group(2) @binding(11) var<storage, read_write> fx_hi2: array<atomic<u32>>;
+
 @group(3) @binding(0) var<uniform> L: Level;
 
 // Stats words: energy tallies (category * 3 + channel) as 64-bit fixed
-// point (lo, hi) in words 0..18; then counts.
+// point (lo, hi) in words 0..24; then counts.
 const E_ABSORBED: u32 = 0u;
 const E_EXITED: u32 = 1u;
 const E_CULLED: u32 = 2u;
-const S_EXITED: u32 = 18u;
-const S_ABSORBED: u32 = 19u;
-const S_CAUSTIC: u32 = 20u;
-const S_HELD: u32 = 21u;
-const S_KEPT: u32 = 22u;
-const S_SPLITS: u32 = 23u;
+const E_REFLECTED: u32 = 3u;
+const S_EXITED: u32 = 24u;
+const S_ABSORBED: u32 = 25u;
+const S_CAUSTIC: u32 = 26u;
+const S_HELD: u32 = 27u;
+const S_KEPT: u32 = 28u;
+const S_SPLITS: u32 = 29u;
+const STATS_WORDS: u32 = 30u;
 
 // Fates (refine.rs `Fate`).
 const F_EXIT: u32 = 0u;
@@ -115,7 +158,7 @@ fn item(id: vec3<u32>, groups: vec3<u32>) -> u32 {
 // threads' tallies in workgroup memory first (`wg_stats`, the layout of
 // `stats`) and adds them to `stats` once (`wg_begin`, `wg_end`): one
 // global atomic per workgroup instead of one per patch.
-var<workgroup> wg_stats: array<atomic<u32>, 24>;
+var<workgroup> wg_stats: array<atomic<u32>, 30>;
 
 fn add_fixed(w: u32, lo_u: u32, hi_u: u32, global: bool) {
     var old = 0u;
@@ -138,7 +181,7 @@ fn add_fixed(w: u32, lo_u: u32, hi_u: u32, global: bool) {
 }
 
 fn wg_begin(li: u32) {
-    if (li < 24u) {
+    if (li < STATS_WORDS) {
         atomicStore(&wg_stats[li], 0u);
     }
     workgroupBarrier();
@@ -146,13 +189,13 @@ fn wg_begin(li: u32) {
 
 fn wg_end(li: u32) {
     workgroupBarrier();
-    if (li < 9u) {
+    if (li < S_EXITED / 2u) {
         let lo = atomicLoad(&wg_stats[2u * li]);
         let hi = atomicLoad(&wg_stats[2u * li + 1u]);
         if (lo != 0u || hi != 0u) {
             add_fixed(2u * li, lo, hi, true);
         }
-    } else if (li >= 18u && li < 24u) {
+    } else if (li >= S_EXITED && li < STATS_WORDS) {
         let c = atomicLoad(&wg_stats[li]);
         if (c != 0u) {
             atomicAdd(&stats[li], c);
@@ -454,11 +497,99 @@ fn step_depth(x0: vec3<f32>, x1: vec3<f32>, before: vec3<f32>, after: vec3<f32>,
     return select(after, before, in0) * (dt * inside);
 }
 
-fn propagate_patch(i: u32) {
+// ---------------------------------------------------------------------
+// Fresnel transmission at interfaces (`eikon_grid::interface`).
+
+// Unpolarized Fresnel reflectance from index n1 into n2 at incidence
+// cosine cos_i (`fresnel::reflectance`).
+fn reflectance(cos_in: f32, n1: f32, n2: f32) -> f32 {
+    if (n1 == n2) {
+        return 0.0;
+    }
+    let cos_i = min(abs(cos_in), 1.0);
+    let sin_i2 = max(1.0 - cos_i * cos_i, 0.0);
+    let eta = n1 / n2;
+    let sin_t2 = eta * eta * sin_i2;
+    if (sin_t2 >= 1.0) {
+        return 1.0;
+    }
+    let cos_t = sqrt(1.0 - sin_t2);
+    let rs = (n1 * cos_i - n2 * cos_t) / (n1 * cos_i + n2 * cos_t);
+    let rp = (n2 * cos_i - n1 * cos_t) / (n2 * cos_i + n1 * cos_t);
+    return 0.5 * (rs * rs + rp * rp);
+}
+
+// 1 - R crossing the interface between the sides `lo` and `hi` with unit
+// `normal`, from Snell's invariant |v_t|; 1 under total internal
+// reflection and where the sides do not differ
+// (`interface::crossing_transmittance`).
+fn crossing_transmittance(lo: f32, hi: f32, v: vec3<f32>, normal: vec3<f32>) -> f32 {
+    if (!(lo > 0.0 && hi > 0.0) || lo == hi) {
+        return 1.0;
+    }
+    let vt = v - normal * dot(v, normal);
+    let vt2 = dot(vt, vt);
+    let n_min = min(lo, hi);
+    if (vt2 >= n_min * n_min) {
+        return 1.0;
+    }
+    let cos_lo = sqrt(max(1.0 - vt2 / (lo * lo), 0.0));
+    return 1.0 - reflectance(cos_lo, lo, hi);
+}
+
+// The power fraction kept over the displacement `dx` about `p` travelling
+// with eikonal gradient `v`: (1 - R)^(delta |dx . normal|)
+// (`Interfaces::transmittance`).
+fn transmittance(p: vec3<f32>, v: vec3<f32>, dx: vec3<f32>) -> f32 {
+    if (!contains(p)) {
+        return 1.0;
+    }
+    let q = corner8(p);
+    let b = q.base;
+    let o = q.o;
+    let c00 = lerp4(texel(fresnel_tex, b.x, b.y, b.z), texel(fresnel_tex, b.x, b.y, b.z + o.z), q.f.z);
+    let c01 = lerp4(texel(fresnel_tex, b.x, b.y + o.y, b.z), texel(fresnel_tex, b.x, b.y + o.y, b.z + o.z), q.f.z);
+    let c10 = lerp4(texel(fresnel_tex, b.x + o.x, b.y, b.z), texel(fresnel_tex, b.x + o.x, b.y, b.z + o.z), q.f.z);
+    let c11 = lerp4(texel(fresnel_tex, b.x + o.x, b.y + o.y, b.z), texel(fresnel_tex, b.x + o.x, b.y + o.y, b.z + o.z), q.f.z);
+    let sides = lerp4(lerp4(c00, c01, q.f.y), lerp4(c10, c11, q.f.y), q.f.x);
+    let delta = sides.z;
+    if (!(delta > 0.0)) {
+        return 1.0;
+    }
+    let grad = sample_field(p).g;
+    let len = length(grad);
+    if (!(len > 0.0 && len < 3.0e38)) {
+        return 1.0;
+    }
+    let normal = grad / len;
+    let part = min(delta * abs(dot(dx, normal)), 1.0);
+    if (!(part > 0.0)) {
+        return 1.0;
+    }
+    return pow(crossing_transmittance(sides.x, sides.y, v, normal), part);
+}
+
+// What a patch swept in one step, for the track-length deposit: its
+// corners before and after, its flux before, the step's optical depth.
+struct Swept {
+    x0: array<vec3<f32>, 4>,
+    x1: array<vec3<f32>, 4>,
+    flux: vec3<f32>,
+    depth: vec3<f32>,
+}
+
+// One step of patch i: `propagate::propagate` (eqs 14-15, 18, Fresnel) and,
+// for the paper's deposit, `propagate::irradiance` (eq 17).
+fn propagate_patch(i: u32) -> Swept {
     let dt = P.dt;
     let m0 = midpoint(i);
     var flux = aux[3u * i];
-    var lost = vec3<f32>(0.0);
+    var out: Swept;
+    out.flux = flux.xyz;
+    out.depth = vec3<f32>(0.0);
+    for (var c = 0u; c < 4u; c++) {
+        out.x0[c] = corner_x(i, c);
+    }
     var skipped = false;
     // Empty space: every corner and the midpoint in empty blocks of one
     // index: a straight step without loss.
@@ -466,7 +597,7 @@ fn propagate_patch(i: u32) {
     if (n >= 0.0) {
         var all_empty = true;
         for (var c = 0u; c < 4u; c++) {
-            if (empty_at(corner_x(i, c)) != n) {
+            if (empty_at(out.x0[c]) != n) {
                 all_empty = false;
             }
         }
@@ -505,23 +636,413 @@ fn propagate_patch(i: u32) {
         let m1 = midpoint(i);
         let after = extinction_per_index(m1);
         let depth = step_depth(m0, m1, before, after, dt);
+        out.depth = depth;
         let kept = flux.xyz * exp(-depth);
-        lost = flux.xyz - kept;
+        add_energy3(E_ABSORBED, flux.xyz - kept);
         flux = vec4<f32>(kept, flux.w);
+        if (P.fresnel != 0u) {
+            var v = vec3<f32>(0.0);
+            for (var c = 0u; c < 4u; c++) {
+                v += vel[4u * i + c].xyz;
+            }
+            let t = transmittance((m0 + m1) * 0.5, v * 0.25, m1 - m0);
+            if (t < 1.0) {
+                let through = flux.xyz * t;
+                add_energy3(E_REFLECTED, flux.xyz - through);
+                flux = vec4<f32>(through, flux.w);
+            }
+        }
         aux[3u * i] = flux;
-        add_energy3(E_ABSORBED, lost);
     }
-    // Eq 17: flux over the current area.
-    let ar = quad_area(vec3<f32>(0.0), rel(i, 1u), rel(i, 2u), rel(i, 3u));
-    var e = vec3<f32>(0.0);
-    if (ar > 0.0) {
-        e = flux.xyz / ar;
+    for (var c = 0u; c < 4u; c++) {
+        out.x1[c] = corner_x(i, c);
     }
-    aux[3u * i + 2u] = vec4<f32>(e, 0.0);
+    if (P.fluence == 0u) {
+        // Eq 17: flux over the current area.
+        let ar = quad_area(vec3<f32>(0.0), rel(i, 1u), rel(i, 2u), rel(i, 3u));
+        var e = vec3<f32>(0.0);
+        if (ar > 0.0) {
+            e = flux.xyz / ar;
+        }
+        aux[3u * i + 2u] = vec4<f32>(e, 0.0);
+    }
+    return out;
+}
+
+// ---------------------------------------------------------------------
+// The track-length deposit (`deposit`): each patch's swept tube as
+// sub-patch chords with box footprints, cut among the cells by a 3D DDA,
+// summed per cell in a small per-thread cache (`deposit::Local`) and added
+// to 64-bit fixed-point counters with two u32 atomics and a carry. Integer
+// addition commutes, so the counters are the same whatever the order.
+
+// Add the 64-bit (lo, hi) to fluence counter `c` of `cell`.
+fn add_fluence(c: u32, cell: u32, lo: u32, hi: u32) {
+    var old = 0u;
+    switch c {
+        case 0u: { old = atomicAdd(&fl_lo0[cell], lo); }
+        case 1u: { old = atomicAdd(&fl_lo1[cell], lo); }
+        default: { old = atomicAdd(&fl_lo2[cell], lo); }
+    }
+    let h = hi + select(0u, 1u, old + lo < old);
+    if (h != 0u) {
+        switch c {
+            case 0u: { atomicAdd(&fl_hi0[cell], h); }
+            case 1u: { atomicAdd(&fl_hi1[cell], h); }
+            default: { atomicAdd(&fl_hi2[cell], h); }
+        }
+    }
+}
+
+// Add the 64-bit two's complement (lo, hi) to flux-vector counter `a`.
+fn add_flux(a: u32, cell: u32, lo: u32, hi: u32) {
+    var old = 0u;
+    switch a {
+        case 0u: { old = atomicAdd(&fx_lo0[cell], lo); }
+        case 1u: { old = atomicAdd(&fx_lo1[cell], lo); }
+        default: { old = atomicAdd(&fx_lo2[cell], lo); }
+    }
+    let h = hi + select(0u, 1u, old + lo < old);
+    if (h != 0u) {
+        switch a {
+            case 0u: { atomicAdd(&fx_hi0[cell], h); }
+            case 1u: { atomicAdd(&fx_hi1[cell], h); }
+            default: { atomicAdd(&fx_hi2[cell], h); }
+        }
+    }
+}
+
+// A non-negative whole number of units (below 2^64) as (lo, hi).
+fn split64(x: f32) -> vec2<u32> {
+    let y = min(x, 1.8e19);
+    let hi = floor(y / 4294967296.0);
+    return vec2<u32>(u32(y - hi * 4294967296.0), u32(hi));
+}
+
+// Round the amounts of one cell to units and add them (`Counters::add`):
+// fluence to the nearest unit, flux-vector components half away from zero.
+fn add_units(cell: u32, fl: vec3<f32>, fx: vec3<f32>) {
+    for (var c = 0u; c < 3u; c++) {
+        let u = floor(fl[c] + 0.5);
+        if (u >= 1.0) {
+            let w = split64(u);
+            add_fluence(c, cell, w.x, w.y);
+        }
+    }
+    for (var a = 0u; a < 3u; a++) {
+        let u = floor(abs(fx[a]) + 0.5);
+        if (u >= 1.0) {
+            var w = split64(u);
+            if (fx[a] < 0.0) {
+                // Two's complement of the 64-bit magnitude.
+                w = vec2<u32>(~w.x + 1u, ~w.y + select(0u, 1u, w.x == 0u));
+            }
+            add_flux(a, cell, w.x, w.y);
+        }
+    }
+}
+
+// The cells one patch's chords reach in one step, summed before they go
+// to the counters (`deposit::Local`).
+const LOCAL_CELLS: u32 = 16u;
+var<private> local_cell: array<u32, 16>;
+var<private> local_fl: array<vec3<f32>, 16>;
+var<private> local_fx: array<vec3<f32>, 16>;
+var<private> local_len: u32;
+
+fn local_flush() {
+    for (var k = 0u; k < local_len; k++) {
+        add_units(local_cell[k], local_fl[k], local_fx[k]);
+    }
+    local_len = 0u;
+}
+
+fn local_put(cell: u32, fl: vec3<f32>, fx: vec3<f32>) {
+    for (var k = local_len; k > 0u; k--) {
+        if (local_cell[k - 1u] == cell) {
+            local_fl[k - 1u] += fl;
+            local_fx[k - 1u] += fx;
+            return;
+        }
+    }
+    if (local_len == LOCAL_CELLS) {
+        local_flush();
+    }
+    local_cell[local_len] = cell;
+    local_fl[local_len] = fl;
+    local_fx[local_len] = fx;
+    local_len += 1u;
+}
+
+// 1 - exp(-x) for x >= 0, without the cancellation at small x.
+fn one_minus_exp(x: f32) -> f32 {
+    if (x < 0.01) {
+        return x * (1.0 - x * (0.5 - x * (1.0 / 6.0 - x * (1.0 / 24.0))));
+    }
+    return 1.0 - exp(-x);
+}
+
+// The piece [ta, tb] of a chord in cell c (`Sink::add`): w the fluence
+// units per unit of t, wf the flux-vector units per unit of t per channel.
+fn piece(c: vec3<i32>, ta: f32, tb: f32, w: vec3<f32>, wf: vec3<f32>, u: vec3<f32>, depth: vec3<f32>) {
+    var weight = vec3<f32>(tb - ta);
+    for (var ch = 0u; ch < 3u; ch++) {
+        let tau = depth[ch];
+        if (tau > 0.0) {
+            weight[ch] = exp(-tau * ta) * one_minus_exp(tau * (tb - ta)) / tau;
+        }
+    }
+    let flat = (u32(c.x) * P.dims.y + u32(c.y)) * P.dims.z + u32(c.z);
+    local_put(flat, w * weight, u * dot(wf, weight));
+}
+
+// The chord from a to b carrying `flux` at a and losing optical depth
+// `depth` over it, cut among the cells it crosses (`Counters::chord`).
+fn chord(a: vec3<f32>, b: vec3<f32>, flux: vec3<f32>, depth: vec3<f32>) {
+    let d = b - a;
+    let len = length(d);
+    if (!(len > 0.0 && len < 3.0e38)) {
+        return;
+    }
+    var t0 = 0.0;
+    var t1 = 1.0;
+    if (!(contains(a) && contains(b))) {
+        let clip = clip_line(a, d);
+        if (!clip.hit) {
+            return;
+        }
+        t0 = max(clip.t0, 0.0);
+        t1 = min(clip.t1, 1.0);
+    }
+    if (t1 <= t0) {
+        return;
+    }
+    let w = flux * len * P.fl_scale;
+    var wf = flux * (len * P.flux_scale / 3.0);
+    if (P.group >= 0) {
+        wf = vec3<f32>(0.0);
+        wf[P.group] = flux[P.group] * len * P.flux_scale;
+    }
+    let u = d / len;
+    let g = (a - P.grid_min) * P.inv_spacing;
+    let dg = d * P.inv_spacing;
+    let top = vec3<i32>(P.dims) - 1;
+    let first = clamp(vec3<i32>(g + dg * t0), vec3<i32>(0), top);
+    let last = clamp(vec3<i32>(g + dg * t1), vec3<i32>(0), top);
+    if (all(first == last)) {
+        piece(first, t0, t1, w, wf, u, depth);
+        return;
+    }
+    var cell = first;
+    var step = vec3<i32>(0);
+    var next = vec3<f32>(3.0e38);
+    var delta = vec3<f32>(3.0e38);
+    for (var ax = 0; ax < 3; ax++) {
+        if (dg[ax] > 0.0) {
+            step[ax] = 1;
+            next[ax] = (f32(cell[ax]) + 1.0 - g[ax]) / dg[ax];
+            delta[ax] = 1.0 / dg[ax];
+        } else if (dg[ax] < 0.0) {
+            step[ax] = -1;
+            next[ax] = (f32(cell[ax]) - g[ax]) / dg[ax];
+            delta[ax] = -1.0 / dg[ax];
+        }
+    }
+    var t = t0;
+    // A chord crosses at most this many cell faces.
+    let most = i32(P.dims.x + P.dims.y + P.dims.z) + 3;
+    for (var guard = 0; guard < most; guard++) {
+        var ax = 2;
+        if (next.x <= next.y && next.x <= next.z) {
+            ax = 0;
+        } else if (next.y <= next.z) {
+            ax = 1;
+        }
+        let end = min(next[ax], t1);
+        if (end > t) {
+            piece(cell, t, end, w, wf, u, depth);
+        }
+        if (next[ax] >= t1) {
+            break;
+        }
+        cell[ax] += step[ax];
+        if (cell[ax] < 0 || cell[ax] > top[ax]) {
+            break;
+        }
+        next[ax] += delta[ax];
+        t = max(t, end);
+    }
+}
+
+// Most sub-patches along one side of a patch (`deposit::MAX_SUBPATCHES`),
+// their size in voxels (`SUBPATCH_SIZE`), the most cells a footprint spans
+// along one axis (`MAX_PARTS`).
+const MAX_SUBPATCHES: f32 = 8.0;
+const SUBPATCH_SIZE: f32 = 0.5;
+const MAX_PARTS: u32 = 4u;
+
+fn bilinear_point(p: array<vec3<f32>, 4>, s: f32, t: f32) -> vec3<f32> {
+    return p[0] * ((1.0 - s) * (1.0 - t)) + p[1] * (s * (1.0 - t)) + p[2] * (s * t) + p[3] * ((1.0 - s) * t);
+}
+
+// A box footprint of `width` cells centred at cell coordinate `centre`,
+// cut at the cell faces (`deposit::box_parts`): its span (lo, hi) relative
+// to the cell of the centre (so that f32 keeps its digits for the
+// offsets), narrowed to MAX_PARTS - 1 cells; a footprint too narrow to cut
+// is (0, 0), one part of the whole width at the centre. Part k covers
+// [max(lo, floor(lo) + k), min(hi, floor(lo) + k + 1)] (`box_part`).
+fn box_span(centre: f32, width: f32) -> vec2<f32> {
+    let w = min(width, f32(MAX_PARTS - 1u));
+    if (!(w > 1e-9) || !(abs(centre) < 3.0e38)) {
+        return vec2<f32>(0.0);
+    }
+    let c = centre - floor(centre);
+    return vec2<f32>(c - 0.5 * w, c + 0.5 * w);
+}
+
+// Parts of a footprint span (`box_span`): at least one.
+fn box_count(span: vec2<f32>) -> u32 {
+    if (!(span.y > span.x)) {
+        return 1u;
+    }
+    return clamp(u32(ceil(span.y) - floor(span.x)), 1u, MAX_PARTS);
+}
+
+// Part k of a footprint span: (fraction of the width, offset of its centre
+// from the footprint's centre, cells).
+fn box_part(span: vec2<f32>, k: u32) -> vec2<f32> {
+    if (!(span.y > span.x)) {
+        return vec2<f32>(1.0, 0.0);
+    }
+    let base = floor(span.x) + f32(k);
+    let a = max(span.x, base);
+    let b = min(span.y, base + 1.0);
+    return vec2<f32>(max(b - a, 0.0) / (span.y - span.x), 0.5 * (a + b) - 0.5 * (span.x + span.y));
+}
+
+fn edge2(p: array<vec3<f32>, 4>, a: u32, b: u32) -> f32 {
+    let d = p[a] - p[b];
+    return dot(d, d);
+}
+
+// Deposit the tube a patch swept (`deposit::tube`).
+fn tube(sw: Swept) {
+    let x0 = sw.x0;
+    let x1 = sw.x1;
+    local_len = 0u;
+    // `subpatches`: enough that none exceeds SUBPATCH_SIZE voxels on the
+    // longer of each pair of opposite edges, before or after the step.
+    let ls = sqrt(max(max(edge2(x0, 1u, 0u), edge2(x0, 2u, 3u)), max(edge2(x1, 1u, 0u), edge2(x1, 2u, 3u))));
+    let lt = sqrt(max(max(edge2(x0, 3u, 0u), edge2(x0, 2u, 1u)), max(edge2(x1, 3u, 0u), edge2(x1, 2u, 1u))));
+    let ks = max(ceil(ls / (SUBPATCH_SIZE * P.voxel)), 1.0);
+    let kt = max(ceil(lt / (SUBPATCH_SIZE * P.voxel)), 1.0);
+    var whole = ks <= MAX_SUBPATCHES && kt <= MAX_SUBPATCHES;
+    if (whole && max(ks, kt) * SUBPATCH_SIZE > 2.0) {
+        // Torn: over two voxels across and far from a parallelogram.
+        let twist = length(x1[0] - x1[1] + x1[2] - x1[3]);
+        whole = !(twist > 0.5 * quad_span(x1[0], x1[1], x1[2], x1[3]));
+    }
+    if (!whole) {
+        // Along its four corner rays, a quarter each.
+        for (var c = 0u; c < 4u; c++) {
+            chord(x0[c], x1[c], sw.flux * 0.25, sw.depth);
+        }
+        local_flush();
+        return;
+    }
+    let ns = u32(ks);
+    let nt = u32(kt);
+    let share = 1.0 / f32(ns * nt);
+    // The axis the tube runs along most (in cells): footprints are boxes
+    // in the plane of the other two.
+    let run = ((x1[0] + x1[1] + x1[2] + x1[3]) - (x0[0] + x0[1] + x0[2] + x0[3])) * P.inv_spacing;
+    let r = abs(run);
+    var major = 2u;
+    if (r.x >= r.y && r.x >= r.z) {
+        major = 0u;
+    } else if (r.y >= r.z) {
+        major = 1u;
+    }
+    let ab = (major + 1u) % 3u;
+    let ac = (major + 2u) % 3u;
+    // Halfway through the step.
+    let xm = array<vec3<f32>, 4>((x0[0] + x1[0]) * 0.5, (x0[1] + x1[1]) * 0.5, (x0[2] + x1[2]) * 0.5, (x0[3] + x1[3]) * 0.5);
+    let inv_ns = 1.0 / f32(ns);
+    let inv_nt = 1.0 / f32(nt);
+    for (var i = 0u; i < ns; i++) {
+        let s0 = f32(i) * inv_ns;
+        let s1 = f32(i + 1u) * inv_ns;
+        let sm = 0.5 * (s0 + s1);
+        for (var j = 0u; j < nt; j++) {
+            let t0 = f32(j) * inv_nt;
+            let t1 = f32(j + 1u) * inv_nt;
+            let tm = 0.5 * (t0 + t1);
+            let a = bilinear_point(x0, sm, tm);
+            let b = bilinear_point(x1, sm, tm);
+            // The sub-patch halfway through the step: its second moments
+            // across the two minor axes give the box.
+            let q0 = bilinear_point(xm, s0, t0);
+            let q1 = bilinear_point(xm, s1, t0);
+            let q2 = bilinear_point(xm, s1, t1);
+            let q3 = bilinear_point(xm, s0, t1);
+            let e1 = (q1 - q0 + q2 - q3) * 0.5;
+            let e2 = (q3 - q0 + q2 - q1) * 0.5;
+            let extent = sqrt(e1 * e1 + e2 * e2) * P.inv_spacing;
+            let cc = ((a + b) * 0.5 - P.grid_min) * P.inv_spacing;
+            let sb = box_span(cc[ab], extent[ab]);
+            let sc = box_span(cc[ac], extent[ac]);
+            let nb = box_count(sb);
+            let nc = box_count(sc);
+            for (var kb = 0u; kb < nb; kb++) {
+                let pb = box_part(sb, kb);
+                for (var kc = 0u; kc < nc; kc++) {
+                    let pc = box_part(sc, kc);
+                    var off = vec3<f32>(0.0);
+                    off[ab] = pb.y * P.spacing[ab];
+                    off[ac] = pc.y * P.spacing[ac];
+                    let f = sw.flux * (share * pb.x * pc.x);
+                    chord(a + off, b + off, f, sw.depth);
+                }
+            }
+        }
+    }
+    local_flush();
 }
 
 // ---------------------------------------------------------------------
 // Step 3: tessellation analysis (`refine::fate`) and its book-keeping.
+
+// Whether a ray at x going along d has left the bounds for good.
+fn gone(x: vec3<f32>, d: vec3<f32>) -> bool {
+    let clip = clip_line(x, d);
+    return !contains(x) && (!clip.hit || clip.t1 <= 0.0);
+}
+
+// A spot light's weight of unit direction `dir` (`light::cone_weight`).
+fn cone_weight(dir: vec3<f32>) -> f32 {
+    if (P.inc_kind != 2u) {
+        return 1.0;
+    }
+    let theta = degrees(acos(clamp(dot(dir, P.cone_axis), -1.0, 1.0)));
+    if (theta >= P.cone_angle) {
+        return 0.0;
+    }
+    if (P.cone_falloff <= 0.0 || theta <= P.cone_angle - P.cone_falloff) {
+        return 1.0;
+    }
+    let x = (P.cone_angle - theta) / P.cone_falloff;
+    return x * x * (3.0 - 2.0 * x);
+}
+
+// The light's unobstructed irradiance at x (`refine::Incident::at`).
+fn incident_at(x: vec3<f32>) -> f32 {
+    if (P.inc_kind == 0u) {
+        return P.inc_power;
+    }
+    let d = x - P.inc_pos;
+    let r2 = dot(d, d);
+    return P.inc_power * cone_weight(d / sqrt(r2)) / (4.0 * 3.14159265358979 * r2);
+}
 
 fn analyse_patch(i: u32) {
     // Shape measures relative to corner 0 (they do not depend on where).
@@ -534,15 +1055,33 @@ fn analyse_patch(i: u32) {
     let flux = aux[3u * i];
     let f0 = aux[3u * i + 1u];
     var f = F_RETAIN;
-    let clip = clip_line(mid, dir);
-    if (!contains(mid) && (!clip.hit || clip.t1 <= 0.0)) {
+    var exit = false;
+    if (P.fluence == 0u) {
+        // The paper's deposit reads the midpoint only.
+        exit = gone(mid, dir);
+    } else {
+        // The track-length deposit lights every cell a patch covers: it
+        // leaves when each corner has.
+        exit = true;
+        for (var c = 0u; c < 4u; c++) {
+            exit = exit && gone(corner_x(i, c), vel[4u * i + c].xyz);
+        }
+    }
+    let total = flux.x + flux.y + flux.z;
+    if (exit) {
         f = F_EXIT;
     } else if (all(flux.xyz <= P.threshold * f0.xyz)) {
         f = F_ABSORBED;
-    } else if (dot(quad_normal(p0, p1, p2, p3), dir) <= 0.0) {
+    } else if (P.faint > 0.0 && total < P.faint * incident_at(mid)) {
+        f = F_ABSORBED;
+    } else if (P.fluence == 0u && dot(quad_normal(p0, p1, p2, p3), dir) <= 0.0) {
         f = F_CAUSTIC;
     } else if (quad_span(p0, p1, p2, p3) > P.split_span && u32(f0.w) < P.max_depth) {
         f = F_SPLIT;
+        // Too dim to be worth more patches (`Rules::dim`).
+        if (P.dim > 0.0 && total < P.dim * incident_at(mid) * quad_area(p0, p1, p2, p3)) {
+            f = F_RETAIN;
+        }
     }
     fate[i] = f;
     splits[i] = select(0u, 1u, f == F_SPLIT);
@@ -1106,7 +1645,20 @@ fn propagate(@builtin(global_invocation_id) id: vec3<u32>,
     wg_begin(li);
     let i = item(id, groups);
     if (i < P.n) {
-        propagate_patch(i);
+        _ = propagate_patch(i);
+    }
+    wg_end(li);
+}
+
+// The step with the track-length deposit of each patch's swept tube.
+@compute @workgroup_size(64)
+fn propagate_tube(@builtin(global_invocation_id) id: vec3<u32>,
+                  @builtin(num_workgroups) groups: vec3<u32>,
+                  @builtin(local_invocation_index) li: u32) {
+    wg_begin(li);
+    let i = item(id, groups);
+    if (i < P.n) {
+        tube(propagate_patch(i));
     }
     wg_end(li);
 }
