@@ -429,7 +429,7 @@ pub fn tube(
 }
 
 /// Most cells a footprint spans along one axis.
-const MAX_PARTS: usize = 4;
+pub const MAX_PARTS: usize = 4;
 
 /// A box footprint of `width` cells centred at cell coordinate `centre`,
 /// cut at the cell faces: per part, the fraction of the width it holds and

@@ -43,18 +43,6 @@ pub struct LightVolume {
 }
 
 impl LightVolume {
-    /// An empty (dark) volume on `grid` for `groups` wavefronts (1, or 3
-    /// with dispersion: one per colour channel).
-    pub fn new(grid: &GridGeometry, groups: usize) -> Self {
-        let [nx, ny, nz] = grid.dims;
-        Self {
-            fluence: Array4::zeros((nx, ny, nz, 3)),
-            flux: (0..groups)
-                .map(|_| Array4::zeros((nx, ny, nz, 3)))
-                .collect(),
-        }
-    }
-
     /// A finished light volume from its arrays (read back from disk, say):
     /// `fluence` `(nx, ny, nz, 3)`, and one or three `flux` arrays of the
     /// same shape. Errors name the array whose shape is wrong.

@@ -540,12 +540,6 @@ impl<'a> GpuSimulator<'a> {
         )
     }
 
-    /// Whether the GPU simulator runs `opts`: every deposit rule, with or
-    /// without Fresnel (kept for callers that choose a backend by it).
-    pub fn runs(_opts: &Options) -> bool {
-        true
-    }
-
     /// The Fresnel textures of every index channel (see [`Self::fresnel`]),
     /// computed ([`Interfaces::new`], as the CPU) and uploaded on first use.
     fn fresnel_textures(&self) -> Result<&[wgpu::TextureView], GpuError> {
