@@ -8,7 +8,7 @@
 
 use anyhow::Result;
 use clap::ValueEnum;
-use eikon_gpu::Gpu;
+use eikon_gpu::{Gpu, GpuError};
 use std::sync::Mutex;
 
 /// The `--backend` values.
@@ -61,6 +61,10 @@ pub fn is_software(gpu: &Gpu) -> bool {
     gpu.info.device_type == wgpu::DeviceType::Cpu
 }
 
+/// Why the CPU, when no GPU adapter exists: what would change that, and
+/// why a software Vulkan would not help.
+const NO_ADAPTER: &str = " (no GPU adapter: a hardware GPU's Vulkan, Metal or DX12 driver would enable the GPU backend; a software Vulkan such as lavapipe is for testing only, slower than the CPU)";
+
 /// What [`BackendFlag::select`] chose and why, said by [`announce`] once
 /// the work starts (so that bad input is reported first, alone).
 static NOTE: Mutex<Option<String>> = Mutex::new(None);
@@ -105,10 +109,15 @@ impl BackendFlag {
                     say(
                         &b,
                         &format!(
-                            " (the only GPU adapter, {}, is a software one; --backend gpu forces it)",
+                            " (the only GPU adapter, {}, is a software emulation, slower than the CPU backend on this machine; --backend gpu forces it)",
                             g.describe()
                         ),
                     );
+                    Ok(b)
+                }
+                Err(GpuError::NoAdapter { .. }) => {
+                    let b = Backend::Cpu;
+                    say(&b, NO_ADAPTER);
                     Ok(b)
                 }
                 Err(e) => {

@@ -57,6 +57,8 @@ pub struct Args {
     /// the parent runs in a child process).
     #[arg(long, hide = true)]
     one: Option<String>,
+    #[command(flatten)]
+    grid: crate::grid::GridFlags,
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -82,7 +84,7 @@ fn peak_rss_mib() -> Option<f64> {
 /// The figures of one scene on one backend, in this process.
 fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
     let (runs, frames) = (args.runs, args.frames);
-    let scene = Scene::parse(text, name)?;
+    let scene = Scene::parse_with(text, name, &args.grid.grid_override())?;
     let medium = Medium::build(&scene)?;
     let opts = eikon_wavefront::Options::default();
     eikon_wavefront::check_scene(&scene, &medium, &opts)?;
@@ -95,7 +97,9 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
         Backend::Gpu(gpu) => Some(eikon_wavefront::gpu::GpuSimulator::new(gpu, &medium)?),
         Backend::Cpu => None,
     };
-    for _ in 0..runs.max(1) {
+    let bname = backend.name();
+    eprintln!("  {name} on {bname}: {}", crate::grid::describe(&scene));
+    for run in 0..runs.max(1) {
         let t = Instant::now();
         volumes.clear();
         for l in &scene.lights {
@@ -107,6 +111,12 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
             volumes.push(v);
         }
         sims.push(t.elapsed().as_secs_f64());
+        eprintln!(
+            "  {name} on {bname}: light simulation {}/{}: {:.3} s, {patches} peak patches",
+            run + 1,
+            runs.max(1),
+            t.elapsed().as_secs_f64()
+        );
     }
     let mut cs = eikon_view::render::camera_settings(&scene);
     cs.resolution = [args.width, args.height];
@@ -121,10 +131,12 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
             r.render(&quiet);
             median(
                 (0..frames.max(1))
-                    .map(|_| {
+                    .map(|i| {
                         let t = Instant::now();
                         r.render(&quiet);
-                        t.elapsed().as_secs_f64()
+                        let s = t.elapsed().as_secs_f64();
+                        frame_done(name, bname, i, frames, s);
+                        s
                     })
                     .collect(),
             )
@@ -141,8 +153,12 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
             r.render()?;
             median(
                 (0..frames.max(1))
-                    .map(|_| r.time_frames(1))
-                    .collect::<Result<Vec<_>, _>>()?,
+                    .map(|i| {
+                        let s = r.time_frames(1)?;
+                        frame_done(name, bname, i, frames, s);
+                        Ok(s)
+                    })
+                    .collect::<Result<Vec<_>, eikon_gpu::GpuError>>()?,
             )
         }
     };
@@ -165,6 +181,16 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
     }))
 }
 
+/// Say on stderr that frame `i` of `frames` took `seconds`.
+fn frame_done(name: &str, backend: &str, i: u32, frames: u32, seconds: f64) {
+    eprintln!(
+        "  {name} on {backend}: frame {}/{}: {:.1} ms",
+        i + 1,
+        frames.max(1),
+        1e3 * seconds
+    );
+}
+
 /// Run `eikon bench`.
 pub fn run(args: Args) -> Result<()> {
     let scenes: Vec<(String, String)> = if args.scene.is_empty() {
@@ -178,7 +204,7 @@ pub fn run(args: Args) -> Result<()> {
             .map(|p| {
                 let text = std::fs::read_to_string(p)
                     .with_context(|| format!("{}: cannot read the scene", p.display()))?;
-                Scene::parse(&text, &p.display().to_string())?;
+                args.grid.parse(&text, &p.display().to_string())?;
                 Ok((p.display().to_string(), text))
             })
             .collect::<Result<_>>()?
@@ -235,12 +261,21 @@ pub fn run(args: Args) -> Result<()> {
             for s in &args.scene {
                 cmd.arg("--scene").arg(s);
             }
+            if let Some(r) = args.grid.resolution {
+                cmd.args(["--resolution", &r.to_string()]);
+            }
+            if let Some(s) = args.grid.smoothing {
+                cmd.args(["--smoothing", &s.to_string()]);
+            }
+            if args.grid.preview {
+                cmd.arg("--preview");
+            }
+            // The child's progress (stderr) shows as it runs; its figures
+            // come back on stdout.
+            cmd.stderr(std::process::Stdio::inherit());
             let out = cmd.output().context("running a benchmark child")?;
             if !out.status.success() {
-                bail!(
-                    "{name} on {bname} failed: {}",
-                    String::from_utf8_lossy(&out.stderr).trim()
-                );
+                bail!("{name} on {bname} failed (its messages are above)");
             }
             let v: Value = serde_json::from_slice(&out.stdout)
                 .with_context(|| format!("{name} on {bname}: unreadable figures"))?;

@@ -2,11 +2,11 @@
 //! method, side by side, with each method's relative L1 difference from a
 //! reference and its time.
 
+use crate::label;
 use crate::output::{build_medium, write_atomic};
 use crate::render::{self, check_outputs, write_image, ExactOptions, Overrides, RenderMethod};
 use crate::simulate;
 use anyhow::{bail, Context, Result};
-use eikon_grid::Scene;
 use eikon_view::image::luminance;
 use eikon_view::{Exposure, Image, ToneMap};
 use serde_json::json;
@@ -62,24 +62,71 @@ pub fn relative_l1(a: &Image, b: &Image) -> f64 {
     }
 }
 
-/// The images side by side, separated by `gap` black columns.
-fn contact_sheet(images: &[&Image], gap: u32) -> Image {
-    let h = images.iter().map(|i| i.height).max().unwrap_or(0);
+/// Font scale of the labels of `images`: 2 where every label fits its
+/// panel at twice the font size (with its margins), else 1.
+fn label_scale(images: &[&Image], labels: &[String]) -> u32 {
+    let fits = images
+        .iter()
+        .zip(labels)
+        .all(|(im, text)| label::text_width(text, 2) + 8 <= im.width);
+    if fits && !labels.is_empty() {
+        2
+    } else {
+        1
+    }
+}
+
+/// Height of the black strip above the panels that holds their labels:
+/// the text with two font pixels of margin above and below.
+fn label_strip(scale: u32) -> u32 {
+    label::text_height(scale) + 4 * scale
+}
+
+/// The images side by side, separated by `gap` black columns, under a
+/// black strip with each one's label (`labels[i]` over `images[i]`) in
+/// `white`: a radiance that the sheet's tone curve maps to white. A label
+/// wider than its panel is cut off at the panel's edge.
+fn contact_sheet(images: &[&Image], labels: &[String], gap: u32, white: f32) -> Image {
+    let scale = label_scale(images, labels);
+    let top = label_strip(scale);
+    let h = images.iter().map(|i| i.height).max().unwrap_or(0) + top;
     let w =
         images.iter().map(|i| i.width).sum::<u32>() + gap * (images.len() as u32).saturating_sub(1);
     let mut sheet = Image::new(w, h);
     let mut x0 = 0;
-    for im in images {
+    for (k, im) in images.iter().enumerate() {
         for y in 0..im.height {
             for x in 0..im.width {
-                if let (Some(p), Some(q)) = (im.pixel(x, y), sheet.pixel_mut(x0 + x, y)) {
+                if let (Some(p), Some(q)) = (im.pixel(x, y), sheet.pixel_mut(x0 + x, top + y)) {
                     *q = p;
                 }
             }
         }
+        if let Some(text) = labels.get(k) {
+            let clip = label::Rect {
+                x0,
+                y0: 0,
+                x1: x0 + im.width,
+                y1: top,
+            };
+            label::draw_text(text, x0 + 2 * scale, 2 * scale, scale, clip, |x, y| {
+                if let Some(q) = sheet.pixel_mut(x, y) {
+                    *q = [white; 3];
+                }
+            });
+        }
         x0 += im.width + gap;
     }
     sheet
+}
+
+/// The label of one panel: the method, and its relative L1 difference from
+/// the reference (`None`: this is the reference).
+fn panel_label(method: &str, l1: Option<f64>) -> String {
+    match l1 {
+        None => format!("{method}  reference"),
+        Some(l1) => format!("{method}  L1 {l1:.3}"),
+    }
 }
 
 /// Run `eikon compare`.
@@ -95,7 +142,7 @@ pub fn run(args: Args) -> Result<()> {
             args.reference.name()
         );
     }
-    let scene = Scene::load(&args.scene)?;
+    let scene = args.overrides.grid.load(&args.scene)?;
     // Refuse a scene the exact methods cannot render before any work.
     crate::exact::mesh_medium(&scene)?;
     crate::exact::mesh_lights(&scene)?;
@@ -162,7 +209,26 @@ pub fn run(args: Args) -> Result<()> {
             "max_luminance": lum.iter().copied().fold(0.0, f64::max),
         }));
     }
-    let sheet = contact_sheet(&results.iter().map(|r| &r.1).collect::<Vec<_>>(), 4);
+    let labels: Vec<String> = results
+        .iter()
+        .map(|(m, image, _)| {
+            let l1 = (*m != args.reference).then(|| relative_l1(image, reference));
+            panel_label(m.name(), l1)
+        })
+        .collect();
+    // Radiance that the tone curve maps to white: s L / (1 + s L) rounds
+    // to 255 from s L = 221 on.
+    let white = if scale > 0.0 && scale.is_finite() {
+        (1e4 / scale).min(f64::from(f32::MAX) / 4.0) as f32
+    } else {
+        1e4
+    };
+    let sheet = contact_sheet(
+        &results.iter().map(|r| &r.1).collect::<Vec<_>>(),
+        &labels,
+        4,
+        white,
+    );
     write_image(&args.output.join("contact.png"), &sheet, &tone)?;
     let table = json!({
         "scene": args.scene.display().to_string(),
@@ -208,4 +274,80 @@ pub fn run(args: Args) -> Result<()> {
         );
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn flat(w: u32, h: u32, v: f32) -> Image {
+        Image::from_data(w, h, vec![[v; 3]; (w * h) as usize]).unwrap()
+    }
+
+    #[test]
+    fn panels_sit_under_a_strip_with_their_labels() {
+        let (a, b) = (flat(40, 10, 0.5), flat(30, 12, 0.25));
+        let labels = ["walter  L1 0.044".to_string(), "reference".to_string()];
+        let white = 1e4;
+        let sheet = contact_sheet(&[&a, &b], &labels, 4, white);
+        let top = label_strip(1);
+        assert_eq!(top, 11);
+        assert_eq!((sheet.width, sheet.height), (40 + 4 + 30, 12 + top));
+        // The panels, moved down by the strip.
+        assert_eq!(sheet.pixel(0, top), Some([0.5; 3]));
+        assert_eq!(sheet.pixel(39, top + 9), Some([0.5; 3]));
+        assert_eq!(sheet.pixel(44, top), Some([0.25; 3]));
+        assert_eq!(sheet.pixel(73, top + 11), Some([0.25; 3]));
+        // The gap and the strip are black but for the letters, in white.
+        assert_eq!(sheet.pixel(41, top + 3), Some([0.0; 3]));
+        let lit = |x0: u32, x1: u32| {
+            (0..top)
+                .flat_map(|y| (x0..x1).map(move |x| (x, y)))
+                .filter(|&(x, y)| sheet.pixel(x, y) == Some([white; 3]))
+                .count()
+        };
+        assert!(lit(0, 40) > 20 && lit(44, 74) > 20);
+        assert_eq!(lit(40, 44), 0, "a label spilled into the gap");
+        let others = (0..top)
+            .flat_map(|y| (0..sheet.width).map(move |x| (x, y)))
+            .filter(
+                |&(x, y)| !matches!(sheet.pixel(x, y), Some(p) if p == [0.0; 3] || p == [white; 3]),
+            )
+            .count();
+        assert_eq!(others, 0);
+        // The first letter, 'w', at (2, 2): its first column is lit from
+        // the third font row down (x-height letters start there).
+        assert_eq!(sheet.pixel(2, 4), Some([white; 3]));
+        assert_eq!(sheet.pixel(2, 3), Some([0.0; 3]));
+        // The tone curve maps the label white to 8-bit white.
+        let tone = ToneMap {
+            exposure: Exposure::Fixed(0.0),
+            ..ToneMap::default()
+        };
+        assert_eq!(tone.map_pixel([white; 3], 1.0), [255; 3]);
+    }
+
+    #[test]
+    fn labels_are_twice_the_size_where_they_fit() {
+        let text = "eikonal  L1 0.123".to_string();
+        // 17 characters: 101 font pixels, 202 at 2x, plus 2x margins.
+        assert_eq!(label::text_width(&text, 2), 202);
+        let a = flat(210, 20, 0.1);
+        let sheet = contact_sheet(&[&a], std::slice::from_ref(&text), 4, 1.0);
+        assert_eq!(label_strip(2), 22);
+        assert_eq!(sheet.height, 20 + label_strip(2));
+        let narrow = flat(209, 20, 0.1);
+        let sheet = contact_sheet(&[&a, &narrow], &[text.clone(), text], 4, 1.0);
+        assert_eq!(sheet.height, 20 + label_strip(1));
+    }
+
+    #[test]
+    fn labels_name_the_method_and_its_difference() {
+        assert_eq!(panel_label("walter", Some(0.04412)), "walter  L1 0.044");
+        assert_eq!(panel_label("holzschuch", None), "holzschuch  reference");
+        assert_eq!(
+            panel_label("straight", Some(f64::INFINITY)),
+            "straight  L1 inf"
+        );
+    }
 }

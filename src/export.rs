@@ -46,6 +46,8 @@ pub struct Args {
     /// Print what was written as JSON.
     #[arg(long)]
     json: bool,
+    #[command(flatten)]
+    grid: crate::grid::GridFlags,
 }
 
 /// The largest finite half float.
@@ -267,7 +269,7 @@ pub fn run(args: Args) -> Result<()> {
             bail!("{}: --npy: exists and is not a directory", dir.display());
         }
     }
-    let scene = Scene::load(&args.scene)?;
+    let scene = args.grid.load(&args.scene)?;
     let medium = build_medium(&scene)?;
     let lights = match &args.light {
         Some(dir) => load_light_volumes(dir, &scene, &medium)?,

@@ -19,6 +19,8 @@ pub struct Args {
     /// Print the description as JSON.
     #[arg(long)]
     json: bool,
+    #[command(flatten)]
+    grid: crate::grid::GridFlags,
 }
 
 fn describe_index(p: &IndexProfile) -> String {
@@ -69,7 +71,7 @@ fn describe_light(l: &Light) -> String {
 
 /// Run `eikon info`.
 pub fn run(args: Args) -> Result<()> {
-    let scene = Scene::load(&args.scene)?;
+    let scene = Scene::load_with(&args.scene, &args.grid.grid_override())?;
     let g = &scene.grid.geometry;
     let mem = Medium::memory_estimate(&scene);
     let built = if args.no_build {
@@ -145,10 +147,13 @@ pub fn run(args: Args) -> Result<()> {
             "off"
         }
     );
+    let (light, counters) = crate::grid::light_volume_bytes(&scene);
     println!(
-        "memory       {} resident, {} peak while building",
+        "memory       {} resident, {} peak while building; light volumes {} (+{} while simulating one light)",
         format_bytes(mem.resident),
-        format_bytes(mem.peak)
+        format_bytes(mem.peak),
+        format_bytes(light),
+        format_bytes(counters)
     );
     if let Some((lo, hi, bmax, secs)) = built {
         println!("index range  {lo:.5} .. {hi:.5} (voxelized and smoothed; built in {secs:.2} s)");

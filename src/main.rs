@@ -5,7 +5,10 @@ mod bench;
 mod compare;
 mod exact;
 mod export;
+mod gallery;
+mod grid;
 mod info;
+mod label;
 mod output;
 mod probe;
 mod render;
@@ -49,6 +52,8 @@ enum Command {
     Compare(compare::Args),
     /// Write a scene's volumes (index, gradient, extinction, light) as OpenVDB grids and/or NumPy arrays.
     Export(export::Args),
+    /// Make the pictures of docs/gallery from its manifest, or check that they still match what this code renders.
+    Gallery(gallery::Args),
 }
 
 fn main() -> ExitCode {
@@ -72,6 +77,7 @@ fn main() -> ExitCode {
         Command::Export(a) => export::run(a),
         Command::Compare(a) => compare::run(a),
         Command::Bench(a) => bench::run(a),
+        Command::Gallery(a) => gallery::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

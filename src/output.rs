@@ -95,6 +95,15 @@ pub fn fmt_vec(v: DVec3) -> String {
     format!("({:.6}, {:.6}, {:.6})", v.x, v.y, v.z)
 }
 
+/// Copy `from` to `to` through a temporary file beside `to`.
+pub fn copy_atomic(from: &Path, to: &Path) -> Result<()> {
+    let bytes = std::fs::read(from).with_context(|| format!("{}: cannot read", from.display()))?;
+    write_atomic(to, |w| {
+        w.write_all(&bytes)
+            .with_context(|| format!("{}: write failed", to.display()))
+    })
+}
+
 /// Build a scene's medium with a progress bar on stderr (drawn only when
 /// stderr is a terminal).
 pub fn build_medium(scene: &eikon_grid::Scene) -> Result<eikon_grid::Medium> {

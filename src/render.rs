@@ -59,6 +59,8 @@ pub struct Overrides {
     pub seed: Option<u64>,
     #[command(flatten)]
     pub backend: crate::backend::BackendFlag,
+    #[command(flatten)]
+    pub grid: crate::grid::GridFlags,
 }
 
 /// How `eikon render` forms the image.
@@ -134,7 +136,7 @@ pub struct Args {
 /// Run `eikon render`.
 pub fn run(args: Args) -> Result<()> {
     check_outputs(&args.output)?;
-    let scene = Scene::load(&args.scene)?;
+    let scene = args.overrides.grid.load(&args.scene)?;
     if args.method != RenderMethod::Eikonal {
         if args.light.is_some() {
             bail!("--light: light volumes are for --method eikonal; the exact methods connect to the lights themselves");
@@ -203,6 +205,18 @@ pub fn run(args: Args) -> Result<()> {
 /// The camera of `scene` with the command line's overrides.
 pub fn camera(scene: &Scene, overrides: &Overrides) -> Result<Camera> {
     let mut cs = eikon_view::render::camera_settings(scene);
+    if overrides.grid.preview {
+        // At most PREVIEW_WIDTH wide, the scene's aspect ratio, one sample.
+        let [w, h] = cs.resolution;
+        if w > crate::grid::PREVIEW_WIDTH {
+            let scale = crate::grid::PREVIEW_WIDTH as f64 / w as f64;
+            cs.resolution = [
+                crate::grid::PREVIEW_WIDTH,
+                ((h as f64 * scale).round() as u32).max(1),
+            ];
+        }
+        cs.samples = 1;
+    }
     if let Some(w) = overrides.width {
         cs.resolution[0] = w;
     }
@@ -302,8 +316,8 @@ pub fn render_image(
         let started = Instant::now();
         let renderer =
             eikon_view::gpu::GpuRenderer::new(gpu, medium, volumes, &surroundings, &camera, opts)?;
-        let image = renderer.render()?;
-        return Ok((image, Stats::default(), started.elapsed().as_secs_f64()));
+        let (image, stats) = renderer.render_with_stats()?;
+        return Ok((image, stats, started.elapsed().as_secs_f64()));
     }
     let renderer = Renderer::new(medium, volumes, &surroundings, &camera, opts);
 
@@ -417,7 +431,7 @@ pub fn load_light_volumes(dir: &Path, scene: &Scene, medium: &Medium) -> Result<
         || (max - g.max).abs().max_element() > tol
     {
         bail!(
-            "{}: grid: the light volumes are {}x{}x{} over {:?} .. {:?}, but {} is {}x{}x{} over {:?} .. {:?}: simulate this scene again",
+            "{}: grid: the light volumes are {}x{}x{} over {:?} .. {:?}, but {} is {}x{}x{} over {:?} .. {:?}: simulate this scene again, or render with the --resolution (or --preview) it was simulated with",
             sidecar.display(),
             dims[0], dims[1], dims[2], min.to_array(), max.to_array(),
             scene.origin,

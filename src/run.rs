@@ -53,14 +53,14 @@ fn simulate_and_render(
 
 /// Run `eikon run`.
 pub fn run(args: Args) -> Result<()> {
-    let scene = Scene::load(&args.scene)?;
+    let scene = args.overrides.grid.load(&args.scene)?;
     let images = ["image.exr", "image.png"].map(|f| args.output.join(f));
     simulate_and_render(&args.scene, &scene, &args.output, &args.overrides, &images)
 }
 
 /// Run `eikon demo`.
 pub fn demo(args: DemoArgs) -> Result<()> {
-    let scene = Scene::parse(DEMO_SCENE, "<demo scene>")?;
+    let scene = args.overrides.grid.parse(DEMO_SCENE, "<demo scene>")?;
     std::fs::create_dir_all(&args.output).with_context(|| {
         format!(
             "{}: cannot create the output directory",

@@ -95,6 +95,8 @@ pub struct Args {
     json: bool,
     #[command(flatten)]
     backend: BackendFlag,
+    #[command(flatten)]
+    grid: crate::grid::GridFlags,
     /// Print nothing (for commands that simulate on the way to something else).
     #[arg(skip)]
     quiet: bool,
@@ -122,6 +124,23 @@ fn light_json(l: &Light) -> Value {
             "power_unit": "W (of the unrestricted point light)",
         }),
     }
+}
+
+/// The time left when `step` of about `crossing` steps took `elapsed`
+/// seconds: the light's straight crossing at the pace so far, or the
+/// steps past it (refracted and trapped light) when it is over.
+fn eta(elapsed: f64, step: usize, crossing: usize) -> String {
+    if step == 0 {
+        return "starting".to_string();
+    }
+    if step >= crossing {
+        return format!("{} steps past the straight crossing", step - crossing);
+    }
+    let left = elapsed * (crossing - step) as f64 / step as f64;
+    format!(
+        "about {} left",
+        indicatif::HumanDuration(std::time::Duration::from_secs_f64(left))
+    )
 }
 
 /// The summary of one light as JSON.
@@ -232,7 +251,7 @@ impl Args {
 /// Run `eikon simulate`.
 pub fn run(args: Args) -> Result<()> {
     args.options()?;
-    let scene = Scene::load(&args.scene)?;
+    let scene = args.grid.load(&args.scene)?;
     let medium = build_medium(&scene)?;
     let gpu_asked = args.backend.backend == Some(crate::backend::BackendArg::Gpu);
     let backend = if args.method == SimMethod::Photons {
@@ -304,8 +323,12 @@ pub fn simulate(
         let t = Instant::now();
         let (volume, summary) = match args.method {
             SimMethod::Wavefront => {
-                let progress = |step, live| {
-                    bar.set_message(format!("step {step}, {live} live patches"));
+                let crossing = eikon_wavefront::crossing_steps(light, medium, &opts);
+                let progress = |step: usize, live: usize| {
+                    bar.set_message(format!(
+                        "step {step} of ~{crossing}, {live} live patches, {}",
+                        eta(t.elapsed().as_secs_f64(), step, crossing)
+                    ));
                     bar.tick();
                 };
                 match &gpu {

@@ -8,7 +8,7 @@ use glam::DVec3;
 use serde_json::json;
 use std::path::PathBuf;
 
-#[derive(Clone, Copy, ValueEnum)]
+#[derive(Clone, Copy, PartialEq, Eq, Debug, ValueEnum)]
 enum Integrator {
     /// Forward Euler (eqs 11-12), first order.
     Euler,
@@ -18,13 +18,25 @@ enum Integrator {
     Dopri5,
 }
 
-#[derive(Clone, Copy, ValueEnum)]
+#[derive(Clone, Copy, PartialEq, Eq, Debug, ValueEnum)]
 enum FormArg {
     /// Equal distance per step (eqs 9-10), as for eye rays.
     Distance,
     /// Equal optical path per step (eqs 14-15), as for light.
     Time,
 }
+
+/// The flag value that selects `v` (`rk4`, `dopri5`, `time`...): what the
+/// user typed, for the output, rather than an internal type name.
+fn flag_name<T: ValueEnum>(v: &T) -> String {
+    v.to_possible_value()
+        .map(|p| p.get_name().to_string())
+        .unwrap_or_default()
+}
+
+/// A path longer than this many diagonals of the bounds has circled inside
+/// for a long time; its exit deserves a word of caution.
+const LONG_PATH_DIAGONALS: f64 = 10.0;
 
 /// Arguments of `eikon trace`.
 #[derive(clap::Args)]
@@ -129,6 +141,11 @@ pub fn run(args: Args) -> Result<()> {
         )
     };
     let end = trace(field.as_ref(), &geom, args.origin, args.dir, &opts);
+    let integrator = flag_name(&args.integrator);
+    let form_name = flag_name(&args.form);
+    let exited = end.status == eikon_grid::Status::Exited;
+    let length: f64 = end.path.windows(2).map(|w| w[0].distance(w[1])).sum();
+    let diagonal = (geom.max - geom.min).length();
     let every = args.every;
     let shown: Vec<DVec3> = if every == 0 {
         Vec::new()
@@ -139,12 +156,15 @@ pub fn run(args: Args) -> Result<()> {
         let v = json!({
             "scene": args.scene.display().to_string(),
             "field": source,
-            "integrator": format!("{:?}", opts.method),
-            "form": format!("{:?}", opts.form),
+            "integrator": integrator,
+            "form": form_name,
             "step_voxels": args.step,
             "status": end.status.name(),
             "entry": end.entry.to_array(),
-            "exit": end.position.to_array(),
+            // Only an exited ray has an exit; "position" is where it ended.
+            "exit": exited.then(|| end.position.to_array()),
+            "position": end.position.to_array(),
+            "path_length": length,
             "direction": end.direction.to_array(),
             "optical_path": end.optical_path,
             "steps": end.steps,
@@ -155,8 +175,8 @@ pub fn run(args: Args) -> Result<()> {
     } else {
         println!("scene         {} ({source})", args.scene.display());
         println!(
-            "integrator    {:?}, {:?} form, step {} voxel = {:.6} world units",
-            opts.method, opts.form, args.step, opts.step
+            "integrator    {integrator}, {form_name} form, step {} voxel = {:.6} world units",
+            args.step, opts.step
         );
         if every > 0 {
             println!("path          {} points (every {every}):", end.path.len());
@@ -166,15 +186,21 @@ pub fn run(args: Args) -> Result<()> {
         }
         println!("status        {}", end.status.name());
         println!("entry         {}", fmt_vec(end.entry));
-        let label = if end.status == eikon_grid::Status::Exited {
-            "exit"
-        } else {
-            "last position"
-        };
+        let label = if exited { "exit" } else { "last position" };
         println!("{label:<13} {}", fmt_vec(end.position));
         println!("direction     {}", fmt_vec(end.direction));
         println!("optical path  {:.9}", end.optical_path);
         println!("steps         {} ({} rejected)", end.steps, end.rejected);
+        println!("path length   {length:.6} world units");
+    }
+    if exited && length > LONG_PATH_DIAGONALS * diagonal {
+        // A ray trapped by total internal reflection can only leave the
+        // integrated path through step and voxel error: say so rather
+        // than let "exited" read as the physics.
+        eprintln!(
+            "note: the ray exited after a path {:.0} times the bounds' diagonal; a trapped ray (total internal reflection) can leak out through step or voxel error: check with a smaller --step",
+            length / diagonal
+        );
     }
     match end.status {
         eikon_grid::Status::Exited | eikon_grid::Status::Missed => Ok(()),
@@ -185,5 +211,26 @@ pub fn run(args: Args) -> Result<()> {
             )
         }
         eikon_grid::Status::Diverged => bail!("the ray diverged (non-finite state)"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn output_names_are_the_flag_values() {
+        assert_eq!(flag_name(&Integrator::Euler), "euler");
+        assert_eq!(flag_name(&Integrator::Rk4), "rk4");
+        assert_eq!(flag_name(&Integrator::Dopri5), "dopri5");
+        assert_eq!(flag_name(&FormArg::Distance), "distance");
+        assert_eq!(flag_name(&FormArg::Time), "time");
+        // And each name parses back to its value.
+        for i in Integrator::value_variants() {
+            assert_eq!(Integrator::from_str(&flag_name(i), false), Ok(*i));
+        }
+        for f in FormArg::value_variants() {
+            assert_eq!(FormArg::from_str(&flag_name(f), false), Ok(*f));
+        }
     }
 }

@@ -59,6 +59,128 @@ fn every_config_loads_and_builds() {
     assert!(n >= 4, "expected the four required scenes, found {n}");
 }
 
+/// Every shipped scene runs end to end (`eikon run`) at a small
+/// resolution, writes its image, and is listed in the README.
+#[test]
+fn every_config_runs_and_is_in_the_readme() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let mut names = Vec::new();
+    for e in std::fs::read_dir(root.join("configs")).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_none_or(|x| x != "toml") {
+            continue;
+        }
+        let name = p.file_name().unwrap().to_str().unwrap().to_string();
+        let out = tmp.path().join(&name);
+        let o = eikon(&[
+            "run",
+            p.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--resolution",
+            "12",
+            "--width",
+            "32",
+            "--height",
+            "24",
+        ]);
+        assert!(
+            o.status.success(),
+            "eikon run {name} failed: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        // The flag's grid is what was built.
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(
+            err.contains("grid ") && err.contains("voxels"),
+            "{name}: {err}"
+        );
+        assert!(out.join("image.png").is_file(), "{name}: no image");
+        let sidecar: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("light_volumes.json")).unwrap())
+                .unwrap();
+        let dims: Vec<u64> = serde_json::from_value(sidecar["grid"]["dims"].clone()).unwrap();
+        assert_eq!(dims.iter().max(), Some(&12), "{name}: dims {dims:?}");
+        assert!(
+            readme.contains(&format!("`{name}`")),
+            "README.md does not list configs/{name}"
+        );
+        names.push(name);
+    }
+    assert!(names.len() >= 10, "{names:?}");
+}
+
+/// `--resolution` and `--smoothing` change the grid that is built; a light
+/// volume simulated at one resolution is refused by a render at another,
+/// with a hint naming the flag.
+#[test]
+fn resolution_flag_overrides_the_scene_grid() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = config("glass-sphere.toml");
+    let light = tmp.path().join("light");
+    let o = eikon(&[
+        "simulate",
+        &scene,
+        "-o",
+        light.to_str().unwrap(),
+        "--resolution",
+        "10",
+        "--smoothing",
+        "0.5",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("grid 10 x 10 x 10 voxels, smoothing 0.5 voxel"),
+        "{err}"
+    );
+    let png = tmp.path().join("a.png");
+    let render = [
+        "render",
+        &scene,
+        "--light",
+        light.to_str().unwrap(),
+        "-o",
+        png.to_str().unwrap(),
+        "--width",
+        "8",
+        "--height",
+        "6",
+    ];
+    let e = expect_error(&render, &["--resolution"]);
+    assert!(e.contains("light_volumes.json"), "{e}");
+    eikon_ok(&[&render[..], &["--resolution", "10"]].concat());
+    assert!(png.is_file());
+    // Out-of-range values are refused by name.
+    for bad in [
+        vec!["--resolution", "0"],
+        vec!["--smoothing", "9"],
+        vec!["--smoothing", "nan"],
+    ] {
+        let mut a = vec!["simulate", &scene, "-o", light.to_str().unwrap()];
+        a.extend(bad.iter().copied());
+        let o = eikon(&a);
+        assert!(!o.status.success());
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains(bad[0]), "{bad:?}: {err}");
+    }
+    // --preview caps the grid at 48 voxels and the image at 320 pixels.
+    let o = eikon(&[
+        "run",
+        &config("glass-sphere.toml"),
+        "-o",
+        tmp.path().join("p").to_str().unwrap(),
+        "--preview",
+        "--resolution",
+        "16",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("rendered 320 x 240"));
+}
+
 #[test]
 fn trace_reports_exit_through_luneburg_focus() {
     // A ray at impact parameter R/2 leaves the lens at the focus (0, 0, R)

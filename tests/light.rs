@@ -238,6 +238,30 @@ fn plane_wave_decays_by_beer_lambert() {
     assert!(summary.energy_imbalance() < 1e-9, "{summary:?}");
 }
 
+/// The estimate behind `simulate`'s time left: in a homogeneous medium
+/// the wavefront crosses the box in straight lines, so the steps it takes
+/// are the estimate's, for a plane wave (oblique) and a point light inside
+/// and outside the box, at the medium's index n = 1.33.
+#[test]
+fn crossing_steps_match_a_straight_crossing() {
+    for light in [
+        "type = \"directional\"\ndirection = [1, 0.45, -0.3]",
+        "type = \"point\"\nposition = [0.3, -0.2, 0.1]",
+        "type = \"point\"\nposition = [-2.5, 0.1, 0.2]",
+    ] {
+        let (scene, m) = medium(&format!(
+            "[grid]\nresolution = 24\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
+             [ambient]\nindex = 1.33\n[[light]]\n{light}\npower = [1, 1, 1]\n"
+        ));
+        let opts = Options::default();
+        let want = eikon_wavefront::crossing_steps(&scene.lights[0], &m, &opts);
+        let (_, s) = run(&scene, &m, 0);
+        println!("{light:?}: {} steps, estimate {want}", s.steps);
+        let diff = (s.steps as f64 - want as f64).abs();
+        assert!(diff <= 0.05 * want as f64 + 2.0, "{} vs {want}", s.steps);
+    }
+}
+
 #[test]
 fn energy_is_accounted_for() {
     let (scene, m) = medium(GLASS_SPHERE);

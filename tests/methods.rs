@@ -93,10 +93,11 @@ fn compare_renders_every_method_and_measures_them_against_the_reference() {
     ] {
         assert!(out.join(f).is_file(), "{f}");
     }
-    // The contact sheet holds the four 16-pixel images and 3 gaps of 4.
+    // The contact sheet holds the four 16-pixel images and 3 gaps of 4,
+    // under an 11-pixel strip with their labels.
     let decoder = png::Decoder::new(std::fs::File::open(out.join("contact.png")).unwrap());
     let info = decoder.read_info().unwrap().info().clone();
-    assert_eq!((info.width, info.height), (4 * 16 + 3 * 4, 16));
+    assert_eq!((info.width, info.height), (4 * 16 + 3 * 4, 16 + 11));
 }
 
 #[test]

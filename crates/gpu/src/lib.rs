@@ -18,7 +18,7 @@ use wgpu::util::DeviceExt;
 #[derive(Debug, thiserror::Error)]
 pub enum GpuError {
     /// No Vulkan, Metal or DX12 adapter.
-    #[error("no GPU adapter found ({wanted}); install a Vulkan driver (on Linux without a GPU: Mesa's lavapipe, package mesa-vulkan-drivers) or use --backend cpu")]
+    #[error("no GPU adapter found ({wanted}): the GPU backend needs a hardware GPU's Vulkan, Metal or DX12 driver; without one, use --backend cpu (a software Vulkan such as lavapipe is for testing only, slower than the CPU backend)")]
     NoAdapter {
         /// The backends that were looked for.
         wanted: String,

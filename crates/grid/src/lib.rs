@@ -34,5 +34,5 @@ pub use object::{GridExtinction, GridIndex, IndexProfile, Material, Object};
 pub use ray::{
     trace, trace_many, Form, IndexField, Method, RayEnd, RayState, Status, TraceOptions,
 };
-pub use scene::{Background, CameraSettings, Light, Receiver, RenderSettings, Scene};
+pub use scene::{Background, CameraSettings, GridOverride, Light, Receiver, RenderSettings, Scene};
 pub use shape::Shape;

@@ -41,7 +41,7 @@ struct RawScene {
     render: Option<RawRender>,
 }
 
-#[derive(Deserialize)]
+#[derive(Clone, Copy, Deserialize)]
 #[serde(
     untagged,
     expecting = "expected a positive whole number of voxels or [nx, ny, nz]"
@@ -771,21 +771,75 @@ impl Checker<'_> {
     }
 }
 
+/// Changes to a scene's `[grid]` from outside the file (the command line's
+/// `--resolution`, `--smoothing` and `--preview`). They are applied before
+/// the scene is checked, so every check and the memory estimate see the
+/// grid that will be built.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GridOverride {
+    /// Voxels along the longest axis; the other axes keep the proportions
+    /// of the scene's own resolution.
+    pub resolution: Option<u64>,
+    /// At most this many voxels along the longest axis (a lower
+    /// `resolution` or scene resolution stays).
+    pub max_resolution: Option<u64>,
+    /// Gaussian sigma in voxels.
+    pub smoothing: Option<f64>,
+}
+
+impl GridOverride {
+    /// The scene's resolution with this override applied.
+    fn apply(&self, r: &RawResolution) -> RawResolution {
+        let longest = match r {
+            RawResolution::Longest(n) => *n,
+            RawResolution::PerAxis(d) => d.iter().copied().max().unwrap_or(0),
+        };
+        let target = match (self.resolution, self.max_resolution) {
+            (Some(n), Some(m)) => n.min(m),
+            (Some(n), None) => n,
+            (None, Some(m)) if longest > m => m,
+            _ => return *r,
+        };
+        match r {
+            RawResolution::Longest(_) => RawResolution::Longest(target),
+            // Keep the axes' proportions: scale each by target / longest and
+            // round, at least one voxel.
+            RawResolution::PerAxis(d) => RawResolution::PerAxis(d.map(|x| {
+                if longest == 0 {
+                    x
+                } else {
+                    ((x as f64 * target as f64 / longest as f64).round() as u64).max(1)
+                }
+            })),
+        }
+    }
+}
+
 impl Scene {
     /// Read and check a scene file.
     pub fn load(path: &Path) -> Result<Scene> {
+        Scene::load_with(path, &GridOverride::default())
+    }
+
+    /// Read a scene file, change its `[grid]` by `grid`, and check it.
+    pub fn load_with(path: &Path, grid: &GridOverride) -> Result<Scene> {
         let text = std::fs::read_to_string(path).map_err(|source| Error::Read {
             path: path.to_path_buf(),
             source,
         })?;
-        Scene::parse(&text, &path.display().to_string())
+        Scene::parse_with(&text, &path.display().to_string(), grid)
     }
 
     /// Parse and check scene text; `origin` names it in errors.
     pub fn parse(text: &str, origin: &str) -> Result<Scene> {
+        Scene::parse_with(text, origin, &GridOverride::default())
+    }
+
+    /// [`Scene::parse`] with the `[grid]` changed by `grid` before the checks.
+    pub fn parse_with(text: &str, origin: &str, grid: &GridOverride) -> Result<Scene> {
         let c = Checker { origin, text };
         let de = toml::Deserializer::new(text);
-        let raw: RawScene = serde_path_to_error::deserialize(de).map_err(|e| {
+        let mut raw: RawScene = serde_path_to_error::deserialize(de).map_err(|e| {
             let field = e.path().to_string();
             let inner = e.into_inner();
             Error::Invalid {
@@ -797,6 +851,10 @@ impl Scene {
                 message: inner.message().trim().replace('\n', ": "),
             }
         })?;
+        raw.grid.resolution = grid.apply(&raw.grid.resolution);
+        if let Some(sigma) = grid.smoothing {
+            raw.grid.smoothing = sigma;
+        }
         Scene::check(raw, &c)
     }
 
@@ -1732,5 +1790,48 @@ priority = 2
             e.starts_with("bad.toml:5:1: invalid array: expected `]`"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn grid_override_sets_the_longest_axis_and_keeps_proportions() {
+        let at = |text: &str, g: GridOverride| {
+            let s = Scene::parse_with(text, "t.toml", &g).unwrap();
+            (s.grid.geometry.dims, s.grid.smoothing)
+        };
+        // One resolution for the longest axis: the override replaces it.
+        let cube = GLASS_OF_WATER;
+        let r = |n| GridOverride {
+            resolution: Some(n),
+            ..GridOverride::default()
+        };
+        assert_eq!(at(cube, GridOverride::default()), ([32; 3], 0.75));
+        assert_eq!(at(cube, r(12)), ([12; 3], 0.75));
+        // Per-axis resolutions scale together.
+        let slab = cube.replace("resolution = 32", "resolution = [96, 32, 128]");
+        assert_eq!(at(&slab, r(64)).0, [48, 16, 64]);
+        assert_eq!(at(&slab, r(4)).0, [3, 1, 4]);
+        // A cap lowers only what exceeds it.
+        let cap = |m| GridOverride {
+            max_resolution: Some(m),
+            ..GridOverride::default()
+        };
+        assert_eq!(at(cube, cap(48)).0, [32; 3]);
+        assert_eq!(at(cube, cap(16)).0, [16; 3]);
+        assert_eq!(at(&slab, cap(32)).0, [24, 8, 32]);
+        let both = GridOverride {
+            resolution: Some(64),
+            max_resolution: Some(20),
+            smoothing: Some(0.5),
+        };
+        assert_eq!(at(cube, both), ([20; 3], 0.5));
+        // The override passes through the same checks as the file.
+        let bad = GridOverride {
+            smoothing: Some(9.0),
+            ..GridOverride::default()
+        };
+        let e = Scene::parse_with(cube, "t.toml", &bad)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("grid.smoothing"), "{e}");
     }
 }

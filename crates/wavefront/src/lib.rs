@@ -351,6 +351,37 @@ impl Plan {
     }
 }
 
+/// Steps a wavefront from `light` takes to cross `medium` along straight
+/// lines at its lowest index: where the light enters to the farthest point
+/// it reaches. Refraction, trapped light and the step limit make the real
+/// count differ; the command line uses it for an estimate of the time left.
+pub fn crossing_steps(light: &Light, medium: &Medium, opts: &Options) -> usize {
+    let g = &medium.geometry;
+    let size = g.max - g.min;
+    let distance = match light {
+        // The wave starts where it enters the box; the longest chord of
+        // the box along the beam ends it.
+        Light::Directional { direction, .. } => {
+            let d = direction.normalize_or_zero().abs();
+            (0..3)
+                .filter(|&i| d[i] > 0.0)
+                .map(|i| size[i] / d[i])
+                .fold(f64::INFINITY, f64::min)
+        }
+        // From the nearest point of the box to its farthest corner.
+        Light::Point { position, .. } | Light::Spot { position, .. } => {
+            let p = *position;
+            let near = p.clamp(g.min, g.max).distance(p);
+            let far = (p - g.min).abs().max((p - g.max).abs()).length();
+            far - near
+        }
+    };
+    // The equal-time step advances dt / n in space [Ihrke07 eqs 14-15].
+    let n = (medium.index_range().0 as f64).max(1e-6);
+    let dt = opts.step * g.voxel_size();
+    (distance * n / dt).ceil().clamp(1.0, 1e12) as usize
+}
+
 /// Wavefront `g` of `groups`: the colour channels it carries (a mask) and,
 /// with dispersion, the one channel it is traced for.
 pub(crate) fn group(g: usize, groups: usize) -> ([f64; 3], Option<usize>) {

@@ -110,6 +110,22 @@ struct Pass {
 @group(0) @binding(17) var<storage, read> rays: array<f32>;
 // Sum of the samples' radiance per pixel, RGB.
 @group(0) @binding(18) var<storage, read_write> accum: array<f32>;
+// The frame's counters (render.rs `Stats`) as 64-bit integers in two
+// words, low first: ray-equation steps, then empty-space skips. Counted in
+// pass 0 only: every pass marches the same rays.
+@group(0) @binding(19) var<storage, read_write> counters: array<atomic<u32>, 4>;
+
+// This invocation's steps and skips, (low, high) words.
+var<private> n_steps: vec2<u32>;
+var<private> n_skips: vec2<u32>;
+// The workgroup's sums, as `counters`.
+var<workgroup> wg_counts: array<atomic<u32>, 4>;
+
+// Add one to a two-word count.
+fn bump(c: vec2<u32>) -> vec2<u32> {
+    let lo = c.x + 1u;
+    return vec2<u32>(lo, c.y + select(0u, 1u, lo == 0u));
+}
 
 fn max3(v: vec3<f32>) -> f32 {
     return max(v.x, max(v.y, v.z));
@@ -267,12 +283,16 @@ struct Crossing {
     n: f32,
     sigma: vec3<f32>,
     t: f32,
+    // The axis of the face the line leaves by, and that face's world
+    // coordinate along it.
+    axis: u32,
+    face: f32,
 }
 
 // `crossing`: if p lies in a uniform block, its medium and the distance
 // along d to where the line leaves the block.
 fn crossing(ch: u32, p: vec3<f32>, d: vec3<f32>) -> Crossing {
-    let miss = Crossing(false, 0.0, vec3<f32>(0.0), 0.0);
+    let miss = Crossing(false, 0.0, vec3<f32>(0.0), 0.0, 0u, 0.0);
     let u = (p - P.gmin.xyz) * P.inv_block.xyz;
     if !(u.x >= 0.0 && u.y >= 0.0 && u.z >= 0.0) {
         return miss;
@@ -292,8 +312,16 @@ fn crossing(ch: u32, p: vec3<f32>, d: vec3<f32>) -> Crossing {
     let ahead = select(cell, cell + 1.0, du > vec3<f32>(0.0));
     let ta = select(vec3<f32>(INF), (ahead - u) / du, du != vec3<f32>(0.0));
     let t = min3(ta);
+    var axis = 0u;
+    if ta.y < ta[axis] {
+        axis = 1u;
+    }
+    if ta.z < ta[axis] {
+        axis = 2u;
+    }
+    let face = P.gmin[axis] + ahead[axis] / P.inv_block[axis];
     let sigma = vec3<f32>(bitcast<f32>(skip[base + 1u]), bitcast<f32>(skip[base + 2u]), bitcast<f32>(skip[base + 3u]));
-    return Crossing(true, bitcast<f32>(nb), sigma, max(t, 0.0));
+    return Crossing(true, bitcast<f32>(nb), sigma, max(t, 0.0), axis, face);
 }
 
 // ---- Grid bounds (geometry.rs) ----
@@ -707,6 +735,7 @@ fn march(o: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
                 w.v = dir * n;
                 w.mirrored = false;
                 w.has_incident = false;
+                n_skips = bump(n_skips);
                 moved = true;
             }
             if !moved {
@@ -725,9 +754,24 @@ fn march(o: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
                     }
                     w.alpha *= exp(-c.sigma * t);
                     w.x += dir * t;
+                    if t < exit {
+                        // Past the face for certain: x + d t rounds to
+                        // either side of it in f32, and a ray left on the
+                        // face would cross this block again, with a step of
+                        // nothing. A few ulps of the scene's scale along
+                        // the face's axis, never backwards.
+                        let a = c.axis;
+                        let eps = 2e-6 * (h + max(max3(abs(P.gmin.xyz)), max3(abs(P.gmax.xyz))));
+                        if dir[a] > 0.0 {
+                            w.x[a] = max(w.x[a], c.face + eps);
+                        } else {
+                            w.x[a] = min(w.x[a], c.face - eps);
+                        }
+                    }
                     w.v = dir * c.n;
                     w.mirrored = false;
                     w.has_incident = false;
+                    n_skips = bump(n_skips);
                     moved = true;
                 }
             }
@@ -745,6 +789,7 @@ fn march(o: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
                 w.v += f.yzw * stp;
             }
             w.steps += 1u;
+            n_steps = bump(n_steps);
             let chord = w.x - xs;
             let len = length(chord);
             if len > 0.0 {
@@ -774,21 +819,48 @@ fn radiance(o: vec3<f32>, d: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(march(o, d, 0u).x, march(o, d, 1u).y, march(o, d, 2u).z);
 }
 
+// Add the two-word count c to counters k, k + 1 of `wg_counts` (global:
+// false) or `counters` (true), carrying out of the low word.
+fn add_count(global: bool, k: u32, c: vec2<u32>) {
+    if global {
+        let old = atomicAdd(&counters[k], c.x);
+        atomicAdd(&counters[k + 1u], c.y + select(0u, 1u, old + c.x < old));
+    } else {
+        let old = atomicAdd(&wg_counts[k], c.x);
+        atomicAdd(&wg_counts[k + 1u], c.y + select(0u, 1u, old + c.x < old));
+    }
+}
+
 @compute @workgroup_size(8, 8, 1)
-fn render(@builtin(global_invocation_id) id: vec3<u32>) {
+fn render(@builtin(global_invocation_id) id: vec3<u32>, @builtin(local_invocation_index) li: u32) {
     let w = P.image.x;
     let h = P.image.y;
-    if id.x >= w || id.y >= h {
+    // No early return: every invocation reaches the barriers below.
+    if id.x < w && id.y < h {
+        let pix = id.y * w + id.x;
+        var sum = vec3<f32>(0.0);
+        for (var s = 0u; s < PASS.p.w; s++) {
+            let r = 3u * (s * w * h + pix);
+            let d = vec3<f32>(rays[r], rays[r + 1u], rays[r + 2u]);
+            sum += radiance(P.eye.xyz, d);
+        }
+        accum[3u * pix] += sum.x;
+        accum[3u * pix + 1u] += sum.y;
+        accum[3u * pix + 2u] += sum.z;
+    }
+    if PASS.p.x == 0u {
         return;
     }
-    let pix = id.y * w + id.x;
-    var sum = vec3<f32>(0.0);
-    for (var s = 0u; s < PASS.p.w; s++) {
-        let r = 3u * (s * w * h + pix);
-        let d = vec3<f32>(rays[r], rays[r + 1u], rays[r + 2u]);
-        sum += radiance(P.eye.xyz, d);
+    // The counts: summed in the workgroup, then one global add per group.
+    if li < 4u {
+        atomicStore(&wg_counts[li], 0u);
     }
-    accum[3u * pix] += sum.x;
-    accum[3u * pix + 1u] += sum.y;
-    accum[3u * pix + 2u] += sum.z;
+    workgroupBarrier();
+    add_count(false, 0u, n_steps);
+    add_count(false, 2u, n_skips);
+    workgroupBarrier();
+    if li == 0u {
+        add_count(true, 0u, vec2<u32>(atomicLoad(&wg_counts[0]), atomicLoad(&wg_counts[1])));
+        add_count(true, 2u, vec2<u32>(atomicLoad(&wg_counts[2]), atomicLoad(&wg_counts[3])));
+    }
 }
