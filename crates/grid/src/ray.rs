@@ -127,7 +127,10 @@ fn apply(s: &RayState, d: &Deriv, h: f64) -> RayState {
 }
 
 /// One forward-Euler step of size `h` (eqs 11-12 in the equal-distance form).
-#[inline]
+/// Always inlined: since `deriv` was split in two the compiler kept it out
+/// of line, which cost a call per step (+15% instructions per Euler step,
+/// docs/PERFORMANCE.md, "Ray steps per second").
+#[inline(always)]
 pub fn step_euler<F: IndexField + ?Sized>(f: &F, form: Form, s: &mut RayState, h: f64) {
     let k = deriv(f, form, s.x, s.v);
     *s = apply(s, &k, h);
