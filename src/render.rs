@@ -226,8 +226,25 @@ pub fn camera(scene: &Scene, overrides: &Overrides) -> Result<Camera> {
     if let Some(s) = overrides.samples {
         cs.samples = s;
     }
+    // The same limits as the scene's [camera] (scene.rs).
+    let [w, h] = cs.resolution;
+    if !(1..=MAX_IMAGE_SIDE).contains(&w) || !(1..=MAX_IMAGE_SIDE).contains(&h) {
+        bail!("--width/--height: image size must be 1 to {MAX_IMAGE_SIDE} pixels a side, got {w} x {h}");
+    }
+    if !(1..=MAX_SAMPLES).contains(&cs.samples) {
+        bail!(
+            "--samples: must lie in 1..={MAX_SAMPLES}, got {}",
+            cs.samples
+        );
+    }
     Camera::from_settings(&cs).with_context(|| format!("{}: camera", scene.origin))
 }
+
+/// The largest image side, pixels (as the scene's `[camera] resolution`).
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+
+/// The most samples per pixel.
+pub const MAX_SAMPLES: u32 = 4096;
 
 /// The tone mapping of `scene` with the command line's exposure.
 pub fn tone(scene: &Scene, overrides: &Overrides) -> ToneMap {

@@ -13,6 +13,10 @@ use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+/// The most photons per light `--method photons` traces (hours on a
+/// workstation; the tallies grow with the count).
+pub const MAX_PHOTONS: usize = 10_000_000_000;
+
 /// The sidecar that describes a light-volume directory.
 pub const SIDECAR: &str = "light_volumes.json";
 
@@ -241,8 +245,11 @@ impl Args {
         if let Err(e) = opts.check() {
             bail!("--{e}");
         }
-        if self.method == SimMethod::Photons && self.count == 0 {
-            bail!("--count: need at least one photon");
+        if self.method == SimMethod::Photons && !(1..=MAX_PHOTONS).contains(&self.count) {
+            bail!(
+                "--count: must lie in 1..={MAX_PHOTONS:e} photons per light, got {}",
+                self.count
+            );
         }
         Ok(opts)
     }

@@ -721,3 +721,94 @@ fn demo_needs_no_files() {
         assert!(out.join(f).is_file(), "{f} missing");
     }
 }
+
+/// Issue 17's reproducers of unbounded work and memory: each is refused
+/// before any work, with the flag or field that caused it, exit 1 and no
+/// panic.
+#[test]
+fn inputs_that_would_make_unbounded_work_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let o = out.to_str().unwrap();
+    let ball = write_scene(tmp.path(), "ball.toml", SMALL);
+    let lit = |light: &str| format!("{SMALL}\n[[light]]\n{light}\npower = [1, 1, 1]\n");
+    let sun = lit("type = \"directional\"\ndirection = [0, -1, 0]");
+    let lit_ball = write_scene(tmp.path(), "lit.toml", &sun);
+    let s = lit_ball.to_str().unwrap();
+    // Grids: huge coordinates, cells far from cubic.
+    for (text, field) in [
+        (
+            SMALL.replace("max = [1, 1, 1]", "max = [4e299, 1, 1]"),
+            "grid.max",
+        ),
+        (
+            SMALL.replace(
+                "min = [-1, -1, -1]\nmax = [1, 1, 1]",
+                "min = [-1, 0, -1]\nmax = [1, 1e-12, 1]",
+            ),
+            "grid.resolution",
+        ),
+    ] {
+        let p = write_scene(tmp.path(), "grid.toml", &text);
+        expect_error(&["info", p.to_str().unwrap()], &[field]);
+    }
+    // A point light 1e30 away.
+    let far = write_scene(
+        tmp.path(),
+        "far.toml",
+        &lit("type = \"point\"\nposition = [1e30, 0, 0]"),
+    );
+    expect_error(
+        &["simulate", far.to_str().unwrap(), "-o", o],
+        &["light[0].position", "directional"],
+    );
+    // Steps, patches and splits far below a voxel; emission beyond the
+    // patch limit.
+    for (flag, value) in [
+        ("--patch-size", "1e-300"),
+        ("--patch-size", "0.001"),
+        ("--split", "1e-9"),
+        ("--step", "1e-9"),
+    ] {
+        expect_error(&["simulate", s, "-o", o, flag, value], &[&flag[2..]]);
+    }
+    expect_error(
+        &[
+            "simulate",
+            s,
+            "-o",
+            o,
+            "--patch-size",
+            "0.0625",
+            "--max-patches",
+            "16",
+        ],
+        &["light[0]", "--max-patches"],
+    );
+    // Photon counts and image sizes beyond their limits.
+    for count in ["18446744073709551615", "1000000000000"] {
+        expect_error(
+            &[
+                "simulate", s, "-o", o, "--method", "photons", "--count", count,
+            ],
+            &["--count"],
+        );
+    }
+    let png = tmp.path().join("a.png");
+    expect_error(
+        &[
+            "render",
+            ball.to_str().unwrap(),
+            "-o",
+            png.to_str().unwrap(),
+            "--width",
+            "4294967295",
+        ],
+        &["--width"],
+    );
+    assert!(!png.exists() && !out.exists());
+    // A device given as a scene is not read until memory runs out.
+    if Path::new("/dev/zero").exists() {
+        expect_error(&["info", "/dev/zero"], &["/dev/zero", "not a regular file"]);
+    }
+}

@@ -771,6 +771,16 @@ impl Checker<'_> {
     }
 }
 
+/// The largest grid coordinate, world units.
+pub const MAX_COORDINATE: f64 = 1e9;
+
+/// The most one cell edge may exceed another.
+pub const MAX_CELL_ASPECT: f64 = 64.0;
+
+/// The largest scene file read (a scene is text; its data lives in the
+/// mesh and volume files it names).
+pub const MAX_SCENE_BYTES: u64 = 16 << 20;
+
 /// Changes to a scene's `[grid]` from outside the file (the command line's
 /// `--resolution`, `--smoothing` and `--preview`). They are applied before
 /// the scene is checked, so every check and the memory estimate see the
@@ -823,9 +833,14 @@ impl Scene {
 
     /// Read a scene file, change its `[grid]` by `grid`, and check it.
     pub fn load_with(path: &Path, grid: &GridOverride) -> Result<Scene> {
-        let text = std::fs::read_to_string(path).map_err(|source| Error::Read {
+        let bytes =
+            eikon_mesh::load::read_file(path, MAX_SCENE_BYTES).map_err(|source| Error::Read {
+                path: path.to_path_buf(),
+                source,
+            })?;
+        let text = String::from_utf8(bytes).map_err(|_| Error::Read {
             path: path.to_path_buf(),
-            source,
+            source: std::io::Error::new(std::io::ErrorKind::InvalidData, "not UTF-8 text"),
         })?;
         Scene::parse_with(&text, &path.display().to_string(), grid)
     }
@@ -1026,6 +1041,16 @@ fn check_grid(c: &Checker, g: &RawGrid) -> Result<GridSettings> {
             format!("must exceed grid.min on every axis ({max} vs {min})"),
         ));
     }
+    for (key, v) in [("min", min), ("max", max)] {
+        if v.abs().max_element() > MAX_COORDINATE {
+            return Err(c.err(
+                &[K("grid"), K(key)],
+                format!(
+                    "coordinates beyond +-{MAX_COORDINATE:e} world units ({v}): use a smaller unit"
+                ),
+            ));
+        }
+    }
     let extent = max - min;
     let res = &[K("grid"), K("resolution")];
     let dims = match g.resolution {
@@ -1051,6 +1076,20 @@ fn check_grid(c: &Checker, g: &RawGrid) -> Result<GridSettings> {
         .is_none()
     {
         return Err(c.err(res, format!("{dims:?} voxels cannot even be counted")));
+    }
+    // Cells far from cubic make the voxel size (the smallest edge) that
+    // steps and patches are measured in meaningless along the long edges,
+    // and the work of crossing the grid unbounded.
+    let spacing = extent / DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64);
+    let aspect = spacing.max_element() / spacing.min_element();
+    if !(aspect <= MAX_CELL_ASPECT) {
+        return Err(c.err(
+            res,
+            format!(
+                "cells of {:?} voxels over {extent} are {aspect:.3e} times longer on one axis than on another (at most {MAX_CELL_ASPECT}): give each axis voxels in proportion to its extent",
+                dims
+            ),
+        ));
     }
     let smoothing = g.smoothing;
     c.finite(&[K("grid"), K("smoothing")], &[smoothing])?;

@@ -54,8 +54,44 @@ fn format_of(path: &Path) -> Result<Format, MeshError> {
     }
 }
 
+/// Read a whole input file of at most `max_bytes`, refusing what is not a
+/// regular file (a device such as `/dev/zero`, a pipe, a directory) and a
+/// file larger than the limit before reading it, so that no input can make
+/// a reader allocate without bound. One reader for every input file of
+/// eikon: scenes, meshes, VDB volumes, environment maps.
+pub fn read_file(path: &Path, max_bytes: u64) -> std::io::Result<Vec<u8>> {
+    use std::io::{Error, ErrorKind, Read};
+    let file = std::fs::File::open(path)?;
+    let meta = file.metadata()?;
+    if !meta.is_file() {
+        return Err(Error::new(
+            ErrorKind::InvalidInput,
+            "not a regular file (a device, pipe or directory)",
+        ));
+    }
+    let too_big = || {
+        Error::new(
+            ErrorKind::InvalidData,
+            format!("larger than the {max_bytes} bytes such a file may hold"),
+        )
+    };
+    if meta.len() > max_bytes {
+        return Err(too_big());
+    }
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    // `take` keeps a file that grows while being read within the limit.
+    file.take(max_bytes + 1).read_to_end(&mut bytes)?;
+    if bytes.len() as u64 > max_bytes {
+        return Err(too_big());
+    }
+    Ok(bytes)
+}
+
+/// The largest mesh file read (OBJ or PLY).
+pub const MAX_MESH_BYTES: u64 = 4 << 30;
+
 fn read(path: &Path) -> Result<Vec<u8>, MeshError> {
-    let bytes = std::fs::read(path).map_err(|source| MeshError::Read {
+    let bytes = read_file(path, MAX_MESH_BYTES).map_err(|source| MeshError::Read {
         path: path.display().to_string(),
         source,
     })?;

@@ -32,6 +32,10 @@ use std::path::{Path, PathBuf};
 /// f32): refuses corrupt or hostile headers before allocating.
 pub const MAX_TEXELS: usize = 1 << 28;
 
+/// The largest EXR file read: [`MAX_TEXELS`] RGBA texels of 32-bit floats,
+/// uncompressed, with room for the header.
+pub const MAX_EXR_BYTES: u64 = (MAX_TEXELS as u64) * 16 + (1 << 20);
+
 /// Why an environment map could not be loaded or built.
 #[derive(Debug, thiserror::Error)]
 pub enum EnvironmentError {
@@ -235,9 +239,11 @@ impl LatLongMap {
     /// and B, `TooLarge` above [`MAX_TEXELS`], `Decode` if decoding fails.
     pub fn from_exr(path: impl AsRef<Path>) -> Result<LatLongMap, EnvironmentError> {
         let path = path.as_ref();
-        let bytes = std::fs::read(path).map_err(|source| EnvironmentError::Io {
-            path: path.to_path_buf(),
-            source,
+        let bytes = eikon_mesh::load::read_file(path, MAX_EXR_BYTES).map_err(|source| {
+            EnvironmentError::Io {
+                path: path.to_path_buf(),
+                source,
+            }
         })?;
         Self::from_exr_bytes(&bytes, path)
     }

@@ -152,10 +152,14 @@ impl Options {
     /// Check every setting.
     pub fn check(&self) -> Result<(), Error> {
         let bad = |option, message: String| Err(Error::Option { option, message });
-        if !(self.step.is_finite() && self.step > 0.0) {
+        let within = |v: f64, (lo, hi): (f64, f64)| v.is_finite() && v >= lo && v <= hi;
+        if !within(self.step, STEP_RANGE) {
             return bad(
                 "step",
-                format!("must be a positive number of voxels, got {}", self.step),
+                format!(
+                    "must lie in [{}, {}] voxels, got {}",
+                    STEP_RANGE.0, STEP_RANGE.1, self.step
+                ),
             );
         }
         if self.method == Method::DormandPrince {
@@ -164,14 +168,23 @@ impl Options {
                 "adaptive steps break the common time of a wavefront; use euler or rk4".into(),
             );
         }
-        if !(self.patch_size.is_finite() && self.patch_size > 0.0) {
+        if !within(self.patch_size, PATCH_RANGE) {
             return bad(
                 "patch-size",
-                format!("must be positive, got {}", self.patch_size),
+                format!(
+                    "must lie in [{}, {}] voxels, got {}",
+                    PATCH_RANGE.0, PATCH_RANGE.1, self.patch_size
+                ),
             );
         }
-        if !(self.split.is_finite() && self.split > 0.0) {
-            return bad("split", format!("must be positive, got {}", self.split));
+        if !within(self.split, PATCH_RANGE) {
+            return bad(
+                "split",
+                format!(
+                    "must lie in [{}, {}] voxels, got {}",
+                    PATCH_RANGE.0, PATCH_RANGE.1, self.split
+                ),
+            );
         }
         if !(self.threshold > 0.0 && self.threshold < 1.0) {
             return bad(
@@ -278,7 +291,35 @@ pub fn check_scene(scene: &Scene, medium: &Medium, opts: &Options) -> Result<(),
             .into());
     }
     let h = medium.geometry.voxel_size();
+    let g = &medium.geometry;
     for (i, l) in scene.lights.iter().enumerate() {
+        // Bounded work: a light far away, or patches tiny against the
+        // volume, would make emission alone unbounded.
+        if let Light::Point { position, .. } | Light::Spot { position, .. } = l {
+            let far = position.distance(0.5 * (g.min + g.max));
+            if far > MAX_LIGHT_DISTANCE * g.diagonal() {
+                return Err(scene
+                    .error_at(
+                        &format!("light[{i}].position"),
+                        format!(
+                            "{far:e} from the volume's centre, more than {MAX_LIGHT_DISTANCE:e} of its diagonals: use a directional light"
+                        ),
+                    )
+                    .into());
+            }
+        }
+        let n = light::candidates(l, g, opts.patch_size * h);
+        if n > (EMIT_PER_PATCH_LIMIT * opts.max_patches) as f64 {
+            return Err(scene
+                .error_at(
+                    &format!("light[{i}]"),
+                    format!(
+                        "emitting it would take {n:.3e} patches of {} voxel, more than {EMIT_PER_PATCH_LIMIT} x --max-patches ({}): raise --patch-size or --max-patches, or lower the resolution",
+                        opts.patch_size, opts.max_patches
+                    ),
+                )
+                .into());
+        }
         let position = match l {
             Light::Point { position, .. } | Light::Spot { position, .. } => *position,
             Light::Directional { .. } => continue,
@@ -300,6 +341,21 @@ pub fn check_scene(scene: &Scene, medium: &Medium, opts: &Options) -> Result<(),
     }
     Ok(())
 }
+
+/// Farthest a point or spot light may be from the volume's centre, in
+/// diagonals of the volume: beyond, its light is a plane wave to within
+/// the grid's resolution, and its cube-sphere would be emitted in vain.
+pub const MAX_LIGHT_DISTANCE: f64 = 1e4;
+
+/// Emission considers at most this many patches per `max_patches`.
+pub const EMIT_PER_PATCH_LIMIT: usize = 4;
+
+/// The range of `--step`, voxels: below, a step budget tied to the volume
+/// is no longer a bound on time.
+pub const STEP_RANGE: (f64, f64) = (1.0 / 64.0, 4.0);
+
+/// The range of `--patch-size` and `--split`, voxels.
+pub const PATCH_RANGE: (f64, f64) = (1.0 / 16.0, 64.0);
 
 /// What both backends derive from the options before stepping.
 pub(crate) struct Plan {

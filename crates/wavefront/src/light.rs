@@ -193,17 +193,40 @@ pub fn cone_weight(dir: DVec3, cone: Option<(DVec3, f64, f64)>) -> f64 {
     }
 }
 
-#[allow(clippy::too_many_arguments)]
-fn spherical<F: IndexField + ?Sized>(
+/// How many patches `emit` considers for `light` with patches of `size`
+/// world units (it keeps those whose central ray meets the volume): the
+/// work and memory of emission, checked before emitting
+/// ([`crate::check_scene`]).
+pub fn candidates(light: &Light, grid: &GridGeometry, size: f64) -> f64 {
+    match light {
+        Light::Directional { direction, .. } => {
+            let f = PlaneFrame::new(*direction, grid);
+            ((f.a.1 - f.a.0) / size).ceil().max(1.0) * ((f.b.1 - f.b.0) / size).ceil().max(1.0)
+        }
+        Light::Point { position, .. } => {
+            6.0 * (face_patches(*position, None, grid, size) as f64).powi(2)
+        }
+        Light::Spot {
+            position,
+            direction,
+            angle,
+            falloff,
+            ..
+        } => {
+            let cone = Some((*direction, *angle, *falloff));
+            6.0 * (face_patches(*position, cone, grid, size) as f64).powi(2)
+        }
+    }
+}
+
+/// Patches along each cube-sphere face of a point light at `p` (a spot's
+/// `cone`: axis, half-angle, falloff in degrees).
+fn face_patches(
     p: DVec3,
-    power: DVec3,
     cone: Option<(DVec3, f64, f64)>,
     grid: &GridGeometry,
-    field: &F,
     size: f64,
-    mask: [f64; 3],
-    out: &mut Patches,
-) {
+) -> usize {
     let h = grid.voxel_size();
     let inside = grid.contains(p);
     // Nearest start radius: the sphere's patches are sized for it; patches
@@ -231,6 +254,23 @@ fn spherical<F: IndexField + ?Sized>(
         let step = (angle / 32.0).min(soft).max(0.05).to_radians();
         n = n.max(((0.5 * PI / step).ceil() as usize).min(2048));
     }
+    n
+}
+
+#[allow(clippy::too_many_arguments)]
+fn spherical<F: IndexField + ?Sized>(
+    p: DVec3,
+    power: DVec3,
+    cone: Option<(DVec3, f64, f64)>,
+    grid: &GridGeometry,
+    field: &F,
+    size: f64,
+    mask: [f64; 3],
+    out: &mut Patches,
+) {
+    let h = grid.voxel_size();
+    let inside = grid.contains(p);
+    let n = face_patches(p, cone, grid, size);
     let margin = MARGIN_VOXELS * h;
     let axes = [DVec3::X, DVec3::Y, DVec3::Z];
     for face in 0..6 {

@@ -162,8 +162,11 @@ impl<'a> Bytes<'a> {
     }
 }
 
+/// The largest VDB file read.
+pub const MAX_VDB_BYTES: u64 = 16 << 30;
+
 fn read_file(path: &Path) -> Result<Vec<u8>> {
-    std::fs::read(path).map_err(|source| VdbError::Io {
+    eikon_mesh::load::read_file(path, MAX_VDB_BYTES).map_err(|source| VdbError::Io {
         path: path.to_path_buf(),
         source,
     })
