@@ -1082,7 +1082,7 @@ fn check_grid(c: &Checker, g: &RawGrid) -> Result<GridSettings> {
     // and the work of crossing the grid unbounded.
     let spacing = extent / DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64);
     let aspect = spacing.max_element() / spacing.min_element();
-    if !(aspect <= MAX_CELL_ASPECT) {
+    if aspect.is_nan() || aspect > MAX_CELL_ASPECT {
         return Err(c.err(
             res,
             format!(
