@@ -1,10 +1,47 @@
 //! `--resolution`, `--smoothing` and `--preview`: the command line's say
 //! over a scene's `[grid]`, shared by every command that builds a medium.
 
-use anyhow::Result;
-use eikon_grid::field::format_bytes;
+use anyhow::{bail, Result};
+use eikon_grid::field::{available_memory, format_bytes};
 use eikon_grid::{GridOverride, Medium, Scene};
 use std::path::Path;
+use std::sync::OnceLock;
+
+/// `--max-memory`, once given: the limit every memory check of this
+/// process uses instead of the memory the system reports available.
+static MAX_MEMORY: OnceLock<u128> = OnceLock::new();
+
+/// The memory a command may use: `--max-memory` if given, else what the
+/// system reports available (unbounded where it reports nothing).
+pub fn memory_limit() -> u128 {
+    MAX_MEMORY
+        .get()
+        .copied()
+        .unwrap_or_else(|| available_memory().unwrap_or(u128::MAX))
+}
+
+/// Bytes from `8G`, `512M`, `64K` or a plain number (binary units).
+fn parse_bytes(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let (num, unit) = match t.char_indices().find(|(_, c)| c.is_ascii_alphabetic()) {
+        Some((i, _)) => (&t[..i], t[i..].to_ascii_uppercase()),
+        None => (t, String::new()),
+    };
+    let shift = match unit.trim_end_matches("IB").trim_end_matches('B') {
+        "" => 0,
+        "K" => 10,
+        "M" => 20,
+        "G" => 30,
+        "T" => 40,
+        _ => return Err(format!("unknown unit in {s:?}: use K, M, G or T")),
+    };
+    let v: f64 = num.trim().parse().map_err(|e| format!("{s:?}: {e}"))?;
+    let bytes = v * (1u64 << shift) as f64;
+    if !(bytes.is_finite() && bytes >= 1.0 && bytes < 2f64.powi(63)) {
+        return Err(format!("{s:?} is not a usable amount of memory"));
+    }
+    Ok(bytes as u64)
+}
 
 /// The most voxels along the longest axis `--resolution` accepts (the
 /// memory check refuses what will not fit long before this).
@@ -42,6 +79,10 @@ pub struct GridFlags {
     /// images, at most 320 pixels wide with one sample per pixel.
     #[arg(long)]
     pub preview: bool,
+    /// Memory the run may use (e.g. 8G, 512M), instead of what the system
+    /// reports available: every estimate is checked against it.
+    #[arg(long, value_parser = parse_bytes)]
+    pub max_memory: Option<u64>,
 }
 
 impl GridFlags {
@@ -54,6 +95,12 @@ impl GridFlags {
         }
     }
 
+    fn set_limit(&self) {
+        if let Some(m) = self.max_memory {
+            let _ = MAX_MEMORY.set(m as u128);
+        }
+    }
+
     /// Whether any flag changes the scene.
     pub fn any(&self) -> bool {
         self.resolution.is_some() || self.smoothing.is_some() || self.preview
@@ -62,6 +109,7 @@ impl GridFlags {
     /// Read `path` with these flags applied; when they change the grid, say
     /// on stderr what will be built and the memory it needs.
     pub fn load(&self, path: &Path) -> Result<Scene> {
+        self.set_limit();
         let scene = Scene::load_with(path, &self.grid_override())?;
         if self.any() {
             eprintln!("{}", describe(&scene));
@@ -71,6 +119,7 @@ impl GridFlags {
 
     /// [`GridFlags::load`] for scene text (`origin` names it).
     pub fn parse(&self, text: &str, origin: &str) -> Result<Scene> {
+        self.set_limit();
         let scene = Scene::parse_with(text, origin, &self.grid_override())?;
         if self.any() {
             eprintln!("{}", describe(&scene));
@@ -95,6 +144,81 @@ pub fn light_volume_bytes(scene: &Scene) -> (u128, u128) {
     let per_light = cells * 4 * 3 * (1 + flux_arrays);
     let counters = cells * 8 * 3 * (1 + flux_arrays);
     (per_light * scene.lights.len() as u128, counters)
+}
+
+/// What a command holds at its peak besides the medium.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Needs {
+    /// The light volumes of every light (simulate, render).
+    pub light_volumes: bool,
+    /// The fixed-point counters of one light being simulated.
+    pub counters: bool,
+    /// A wavefront of at most this many patches.
+    pub patches: Option<usize>,
+    /// An image of this many pixels (HDR accumulation and output).
+    pub pixels: Option<u64>,
+}
+
+/// The bytes `needs` take for `scene`, item by item.
+fn itemize(scene: &Scene, needs: &Needs) -> Vec<(&'static str, u128)> {
+    let (light, counters) = light_volume_bytes(scene);
+    let mut items = vec![("medium", Medium::memory_estimate(scene).resident)];
+    if needs.light_volumes {
+        items.push(("light volumes", light));
+    }
+    if needs.counters {
+        items.push(("deposit counters", counters));
+    }
+    if let Some(n) = needs.patches {
+        let bytes = n as u128 * eikon_wavefront::Patches::BYTES_PER_PATCH as u128;
+        items.push(("patch list at its cap", bytes));
+    }
+    if let Some(p) = needs.pixels {
+        // Linear RGB f32 image, its tone-mapped copy and encoder buffers.
+        items.push(("image", p as u128 * 3 * (4 + 4 + 1)));
+    }
+    items
+}
+
+/// Check that a command with `needs` fits the memory limit (the medium's
+/// build peak is checked when it is built); the error lists what takes it.
+pub fn check_memory(scene: &Scene, needs: &Needs) -> Result<()> {
+    let items = itemize(scene, needs);
+    let total: u128 = items.iter().map(|(_, b)| b).sum();
+    let limit = memory_limit();
+    if total > limit {
+        let list: Vec<String> = items
+            .iter()
+            .map(|(what, b)| format!("{what} {}", format_bytes(*b)))
+            .collect();
+        bail!(
+            "{}: the run needs {} ({}) but {} is the limit (--max-memory, else what is available): lower --resolution, --max-patches or the image size",
+            scene.origin,
+            format_bytes(total),
+            list.join(", "),
+            format_bytes(limit)
+        );
+    }
+    Ok(())
+}
+
+/// The most patches that fit the memory left once everything else of a
+/// simulation is held, at most `cap`.
+pub fn patches_that_fit(scene: &Scene, cap: usize) -> usize {
+    let rest: u128 = itemize(
+        scene,
+        &Needs {
+            light_volumes: true,
+            counters: true,
+            ..Needs::default()
+        },
+    )
+    .iter()
+    .map(|(_, b)| b)
+    .sum();
+    let left = memory_limit().saturating_sub(rest);
+    let fit = left / eikon_wavefront::Patches::BYTES_PER_PATCH as u128;
+    (fit.min(cap as u128)) as usize
 }
 
 /// One line: the grid that will be built and the memory it needs.
@@ -124,6 +248,18 @@ mod tests {
         assert!(parse_smoothing("-1").is_err());
         assert!(parse_smoothing("nan").is_err());
         assert!(parse_smoothing("x").is_err());
+    }
+
+    #[test]
+    fn memory_amounts_parse() {
+        assert_eq!(parse_bytes("512"), Ok(512));
+        assert_eq!(parse_bytes("64K"), Ok(64 << 10));
+        assert_eq!(parse_bytes("1.5G"), Ok(3 << 29));
+        assert_eq!(parse_bytes("2GiB"), Ok(2 << 30));
+        assert_eq!(parse_bytes("8mb"), Ok(8 << 20));
+        for bad in ["", "0", "-1G", "1Q", "nan", "1e30T", "G"] {
+            assert!(parse_bytes(bad).is_err(), "{bad}");
+        }
     }
 
     #[test]

@@ -113,7 +113,8 @@ pub fn build_medium(scene: &eikon_grid::Scene) -> Result<eikon_grid::Medium> {
             .expect("valid template")
             .progress_chars("=> "),
     );
-    let medium = eikon_grid::Medium::build_with_progress(scene, &|stage, done, total| {
+    let limit = crate::grid::memory_limit();
+    let medium = eikon_grid::Medium::build_within(scene, limit, &|stage, done, total| {
         bar.set_message(stage);
         bar.set_length(total);
         bar.set_position(done);

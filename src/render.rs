@@ -305,6 +305,14 @@ pub fn render_image(
     backend: &Backend,
 ) -> Result<(Image, Stats, f64)> {
     let camera = camera(scene, overrides)?;
+    crate::grid::check_memory(
+        scene,
+        &crate::grid::Needs {
+            light_volumes: !volumes.is_empty(),
+            pixels: Some(camera.width() as u64 * camera.height() as u64),
+            ..crate::grid::Needs::default()
+        },
+    )?;
     let r = &scene.render;
     let opts = Options {
         step: overrides.step.unwrap_or(r.step),

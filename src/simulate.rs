@@ -17,6 +17,9 @@ use std::time::Instant;
 /// workstation; the tallies grow with the count).
 pub const MAX_PHOTONS: usize = 10_000_000_000;
 
+/// `--max-patches` unless the memory limit asks for fewer.
+pub const DEFAULT_MAX_PATCHES: usize = 8 << 20;
+
 /// The sidecar that describes a light-volume directory.
 pub const SIDECAR: &str = "light_volumes.json";
 
@@ -70,9 +73,10 @@ pub struct Args {
     /// Drop patches whose transmittance falls below this, in (0, 1).
     #[arg(long, default_value_t = 1e-4, allow_hyphen_values = true)]
     threshold: f64,
-    /// Most patches alive at once.
-    #[arg(long, default_value_t = 8 << 20)]
-    max_patches: usize,
+    /// Most patches alive at once [default: 8388608, or what fits the
+    /// memory limit once the medium and volumes are held].
+    #[arg(long)]
+    max_patches: Option<usize>,
     /// Step limit per wavefront (default: 16 crossings of the volume's
     /// diagonal at its highest index).
     #[arg(long)]
@@ -233,7 +237,7 @@ impl Args {
             patch_size: self.patch_size,
             split: self.split,
             threshold: self.threshold,
-            max_patches: self.max_patches,
+            max_patches: self.max_patches.unwrap_or(DEFAULT_MAX_PATCHES),
             max_steps: self.max_steps,
             deposit: match self.deposit {
                 DepositArg::Fluence => DepositRule::Fluence,
@@ -300,7 +304,30 @@ pub fn simulate(
     medium: &Medium,
     backend: &Backend,
 ) -> Result<Vec<LightVolume>> {
-    let opts = args.options()?;
+    let mut opts = args.options()?;
+    // The patch list at its cap is part of the memory the run needs: the
+    // default cap is lowered to what fits, a cap the user gave is checked.
+    if args.method == SimMethod::Wavefront && args.max_patches.is_none() {
+        let fit = crate::grid::patches_that_fit(scene, opts.max_patches);
+        if fit < opts.max_patches {
+            if !args.quiet {
+                eprintln!(
+                    "note: at most {fit} patches fit the memory limit (--max-memory, else what is available); fewer splits may be granted"
+                );
+            }
+            opts.max_patches = fit;
+            opts.check()?;
+        }
+    }
+    crate::grid::check_memory(
+        scene,
+        &crate::grid::Needs {
+            light_volumes: true,
+            counters: true,
+            patches: (args.method == SimMethod::Wavefront).then_some(opts.max_patches),
+            pixels: None,
+        },
+    )?;
     check_scene(scene, medium, &opts)?;
     if args.output.exists() && !args.output.is_dir() {
         bail!("{}: exists and is not a directory", args.output.display());

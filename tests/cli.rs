@@ -812,3 +812,77 @@ fn inputs_that_would_make_unbounded_work_are_refused() {
         expect_error(&["info", "/dev/zero"], &["/dev/zero", "not a regular file"]);
     }
 }
+
+/// The memory a run needs, everything it holds included, is checked against
+/// `--max-memory` (else what is available): a default patch cap is lowered
+/// to what fits, a given one, a grid or an image that does not fit is
+/// refused with the items listed.
+#[test]
+fn memory_estimates_are_checked_against_the_limit() {
+    // Refused: exit 1, the fragments in the last line (the grid flags
+    // print what they build first), no panic.
+    let refused = |args: &[&str], fragments: &[&str]| -> String {
+        let o = eikon(args);
+        let err = String::from_utf8_lossy(&o.stderr).to_string();
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+        let last = err.lines().last().unwrap_or("").to_string();
+        assert!(last.starts_with("error: "), "{err}");
+        for f in fragments {
+            assert!(last.contains(f), "{f:?} not in {last}");
+        }
+        last
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    let o = out.to_str().unwrap();
+    let scene = config("glass-sphere.toml");
+    let small = ["--resolution", "16", "--max-memory", "3M"];
+    let ok = eikon_ok(&[&["simulate", &scene, "-o", o][..], &small].concat());
+    let err = String::from_utf8_lossy(&ok.stderr);
+    assert!(err.contains("patches fit the memory limit"), "{err}");
+    let e = refused(
+        &[
+            &["simulate", &scene, "-o", o, "--max-patches", "100000"][..],
+            &small,
+        ]
+        .concat(),
+        &["patch list at its cap", "--max-memory"],
+    );
+    assert!(e.contains("light volumes") && e.contains("medium"), "{e}");
+    refused(
+        &[
+            "simulate",
+            &scene,
+            "-o",
+            o,
+            "--resolution",
+            "64",
+            "--max-memory",
+            "1M",
+        ],
+        &["grid.resolution", "--max-memory"],
+    );
+    let png = tmp.path().join("big.png");
+    refused(
+        &[
+            "render",
+            &scene,
+            "-o",
+            png.to_str().unwrap(),
+            "--resolution",
+            "16",
+            "--max-memory",
+            "2M",
+            "--width",
+            "4000",
+            "--height",
+            "4000",
+        ],
+        &["image", "--max-memory"],
+    );
+    assert!(!png.exists());
+    let o = eikon(&["info", &scene, "--max-memory", "lots"]);
+    assert_eq!(o.status.code(), Some(2), "clap's usage error");
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--max-memory"));
+}

@@ -546,3 +546,62 @@ samples = 3
     assert!(a.data.iter().any(|p| p[0] > 0.0));
     assert!(a.data == b.data, "images differ between 1 and 2 threads");
 }
+
+/// A checkerboard lying on the grid's far face is seen through a uniform
+/// medium alike whether the renderer skips empty space or steps through
+/// it: a ray that reaches the face by a skip leaves there, and is not
+/// stepped a hair beyond the board (which left a third of it black).
+#[test]
+fn a_board_on_the_grid_face_is_seen_with_and_without_skipping() {
+    let text = r#"
+[grid]
+resolution = [80, 16, 40]
+min = [-2.0, -0.2, -1.0]
+max = [2.0, 0.6, 1.0]
+
+[ambient]
+index = 1.03
+
+[camera]
+position = [-1.9, 0.4, 0.0]
+target = [2.0, 0.0, 0.0]
+fov = 20
+resolution = [64, 48]
+
+[background]
+type = "checker"
+point = [2.0, 0.0, 0.0]
+normal = [-1.0, 0.0, 0.0]
+square = 0.1
+colors = [[0.9, 0.55, 0.12], [0.1, 0.18, 0.45]]
+"#;
+    let (scene, medium, volumes) = setup(text);
+    let opts = |skip_empty| Options {
+        skip_empty,
+        ..Options::default()
+    };
+    let (skip, _) = render(&scene, &medium, &volumes, opts(true));
+    let (step, _) = render(&scene, &medium, &volumes, opts(false));
+    let dark = |img: &Image| {
+        (0..img.height)
+            .flat_map(|y| (0..img.width).map(move |x| (x, y)))
+            .filter(|&(x, y)| img.pixel(x, y).unwrap().iter().all(|&c| c < 0.05))
+            .count()
+    };
+    let differ = (0..skip.height)
+        .flat_map(|y| (0..skip.width).map(move |x| (x, y)))
+        .filter(|&(x, y)| {
+            let (a, b) = (skip.pixel(x, y).unwrap(), step.pixel(x, y).unwrap());
+            (0..3).any(|c| (a[c] - b[c]).abs() > 0.05 * (a[c].abs() + b[c].abs()) + 1e-3)
+        })
+        .count();
+    println!(
+        "black pixels: {} skipping, {} stepping; {differ} of {} differ",
+        dark(&skip),
+        dark(&step),
+        skip.width * skip.height
+    );
+    assert_eq!(dark(&step), 0, "every pixel sees the board when stepping");
+    assert_eq!(dark(&skip), 0, "every pixel sees the board when skipping");
+    assert_eq!(differ, 0, "pixels that differ");
+}

@@ -129,13 +129,18 @@ impl Medium {
 
     /// [`Medium::build`], reporting `(stage, done, total)` as it goes.
     pub fn build_with_progress(scene: &Scene, progress: Progress) -> Result<Medium> {
+        Self::build_within(scene, available_memory().unwrap_or(u128::MAX), progress)
+    }
+
+    /// [`Medium::build_with_progress`] refusing a grid whose build needs
+    /// more than `avail` bytes (instead of the memory the system reports).
+    pub fn build_within(scene: &Scene, avail: u128, progress: Progress) -> Result<Medium> {
         let est = Self::memory_estimate(scene);
-        let avail = available_memory().unwrap_or(u128::MAX);
         if est.peak > avail {
             return Err(scene.error_at(
                 "grid.resolution",
                 format!(
-                    "{:?} voxels need {} to build ({} resident) but only {} of memory is available; lower the resolution",
+                    "{:?} voxels need {} to build ({} resident) but only {} of memory is available (or allowed by --max-memory); lower the resolution",
                     scene.grid.geometry.dims,
                     format_bytes(est.peak),
                     format_bytes(est.resident),

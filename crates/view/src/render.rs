@@ -307,10 +307,21 @@ impl<'a> Renderer<'a> {
             if walk.alpha.max_element() < self.opts.min_transmittance {
                 return (walk.radiance, walk.stats);
             }
+            // A skip may be longer than two steps: it must still end at
+            // the bounds, where the surroundings (a board or a plane lying
+            // on a face of the grid) take over.
+            let skip_exit = || {
+                if exit.is_finite() {
+                    exit
+                } else {
+                    grid.clip_line(walk.ray.x, dir)
+                        .map_or(0.0, |(_, t1)| t1.max(0.0))
+                }
+            };
             if let Some(s) = self.cells.get(ch).and_then(|c| c.clear_step(walk.ray.x)) {
                 // Clear of anything that bends, scatters, emits or reflects
                 // for `s`: one straight step in the local constant medium.
-                let t = s.min(exit);
+                let t = s.min(skip_exit());
                 let n = field.sample(walk.ray.x).0;
                 let sigma = self.properties.sample(walk.ray.x).sigma;
                 if let Some(tr) = env.receiver_hit(walk.ray.x, dir, t) {
@@ -330,7 +341,7 @@ impl<'a> Renderer<'a> {
             if let Some((u, t)) = self.cells.get(ch).and_then(|c| c.crossing(walk.ray.x, dir)) {
                 // Just past the block's face, so that the next lookup
                 // lands in the next block.
-                let t = (t + 1e-6 * h).min(exit);
+                let t = (t + 1e-6 * h).min(skip_exit());
                 if let Some(tr) = env.receiver_hit(walk.ray.x, dir, t) {
                     let hit = walk.ray.x + dir * tr;
                     walk.alpha *= (-u.sigma * tr).exp();

@@ -181,6 +181,40 @@ type = "sky"
     check("glass sphere", text, Options::default(), 40.0);
 }
 
+/// A checkerboard on the grid's far face, seen past a glass bead through a
+/// uniform medium, mostly by skips: a skip ends at the bounds, not past
+/// the board.
+#[test]
+fn a_board_on_the_grid_face_matches_the_cpu() {
+    let text = r#"
+[grid]
+resolution = [80, 16, 40]
+min = [-2.0, -0.2, -1.0]
+max = [2.0, 0.6, 1.0]
+
+[ambient]
+index = 1.03
+
+[[object]]
+shape = { type = "sphere", center = [0.5, 0.3, 0.25], radius = 0.2 }
+index = 1.5
+
+[camera]
+position = [-1.9, 0.4, 0.0]
+target = [2.0, 0.0, 0.0]
+fov = 20
+resolution = [64, 48]
+
+[background]
+type = "checker"
+point = [2.0, 0.0, 0.0]
+normal = [-1.0, 0.0, 0.0]
+square = 0.1
+colors = [[0.9, 0.55, 0.12], [0.1, 0.18, 0.45]]
+"#;
+    check("board on the face", text, Options::default(), 40.0);
+}
+
 /// A dispersive sphere (n = 1.45, 1.5, 1.55): one ray per channel, each
 /// through its own index field, against a checkerboard. Measured: 47.6 dB
 /// (the f32 rays part from the f64 ones at a few silhouette pixels).

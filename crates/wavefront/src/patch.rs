@@ -30,6 +30,15 @@ pub struct Patches {
 }
 
 impl Patches {
+    /// Bytes one patch takes in the list, and again in the list the
+    /// tessellation analysis builds beside it: what a wavefront of `n`
+    /// patches holds at most is `n * BYTES_PER_PATCH`.
+    pub const BYTES_PER_PATCH: usize = 2
+        * (4 * std::mem::size_of::<RayState>()
+            + 3 * std::mem::size_of::<[f64; 3]>()
+            + std::mem::size_of::<f64>()
+            + std::mem::size_of::<u8>());
+
     /// Number of patches.
     pub fn len(&self) -> usize {
         self.flux.len()

@@ -717,6 +717,12 @@ fn march(o: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
         // else one step of the ray equation.
         var moved = false;
         if skip_empty {
+            // A skip may be longer than two steps: it must still end at the
+            // bounds (render.rs `skip_exit`).
+            if exit == INF {
+                let c = clip_line(w.x, dir);
+                exit = select(0.0, max(c.y, 0.0), c.z >= 0.0);
+            }
             let s = clear_step(ch, w.x);
             if s >= 0.0 {
                 // Clear of anything that bends, scatters, emits or reflects
