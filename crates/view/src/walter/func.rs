@@ -128,6 +128,86 @@ impl<T: Scalar> Problem<T> {
     }
 }
 
+impl<T: Scalar> Problem<T> {
+    /// The square system that certifies a root ([`super::search::certify_root`]):
+    /// `c(u, v) = h × n` with the unnormalized half-vector
+    /// `h = η ω̂_V + ω̂_L` (eq 3 before normalizing) and the unnormalized
+    /// interpolated normal `n`, its partial derivatives, `h·n` and `n`.
+    /// `c = 0` with `sign(h·n) = −σ` is exactly `Ĥ = −σ N̂_s`, i.e. `f = 0`.
+    pub fn cross_eval(&self, u: T, v: T) -> CrossEval<T> {
+        let hv = self.half_vector(u, v);
+        let h = hv.wv.scale(self.eta).add(hv.wl);
+        let n = self.n0.add(self.dn1.scale(u)).add(self.dn2.scale(v));
+        let unit_deriv = |w: V3<T>, len: T, du: V3<T>| du.sub(w.scale(w.dot(du))).div(len);
+        let column = |e: V3<T>, dn: V3<T>| {
+            let me = e.neg();
+            let dh = unit_deriv(hv.wv, hv.da, me)
+                .scale(self.eta)
+                .add(unit_deriv(hv.wl, hv.db, me));
+            dh.cross(n).add(h.cross(dn))
+        };
+        CrossEval {
+            c: h.cross(n),
+            cu: column(self.e1, self.dn1),
+            cv: column(self.e2, self.dn2),
+            hn: h.dot(n),
+            n,
+        }
+    }
+}
+
+/// Value and partial derivatives of `c = h × n`, with `h·n` and `n`
+/// ([`Problem::cross_eval`]).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct CrossEval<T> {
+    pub c: V3<T>,
+    pub cu: V3<T>,
+    pub cv: V3<T>,
+    pub hn: T,
+    pub n: V3<T>,
+}
+
+impl Problem<f64> {
+    /// A bound on the smallest `‖f‖` that [`Problem::f`] can be expected to
+    /// return near a root at `(u, v)` in doubles (`fu`, `fv`: the Jacobian
+    /// there), to first order in the unit roundoff `u_r = 2⁻⁵³`:
+    ///
+    /// * `V − P = v0 − (u e1 + v e2)` is formed with an error of at most
+    ///   `3 u_r S_V`, `S_V = ‖v0‖ + |u| ‖e1‖ + |v| ‖e2‖`; normalizing it
+    ///   (eq 1) divides that by `d_V = ‖V − P‖` (the projection onto the
+    ///   unit sphere does not enlarge it; a factor 2 and `4 u_r` for the
+    ///   norm and the division are added). Likewise `ω̂_L` (eq 2) and
+    ///   `N̂_s` (with `S_N = ‖n0‖ + |u| ‖n1 − n0‖ + |v| ‖n2 − n0‖`).
+    /// * `Ĥ` (eq 3) sums `η ω̂_V + ω̂_L` and divides by its length `d_H`.
+    /// * The root itself lies between representable `(u, v)`: at the
+    ///   nearest one `‖f‖` is up to `u_r (|u| ‖f_u‖ + |v| ‖f_v‖)`.
+    ///
+    /// Away from the triangle's plane this is ~1e-15. With `V` 1e-6 from
+    /// the plane and order-one coordinates, `u_r S_V / d_V` alone is ~1e-10:
+    /// the residual cannot be driven below that, whatever the iteration.
+    pub fn residual_floor(&self, u: f64, v: f64, fu: DVec3, fv: DVec3) -> f64 {
+        let ur = 0.5 * f64::EPSILON;
+        let len = |x: V3<f64>| x.to_dvec().length();
+        let (au, av) = (u.abs(), v.abs());
+        let d = self.offset(u, v);
+        let a = self.v0.sub(d).to_dvec();
+        let b = self.l0.sub(d).to_dvec();
+        let n = self.n0.add(self.dn1.scale(u)).add(self.dn2.scale(v));
+        let (da, db, dn) = (a.length(), b.length(), len(n));
+        let dh = (self.eta * a / da + b / db).length();
+        let s_v = len(self.v0) + au * len(self.e1) + av * len(self.e2);
+        let s_l = len(self.l0) + au * len(self.e1) + av * len(self.e2);
+        let s_n = len(self.n0) + au * len(self.dn1) + av * len(self.dn2);
+        let e_wv = 6.0 * ur * s_v / da + 4.0 * ur;
+        let e_wl = 6.0 * ur * s_l / db + 4.0 * ur;
+        let e_h = self.eta * e_wv + e_wl + 2.0 * ur * (self.eta + 1.0);
+        let e_hhat = 2.0 * e_h / dh + 4.0 * ur;
+        let e_ns = 6.0 * ur * s_n / dn + 4.0 * ur;
+        let quantum = ur * (au * fu.length() + av * fv.length());
+        e_hhat + e_ns + 2.0 * ur + quantum
+    }
+}
+
 struct HalfVector<T> {
     wv: V3<T>,
     wl: V3<T>,

@@ -363,6 +363,20 @@ impl<T: Scalar> V3<T> {
     pub fn dot(self, o: V3<T>) -> T {
         self.x * o.x + self.y * o.y + self.z * o.z
     }
+    pub fn cross(self, o: V3<T>) -> V3<T> {
+        V3 {
+            x: self.y * o.z - self.z * o.y,
+            y: self.z * o.x - self.x * o.z,
+            z: self.x * o.y - self.y * o.x,
+        }
+    }
+    pub fn neg(self) -> V3<T> {
+        V3 {
+            x: -self.x,
+            y: -self.y,
+            z: -self.z,
+        }
+    }
     pub fn norm(self) -> T {
         (self.x.square() + self.y.square() + self.z.square()).root()
     }

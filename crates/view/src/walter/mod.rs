@@ -1,6 +1,7 @@
 //! Refracted connecting paths through one triangle of a medium's boundary,
 //! after Walter, Zhao, Holzschuch & Bala 2009, "Single scattering in
-//! refractive media with triangle mesh boundaries" (sections 3.1-3.3 and 4).
+//! refractive media with triangle mesh boundaries" (ACM TOG 28(3), 2009,
+//! DOI 10.1145/1531326.1531398; sections 3.1-3.3 and 4; `[Walter09 eq N]`).
 //!
 //! Given a scatter point `V` inside a medium of relative index
 //! `η = η_in / η_out`, a point light `L` outside, and one boundary triangle,
@@ -51,7 +52,10 @@
 //!   [`Mode::Heuristic`] (split-and-prune with bounding cones, stop when the
 //!   `Ĥ` and `N̂_s` cones together span less than 30°, §3.3.1) or
 //!   [`Mode::Guaranteed`] (split-and-prune on barycentric boxes with the
-//!   interval Krawczyk test, eqs 11-15, §3.3.2).
+//!   interval Krawczyk test, eqs 11-15, §3.3.2). A run is accepted at
+//!   `‖f‖ <= 1e-10`, or, where doubles cannot reach that (`V` or `L` very
+//!   close to the plane), at the residual they can reach with the root
+//!   proven by an interval test (`newton::NewtonOut::converged`).
 //!
 //! # The distance factor and eq 17
 //!
@@ -233,8 +237,9 @@ pub struct Options {
     /// of each final sub-triangle, or, if `‖f‖ > 1` there, the best of the
     /// centroid, its corners and the projection of `V` along the mean
     /// normal). When `false` (the default), Newton runs from the centroid,
-    /// the corners and the edge midpoints of every final sub-triangle and
-    /// once from the projection of `V`, and duplicates are merged.
+    /// the corners and the edge midpoints of every final sub-triangle, once
+    /// from the projection of `V` and once from the root the triangle would
+    /// have if it were flat (§3.2), and duplicates are merged.
     pub paper_starts: bool,
     /// Guaranteed mode: boxes narrower than this (in barycentric units) that
     /// are still unresolved fall back to uncertified Newton.

@@ -3,13 +3,28 @@
 //! pseudo-inverse for interpolated normals (§3.3, eqs 8-10).
 
 use super::func::Problem;
+use super::interval::Interval;
+use super::search::certify_root;
 use super::{finish, Solution, Stats, Triangle};
 use glam::{DVec2, DVec3};
 
-/// Residual `‖f‖` (eq 8) below which a 2-D Newton run counts as converged.
-/// Simple roots converge to ~1e-16; the slack admits near-double roots at
-/// caustics, where convergence is only linear.
+/// Residual `‖f‖` (eq 8) below which a 2-D Newton run counts as converged
+/// where doubles can resolve it (see [`NewtonOut::converged`]). Simple roots
+/// converge to ~1e-16; the slack admits near-double roots at caustics,
+/// where convergence is only linear.
 pub(crate) const ACCEPT_RESIDUAL: f64 = 1e-10;
+
+/// Safety factor on [`Problem::residual_floor`], a first-order bound that
+/// leaves out second-order terms and a Newton iterate a few ulps off the
+/// best one. (Measured: where `V` is 1e-6 from the plane, Newton stalls at
+/// up to 1e-9, at most 1% of `FLOOR_FACTOR` times the bound; see
+/// `nearly_flat_smooth_triangles_find_the_flat_roots`.)
+const FLOOR_FACTOR: f64 = 4.0;
+
+/// How far, in barycentric units, a root certified by [`certify_root`] may
+/// be from the accepted Newton iterate (as far as `‖f‖ <= ACCEPT_RESIDUAL`
+/// allows where `‖J⁺‖ ~ 1`; at the accepted runs it is a few ulps).
+const CERTIFY_RADIUS: f64 = 1e-10;
 
 /// The 1-D target of eq 5 and its derivative in the frame of Fig. 3:
 /// `V = (0, v_y)`, `P = (x, 0)`, `L = (l_x, l_y)`, `N̂ = (0, 1)`.
@@ -88,6 +103,16 @@ pub(crate) fn solve_flat(
     eta: f64,
     stats: &mut Stats,
 ) -> Option<Solution> {
+    let (uv, iters) = plane_root(tri, v, l, eta);
+    stats.newton_runs += 1;
+    stats.newton_iterations += iters as usize;
+    finish(tri, v, l, eta, uv, iters, true)
+}
+
+/// The root of eq 5 in the plane of `tri`, about its geometric normal, in
+/// barycentric coordinates (on the triangle or not), and the Newton steps
+/// taken. `V` and `L` are on the inner and outer sides of the plane.
+pub(crate) fn plane_root(tri: &Triangle, v: DVec3, l: DVec3, eta: f64) -> (DVec2, u32) {
     let ng = tri.geometric_normal();
     let vy = (v - tri.p[0]).dot(ng);
     let ly = (l - tri.p[0]).dot(ng);
@@ -102,9 +127,7 @@ pub(crate) fn solve_flat(
     } else {
         vfoot
     };
-    stats.newton_runs += 1;
-    stats.newton_iterations += iters as usize;
-    finish(tri, v, l, eta, tri.barycentric(p), iters, true)
+    (tri.barycentric(p), iters)
 }
 
 /// Result of one 2-D Newton run.
@@ -114,12 +137,34 @@ pub(crate) struct NewtonOut {
     /// `‖f‖` at `uv`.
     pub residual: f64,
     pub iterations: u32,
+    /// The residual doubles can reach at `uv`: [`FLOOR_FACTOR`] times
+    /// [`Problem::residual_floor`].
+    pub floor: f64,
 }
 
 impl NewtonOut {
-    /// Whether the run ended at a root (residual below [`ACCEPT_RESIDUAL`]).
-    pub fn converged(&self) -> bool {
-        self.residual <= ACCEPT_RESIDUAL
+    /// Whether the run ended at a root of eq 8 (`pi`: the same problem in
+    /// interval arithmetic).
+    ///
+    /// Where doubles resolve [`ACCEPT_RESIDUAL`] (`floor` below it, the
+    /// usual case), the run converged if `‖f‖ <= ACCEPT_RESIDUAL`, as
+    /// before. Where they do not, a fixed tolerance is meaningless: with
+    /// `V` 1e-6 from the triangle's plane, `ω̂_V` is a 1e-6-long difference
+    /// of order-one coordinates and `‖f‖` stalls near 1e-10 at the root, so
+    /// nearly flat smooth triangles lost roots the flat solver finds
+    /// (issue 17), and a lucky `‖f‖ <= 1e-10` there would prove nothing.
+    /// Then the run must reach the noise, `‖f‖ <= floor`, and a root must be
+    /// proven to exist within [`CERTIFY_RADIUS`] of `uv` by the interval test
+    /// ([`certify_root`], Krawczyk's operator of [Walter09 eq 11] on a square
+    /// form of eq 8): the relaxed tolerance cannot admit a false root. (A
+    /// near-double root is not certified; there doubles cannot tell it from
+    /// a near miss.)
+    pub fn converged(&self, pi: &Problem<Interval>) -> bool {
+        if self.floor <= ACCEPT_RESIDUAL {
+            self.residual <= ACCEPT_RESIDUAL
+        } else {
+            self.residual <= self.floor && certify_root(pi, self.uv, CERTIFY_RADIUS)
+        }
     }
 }
 
@@ -187,6 +232,7 @@ pub(crate) fn newton2(prob: &Problem<f64>, start: DVec2, max_iter: u32) -> Newto
         uv: x,
         residual: r,
         iterations: iters,
+        floor: FLOOR_FACTOR * prob.residual_floor(x.x, x.y, ju, jv),
     }
 }
 

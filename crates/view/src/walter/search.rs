@@ -3,7 +3,7 @@
 
 use super::func::Problem;
 use super::interval::{Interval, V3};
-use super::newton::{newton2, pinv, ACCEPT_RESIDUAL};
+use super::newton::{newton2, pinv, plane_root, ACCEPT_RESIDUAL};
 use super::{dedup, finish, Options, Solution, Stats, Triangle};
 use glam::{DVec2, DVec3};
 
@@ -158,7 +158,7 @@ fn cones(
 /// Runs Newton from `start` and keeps a converged physical solution.
 fn try_start(
     tri: &Triangle,
-    prob: &Problem<f64>,
+    (prob, pi): (&Problem<f64>, &Problem<Interval>),
     (v, l, eta): (DVec3, DVec3, f64),
     start: DVec2,
     certified: bool,
@@ -167,7 +167,7 @@ fn try_start(
     let out = newton2(prob, start, MAX_NEWTON);
     stats.newton_runs += 1;
     stats.newton_iterations += out.iterations as usize;
-    if !out.converged() {
+    if !out.converged(pi) {
         return None;
     }
     finish(tri, v, l, eta, out.uv, out.iterations, certified)
@@ -195,6 +195,8 @@ pub(crate) fn heuristic(
     stats: &mut Stats,
 ) -> Vec<Solution> {
     let prob = Problem::<f64>::new(tri, v, l, eta);
+    let pi = Problem::<Interval>::new(tri, v, l, eta);
+    let probs = (&prob, &pi);
     // The stopping rule on cosines: `θ_H + θ_N < limit`, with both
     // semi-angles below π/2.
     let limit = opts.cone_angle_deg.to_radians();
@@ -224,7 +226,7 @@ pub(crate) fn heuristic(
             stats.pruned += 1;
             continue;
         }
-        if depth == 0 && no_residual_below_accept(&Problem::<Interval>::new(tri, v, l, eta)) {
+        if depth == 0 && no_residual_below_accept(&pi) {
             // Proven: no point of the triangle has ‖f‖ small enough for a
             // Newton run to be accepted there, so none of the runs below
             // could report anything.
@@ -252,10 +254,10 @@ pub(crate) fn heuristic(
                         }
                     }
                 }
-                found.extend(try_start(tri, &prob, query, best.1, false, stats));
+                found.extend(try_start(tri, probs, query, best.1, false, stats));
             } else {
                 for s in [c, q[0], q[1], q[2], m[0], m[1], m[2]] {
-                    found.extend(try_start(tri, &prob, query, s, false, stats));
+                    found.extend(try_start(tri, probs, query, s, false, stats));
                 }
             }
         } else {
@@ -270,8 +272,14 @@ pub(crate) fn heuristic(
         }
     }
     if any_leaf && !opts.paper_starts {
-        if let Some(s) = vproj {
-            found.extend(try_start(tri, &prob, query, s, false, stats));
+        // The flat triangle's root (§3.2, about the geometric normal): for
+        // nearly flat normals it lies within about ‖J⁺‖ times their tilt of
+        // a root, where the other start points may all be outside Newton's
+        // basin (with V or L close to the plane the basin is that small).
+        let (flat, iters) = plane_root(tri, v, l, eta);
+        stats.newton_iterations += iters as usize;
+        for s in vproj.into_iter().chain([flat]) {
+            found.extend(try_start(tri, probs, query, s, false, stats));
         }
     }
     dedup(found, DEDUP_TOL)
@@ -287,7 +295,9 @@ pub(crate) fn heuristic(
 /// that Gauss-Newton cannot remove) and the rows of `M⁺` and their sum (a
 /// linearized root beyond an edge of `T`, as in eq 13), and `f(c)` itself.
 /// Since `‖f(x)‖ >= |w·f(x)|`, a sign-definite interval beyond the margin
-/// means no Newton run can converge (`‖f‖ <= ACCEPT_RESIDUAL`) on `T`.
+/// means no Newton run can converge (`‖f‖ <= ACCEPT_RESIDUAL`) on `T`
+/// where doubles resolve that tolerance, and `T` holds no root that
+/// [`certify_root`] could certify where they do not.
 pub(crate) fn no_residual_below_accept(pi: &Problem<Interval>) -> bool {
     excluded_on(pi, &[DVec2::ZERO, DVec2::X, DVec2::Y], EXCLUSION_DEPTH)
 }
@@ -427,6 +437,92 @@ pub(crate) fn krawczyk(pi: &Problem<Interval>, x: [Interval; 2]) -> Krawczyk {
     Krawczyk::Split([c0, c1])
 }
 
+/// Proves that eq 8 has a root within `max_radius` (barycentric units) of
+/// the Newton iterate `x` (used where doubles cannot bring `‖f‖` below the
+/// fixed tolerance, [`super::newton::NewtonOut::converged`]).
+///
+/// With a 3×2 Jacobian a fixed point of the paper's Krawczyk operator
+/// (eqs 11, 14-15) need only make `f` orthogonal to the range of `M`, so
+/// the test runs on a square form of eq 8 instead: `g = Tᵀ (h × n)`, with
+/// `h = η ω̂_V + ω̂_L`, `n` the interpolated normal ([`Problem::cross_eval`])
+/// and `T` two unit vectors across the shading normal `ν` at `x`. If
+/// `g = 0`, `h × n` is parallel to `ν` and orthogonal to `n`, hence zero
+/// wherever `ν·n ≠ 0`; with `sign(h·n) = −σ` that is `Ĥ = −σ N̂_s`, a root
+/// of eq 8. On the box `X` of half-width four times the enclosed Newton
+/// correction `|Y g(x)|` (plus 4 ulps) around `x`, with `Y` the inverse of
+/// the point Jacobian (refused if wider than `max_radius`), the Krawczyk
+/// operator
+/// `K = x − Y g(x) + (I − Y G'(X))(X − x)` maps `X` into its interior and
+/// `‖I − Y G'(X)‖∞ < 1` (R. Krawczyk 1969, "Newton-Algorithmen zur
+/// Bestimmung von Nullstellen mit Fehlerschranken", Computing 4): then `Y`
+/// is regular and `g` has exactly one zero in `X` (Brouwer for the map
+/// `x − Y g(x)`, which takes `X` into `K`; the norm makes it a
+/// contraction). `ν·n > 0` and the sign of
+/// `h·n` are checked over all of `X`. Every bound is an interval enclosure
+/// of exact values of the stated problem, so a certified root is a true
+/// one.
+pub(crate) fn certify_root(pi: &Problem<Interval>, x: DVec2, max_radius: f64) -> bool {
+    let xs = [x.x, x.y];
+    let at = pi.cross_eval(Interval::point(x.x), Interval::point(x.y));
+    let nu = mid3(at.n).normalize_or_zero();
+    if nu == DVec3::ZERO || !nu.is_finite() {
+        return false;
+    }
+    let (t1, t2) = nu.any_orthonormal_pair();
+    let g = [dot_fi(t1, at.c), dot_fi(t2, at.c)];
+    let jm = [
+        [dot_fi(t1, at.cu).mid(), dot_fi(t1, at.cv).mid()],
+        [dot_fi(t2, at.cu).mid(), dot_fi(t2, at.cv).mid()],
+    ];
+    let det = jm[0][0] * jm[1][1] - jm[0][1] * jm[1][0];
+    if !det.is_finite() || det == 0.0 {
+        return false;
+    }
+    let y = [
+        [jm[1][1] / det, -jm[0][1] / det],
+        [-jm[1][0] / det, jm[0][0] / det],
+    ];
+    // The Newton correction Y g(x), enclosed, and the box around x.
+    let yg = [0, 1].map(|i| g[0] * y[i][0] + g[1] * y[i][1]);
+    let bx = [0, 1].map(|i| {
+        let r = 4.0 * yg[i].mag() + 4.0 * f64::EPSILON * xs[i].abs() + f64::MIN_POSITIVE;
+        let (p, r) = (Interval::point(xs[i]), Interval::point(r));
+        Interval::new((p - r).lo(), (p + r).hi())
+    });
+    let small = |i: usize| bx[i].hi() - xs[i] <= max_radius && xs[i] - bx[i].lo() <= max_radius;
+    if !small(0) || !small(1) {
+        return false;
+    }
+    let over = pi.cross_eval(bx[0], bx[1]);
+    let oriented = if pi.sigma.lo() > 0.0 {
+        over.hn.hi() < 0.0
+    } else {
+        over.hn.lo() > 0.0
+    };
+    if !oriented || dot_fi(nu, over.n).lo() <= 0.0 {
+        return false;
+    }
+    let gp = [
+        [dot_fi(t1, over.cu), dot_fi(t1, over.cv)],
+        [dot_fi(t2, over.cu), dot_fi(t2, over.cv)],
+    ];
+    for i in 0..2 {
+        let mut k = Interval::point(xs[i]) - yg[i];
+        let mut row = Interval::point(0.0);
+        for j in 0..2 {
+            let delta = if i == j { 1.0 } else { 0.0 };
+            let a = Interval::point(delta) - (gp[0][j] * y[i][0] + gp[1][j] * y[i][1]);
+            row = row + Interval::point(a.mag());
+            k = k + a * (bx[j] - Interval::point(xs[j]));
+        }
+        let inside = k.lo() > bx[i].lo() && k.hi() < bx[i].hi();
+        if !inside || row.hi() >= 1.0 {
+            return false;
+        }
+    }
+    true
+}
+
 fn near_box(uv: DVec2, x: &[Interval; 2], tol: f64) -> bool {
     uv.x >= x[0].lo() - tol
         && uv.x <= x[0].hi() + tol
@@ -463,7 +559,7 @@ pub(crate) fn guaranteed(
         let center = DVec2::new(x[0].mid(), x[1].mid());
         if stats.regions > opts.max_boxes {
             stats.unresolved += 1;
-            found.extend(try_start(tri, &pf, query, center, false, stats));
+            found.extend(try_start(tri, (&pf, &pi), query, center, false, stats));
             continue;
         }
         match krawczyk(&pi, x) {
@@ -486,7 +582,7 @@ pub(crate) fn guaranteed(
                 let out = newton2(&pf, y, MAX_NEWTON);
                 stats.newton_runs += 1;
                 stats.newton_iterations += out.iterations as usize;
-                if out.converged() && near_box(out.uv, &x, 1e-9) {
+                if out.converged(&pi) && near_box(out.uv, &x, 1e-9) {
                     found.extend(finish(tri, v, l, eta, out.uv, out.iterations, true));
                 }
             }
@@ -495,7 +591,7 @@ pub(crate) fn guaranteed(
                 if w0.max(w1) < opts.min_box_width {
                     stats.unresolved += 1;
                     let mid = DVec2::new(c[0].mid(), c[1].mid());
-                    found.extend(try_start(tri, &pf, query, mid, false, stats));
+                    found.extend(try_start(tri, (&pf, &pi), query, mid, false, stats));
                 } else if w0 + w1 <= 0.75 * (x[0].width() + x[1].width()) {
                     stack.push(c);
                 } else if w0 >= w1 {
