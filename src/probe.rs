@@ -1,13 +1,12 @@
 //! `eikon probe`: the light at one point of simulated light volumes.
 
 use crate::output::{fmt_vec, parse_vec3};
-use crate::simulate::SIDECAR;
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
+use eikon_wavefront::lightdir::LightDir;
 use glam::DVec3;
-use ndarray::{ArrayD, IxDyn};
-use ndarray_npy::read_npy;
+use ndarray::Array4;
 use serde_json::{json, Value};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// Arguments of `eikon probe`.
 #[derive(clap::Args)]
@@ -22,35 +21,25 @@ pub struct Args {
     json: bool,
 }
 
-fn vec3(v: &Value, what: &str, sidecar: &Path) -> Result<DVec3> {
-    let a: Vec<f64> = serde_json::from_value(v.clone())
-        .with_context(|| format!("{}: {what} is not a list of numbers", sidecar.display()))?;
-    if a.len() != 3 {
-        bail!("{}: {what} needs 3 numbers", sidecar.display());
-    }
-    Ok(DVec3::new(a[0], a[1], a[2]))
-}
-
 /// Trilinear interpolation (cell-centre convention) of the last-axis
-/// vector of `a` (leading `lead` indices fixed) at continuous voxel `u`.
-fn trilinear(a: &ArrayD<f32>, lead: &[usize], dims: [usize; 3], u: DVec3) -> DVec3 {
+/// vector of `a`, `(nx, ny, nz, 3)`, at continuous voxel `u`.
+fn trilinear(a: &Array4<f32>, u: DVec3) -> DVec3 {
+    let dims = [a.shape()[0], a.shape()[1], a.shape()[2]];
     let hi = DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64) - 1.0;
-    let u = u.clamp(DVec3::ZERO, hi);
+    let u = u.clamp(DVec3::ZERO, hi.max(DVec3::ZERO));
     let i0 = [0, 1, 2].map(|k| (u[k] as usize).min(dims[k].saturating_sub(2)));
     let f = [0, 1, 2].map(|k| u[k] - i0[k] as f64);
     let mut out = DVec3::ZERO;
     for corner in 0..8 {
         let d = [corner & 1, (corner >> 1) & 1, (corner >> 2) & 1];
         let mut w = 1.0;
-        let mut idx: Vec<usize> = lead.to_vec();
+        let mut idx = [0; 3];
         for k in 0..3 {
-            idx.push((i0[k] + d[k]).min(dims[k] - 1));
+            idx[k] = (i0[k] + d[k]).min(dims[k] - 1);
             w *= if d[k] == 1 { f[k] } else { 1.0 - f[k] };
         }
         for c in 0..3 {
-            idx.push(c);
-            out[c] += w * a[IxDyn(&idx)] as f64;
-            idx.pop();
+            out[c] += w * a[[idx[0], idx[1], idx[2], c]] as f64;
         }
     }
     out
@@ -58,27 +47,11 @@ fn trilinear(a: &ArrayD<f32>, lead: &[usize], dims: [usize; 3], u: DVec3) -> DVe
 
 /// Run `eikon probe`.
 pub fn run(args: Args) -> Result<()> {
-    let sidecar = args.volumes.join(SIDECAR);
-    let text = std::fs::read_to_string(&sidecar).with_context(|| {
-        format!(
-            "{}: cannot read the light-volume description (is {} an `eikon simulate` output?)",
-            sidecar.display(),
-            args.volumes.display()
-        )
-    })?;
-    let meta: Value = serde_json::from_str(&text)
-        .with_context(|| format!("{}: not valid JSON", sidecar.display()))?;
-    if meta["format"] != "eikon-light-volumes" {
-        bail!(
-            "{}: format: not an eikon light-volume description",
-            sidecar.display()
-        );
-    }
-    let dims: [usize; 3] = serde_json::from_value(meta["grid"]["dims"].clone())
-        .with_context(|| format!("{}: grid.dims", sidecar.display()))?;
-    let min = vec3(&meta["grid"]["min"], "grid.min", &sidecar)?;
-    let max = vec3(&meta["grid"]["max"], "grid.max", &sidecar)?;
-    let spacing = vec3(&meta["grid"]["spacing"], "grid.spacing", &sidecar)?;
+    // The sidecar checks the grid (at least one cell per axis) and every
+    // file against its size, header, checksum and finiteness.
+    let folder = LightDir::open(&args.volumes)?;
+    let geometry = folder.sidecar.geometry();
+    let (min, max) = (geometry.min, geometry.max);
     if !(args.at.cmpge(min).all() && args.at.cmple(max).all()) {
         bail!(
             "--at: {} lies outside the volume {} .. {}",
@@ -87,46 +60,16 @@ pub fn run(args: Args) -> Result<()> {
             fmt_vec(max)
         );
     }
-    let u = (args.at - min) / spacing - 0.5;
-    let lights = meta["lights"]
-        .as_array()
-        .with_context(|| format!("{}: lights", sidecar.display()))?;
-    let mut out = Vec::new();
-    for (i, l) in lights.iter().enumerate() {
-        let file = |key: &str| -> Result<ArrayD<f32>> {
-            let name = l[key]
-                .as_str()
-                .with_context(|| format!("{}: lights[{i}].{key}", sidecar.display()))?;
-            let path = args.volumes.join(name);
-            let a: ArrayD<f32> =
-                read_npy(&path).with_context(|| format!("{}: cannot read", path.display()))?;
-            Ok(a)
-        };
-        let irr = file("fluence_file")?;
-        let dir = Some(file("flux_file")?);
-        let shape_ok = |a: &ArrayD<f32>, lead: usize| {
-            a.ndim() == 4 + lead && a.shape()[lead..lead + 3] == dims && a.shape()[lead + 3] == 3
-        };
-        if !shape_ok(&irr, 0)
-            || dir
-                .as_ref()
-                .is_some_and(|d| !(shape_ok(d, 0) || shape_ok(d, 1)))
-        {
-            bail!(
-                "{}: light {i}: arrays do not match grid.dims {dims:?}",
-                args.volumes.display()
-            );
-        }
-        let e = trilinear(&irr, &[], dims, u);
-        let directions: Vec<DVec3> = match &dir {
-            None => Vec::new(),
-            Some(d) if d.ndim() == 4 => vec![trilinear(d, &[], dims, u)],
-            Some(d) => (0..d.shape()[0])
-                .map(|c| trilinear(d, &[c], dims, u))
-                .collect(),
-        };
-        out.push((e, directions));
-    }
+    let u = (args.at - min) / geometry.spacing() - 0.5;
+    let out: Vec<(DVec3, Vec<DVec3>)> = folder
+        .volumes()?
+        .iter()
+        .map(|v| {
+            let flux = v.flux.iter().map(|f| trilinear(f, u)).collect();
+            (trilinear(&v.fluence, u), flux)
+        })
+        .collect();
+    let run_id = &folder.sidecar.run_id;
     if args.json {
         let v: Vec<Value> = out
             .iter()
@@ -139,10 +82,13 @@ pub fn run(args: Args) -> Result<()> {
             .collect();
         println!(
             "{}",
-            serde_json::to_string_pretty(&json!({ "at": args.at.to_array(), "lights": v }))?
+            serde_json::to_string_pretty(
+                &json!({ "at": args.at.to_array(), "run_id": run_id, "lights": v })
+            )?
         );
     } else {
         println!("at            {}", fmt_vec(args.at));
+        println!("run           {run_id}");
         for (i, (e, d)) in out.iter().enumerate() {
             println!("light {i}");
             println!("  fluence     {} W/unit^2 (R, G, B)", fmt_vec(*e));

@@ -3,7 +3,6 @@
 
 use crate::backend::Backend;
 use crate::output::{build_medium, write_atomic};
-use crate::simulate::SIDECAR;
 use anyhow::{bail, Context, Result};
 use clap::ValueEnum;
 use eikon_grid::{Medium, Method, Scene};
@@ -11,11 +10,10 @@ use eikon_view::{
     encode_exr, encode_png, Camera, Exposure, Image, Options, Renderer, Stats, Surroundings,
     ToneMap,
 };
+use eikon_wavefront::lightdir::{LightDir, SIDECAR};
 use eikon_wavefront::LightVolume;
 use glam::DVec3;
-use ndarray::{Array4, Array5, ArrayD, Axis, Ix4, Ix5};
-use ndarray_npy::read_npy;
-use serde_json::{json, Value};
+use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -416,40 +414,19 @@ fn report(
 }
 
 /// Read the light volumes of `dir` (written by `eikon simulate`) for
-/// `scene`, checking that they belong to its grid and lights.
+/// `scene`, checking that they belong to its grid and lights before reading
+/// them, and every file against the sidecar as they are read
+/// ([`eikon_wavefront::lightdir`]).
 pub fn load_light_volumes(dir: &Path, scene: &Scene, medium: &Medium) -> Result<Vec<LightVolume>> {
+    let folder = LightDir::open(dir)?;
+    let meta = &folder.sidecar;
     let sidecar = dir.join(SIDECAR);
-    let text = std::fs::read_to_string(&sidecar).with_context(|| {
-        format!(
-            "{}: cannot read the light-volume description (is {} an `eikon simulate` output?)",
-            sidecar.display(),
-            dir.display()
-        )
-    })?;
-    let meta: Value = serde_json::from_str(&text)
-        .with_context(|| format!("{}: not valid JSON", sidecar.display()))?;
-    if meta["format"] != "eikon-light-volumes" {
-        bail!(
-            "{}: format: not an eikon light-volume description",
-            sidecar.display()
-        );
-    }
-    if meta["version"] != 2 {
-        bail!(
-            "{}: version: {} is not 2 (light volumes written before fluence and flux were stored): simulate this scene again",
-            sidecar.display(),
-            meta["version"]
-        );
-    }
     let g = &medium.geometry;
-    let dims: [usize; 3] = serde_json::from_value(meta["grid"]["dims"].clone())
-        .with_context(|| format!("{}: grid.dims", sidecar.display()))?;
-    let bound = |k: &str| -> Result<DVec3> {
-        let v: [f64; 3] = serde_json::from_value(meta["grid"][k].clone())
-            .with_context(|| format!("{}: grid.{k}", sidecar.display()))?;
-        Ok(DVec3::from_array(v))
-    };
-    let (min, max) = (bound("min")?, bound("max")?);
+    let dims = meta.grid.dims;
+    let (min, max) = (
+        DVec3::from_array(meta.grid.min),
+        DVec3::from_array(meta.grid.max),
+    );
     let tol = 1e-9 * g.diagonal();
     if dims != g.dims
         || (min - g.min).abs().max_element() > tol
@@ -463,56 +440,24 @@ pub fn load_light_volumes(dir: &Path, scene: &Scene, medium: &Medium) -> Result<
             g.dims[0], g.dims[1], g.dims[2], g.min.to_array(), g.max.to_array()
         );
     }
-    let lights = meta["lights"]
-        .as_array()
-        .with_context(|| format!("{}: lights", sidecar.display()))?;
-    if lights.len() != scene.lights.len() {
+    if meta.lights.len() != scene.lights.len() {
         bail!(
             "{}: lights: {} light volume(s), but {} has {} light(s): simulate this scene again",
             sidecar.display(),
-            lights.len(),
+            meta.lights.len(),
             scene.origin,
             scene.lights.len()
         );
     }
-    let mut out = Vec::new();
-    for (i, l) in lights.iter().enumerate() {
-        let file = |key: &str| -> Result<(PathBuf, ArrayD<f32>)> {
-            let name = l[key]
-                .as_str()
-                .with_context(|| format!("{}: lights[{i}].{key}", sidecar.display()))?;
-            let path = dir.join(name);
-            let a: ArrayD<f32> =
-                read_npy(&path).with_context(|| format!("{}: cannot read", path.display()))?;
-            Ok((path, a))
-        };
-        let (irr_path, irr) = file("fluence_file")?;
-        let (dir_path, d) = file("flux_file")?;
-        let irr: Array4<f32> = irr.into_dimensionality::<Ix4>().map_err(|_| {
-            anyhow::anyhow!("{}: not a 4-D (nx, ny, nz, 3) array", irr_path.display())
-        })?;
-        let direction = match d.ndim() {
-            4 => vec![d.into_dimensionality::<Ix4>().expect("4-D")],
-            5 => {
-                let d: Array5<f32> = d.into_dimensionality::<Ix5>().expect("5-D");
-                d.axis_iter(Axis(0)).map(|a| a.to_owned()).collect()
-            }
-            _ => bail!(
-                "{}: not a (nx, ny, nz, 3) or (3, nx, ny, nz, 3) array",
-                dir_path.display()
-            ),
-        };
-        if direction.len() != medium.channels() {
+    for l in &meta.lights {
+        let arrays = if l.flux_shape.len() == 5 { 3 } else { 1 };
+        if arrays != medium.channels() {
             bail!(
-                "{}: {} flux volume(s) but the scene has {} index field(s) (dispersion differs): simulate this scene again",
-                dir_path.display(),
-                direction.len(),
+                "{}: {arrays} flux volume(s) but the scene has {} index field(s) (dispersion differs): simulate this scene again",
+                dir.join(&l.flux_file).display(),
                 medium.channels()
             );
         }
-        let v = LightVolume::from_arrays(g, irr, direction)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", dir.display()))?;
-        out.push(v);
     }
-    Ok(out)
+    Ok(folder.volumes()?)
 }

@@ -1,16 +1,15 @@
 //! `eikon simulate`: the light volumes of every light of a scene.
 
 use crate::backend::{Backend, BackendFlag};
-use crate::output::{build_medium, write_atomic};
-use anyhow::{bail, Context, Result};
+use crate::output::build_medium;
+use anyhow::{bail, Result};
 use clap::ValueEnum;
-use eikon_grid::{Light, Medium, Method, Scene};
+use eikon_grid::{Medium, Method, Scene};
+use eikon_wavefront::lightdir::{self, LightSummary, Run, RunOptions};
 use eikon_wavefront::photons::simulate_photons;
 use eikon_wavefront::{check_scene, simulate_light, DepositRule, LightVolume, Options, Summary};
-use ndarray::{Array4, Array5, Axis};
-use ndarray_npy::WriteNpyExt;
 use serde_json::{json, Value};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 /// The most photons per light `--method photons` traces (hours on a
@@ -19,9 +18,6 @@ pub const MAX_PHOTONS: usize = 10_000_000_000;
 
 /// `--max-patches` unless the memory limit asks for fewer.
 pub const DEFAULT_MAX_PATCHES: usize = 8 << 20;
-
-/// The sidecar that describes a light-volume directory.
-pub const SIDECAR: &str = "light_volumes.json";
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
 enum SimMethod {
@@ -110,30 +106,6 @@ pub struct Args {
     quiet: bool,
 }
 
-fn light_json(l: &Light) -> Value {
-    match l {
-        Light::Directional { direction, power } => json!({
-            "type": "directional", "direction": direction.to_array(), "power": power.to_array(),
-            "power_unit": "W/m^2 across the beam",
-        }),
-        Light::Point { position, power } => json!({
-            "type": "point", "position": position.to_array(), "power": power.to_array(),
-            "power_unit": "W",
-        }),
-        Light::Spot {
-            position,
-            direction,
-            angle,
-            falloff,
-            power,
-        } => json!({
-            "type": "spot", "position": position.to_array(), "direction": direction.to_array(),
-            "angle_degrees": angle, "falloff_degrees": falloff, "power": power.to_array(),
-            "power_unit": "W (of the unrestricted point light)",
-        }),
-    }
-}
-
 /// The time left when `step` of about `crossing` steps took `elapsed`
 /// seconds: the light's straight crossing at the pace so far, or the
 /// steps past it (refracted and trapped light) when it is over.
@@ -151,29 +123,9 @@ fn eta(elapsed: f64, step: usize, crossing: usize) -> String {
     )
 }
 
-/// The summary of one light as JSON.
+/// The summary of one light as JSON (as recorded in the sidecar).
 pub fn summary_json(s: &Summary, seconds: f64) -> Value {
-    json!({
-        "steps": s.steps,
-        "peak_patches": s.peak_patches,
-        "emitted": s.emitted,
-        "ended": {
-            "exited": s.exited,
-            "absorbed": s.absorbed,
-            "caustic": s.caustic,
-            "step_limit": s.step_limit,
-        },
-        "splits_held_back": s.held,
-        "energy_w": {
-            "entered": s.entered,
-            "absorbed": s.absorbed_power,
-            "exited": s.exited_power,
-            "reflected": s.reflected_power,
-            "culled": s.culled_power,
-            "imbalance_relative": s.energy_imbalance(),
-        },
-        "seconds": seconds,
-    })
+    serde_json::to_value(LightSummary::new(s, seconds)).expect("plain data")
 }
 
 fn print_summary(i: usize, s: &Summary, seconds: f64) {
@@ -201,14 +153,6 @@ fn print_summary(i: usize, s: &Summary, seconds: f64) {
         s.energy_imbalance()
     );
     println!("  wall time      {seconds:.2} s");
-}
-
-fn write_npy<A: WriteNpyExt>(dir: &Path, name: &str, a: &A) -> Result<()> {
-    let path = dir.join(name);
-    write_atomic(&path, |w| {
-        a.write_npy(w)
-            .with_context(|| format!("{}: writing NumPy data", path.display()))
-    })
 }
 
 impl Args {
@@ -381,79 +325,41 @@ pub fn simulate(
     }
     let wall = started.elapsed().as_secs_f64();
 
-    // Write every volume, then the sidecar last: a directory with a sidecar
-    // is complete.
-    std::fs::create_dir_all(&args.output).with_context(|| {
-        format!(
-            "{}: cannot create the output directory",
-            args.output.display()
-        )
-    })?;
-    let g = &medium.geometry;
-    let mut lights = Vec::new();
-    for (i, ((volume, summary, secs), light)) in results.iter().zip(&scene.lights).enumerate() {
-        let flu = format!("light{i}_fluence.npy");
-        let mut l = light_json(light);
-        l["fluence_file"] = json!(flu);
-        write_npy(&args.output, &flu, &volume.fluence)?;
-        let flux = format!("light{i}_flux.npy");
-        let shape: Vec<usize> = if volume.flux.len() == 1 {
-            write_npy(&args.output, &flux, &volume.flux[0])?;
-            volume.flux[0].shape().to_vec()
-        } else {
-            let views: Vec<_> = volume.flux.iter().map(Array4::view).collect();
-            let stacked: Array5<f32> = ndarray::stack(Axis(0), &views)?;
-            write_npy(&args.output, &flux, &stacked)?;
-            stacked.shape().to_vec()
-        };
-        l["flux_file"] = json!(flux);
-        l["flux_shape"] = json!(shape);
-        l["summary"] = summary_json(summary, *secs);
-        lights.push(l);
-    }
-    let sidecar = json!({
-        "format": "eikon-light-volumes",
-        "version": 2,
-        "scene": args.scene.display().to_string(),
-        "grid": {
-            "dims": g.dims,
-            "min": g.min.to_array(),
-            "max": g.max.to_array(),
-            "spacing": g.spacing().to_array(),
-            "convention": "array index [i, j, k] holds the value at the centre of cell (i, j, k): min + (i + 0.5, j + 0.5, k + 0.5) * spacing",
-        },
-        "units": {
-            "length": "world units of the scene",
-            "fluence": "W per world unit^2 (W/m^2 when the unit is the metre), R, G, B: the fluence rate phi, the cell average of the integral of radiance over all directions (track-length estimate; ray families add); with --deposit paper the differential irradiance of the highest-energy ray",
-            "flux": "W per world unit^2: the net flux vector F (vector irradiance, the first angular moment), cell average; shape (nx, ny, nz, 3) holding the mean of the R, G, B channels' vectors, or (3, nx, ny, nz, 3) per channel with dispersion. In-scattered radiance per unit length is albedo * sigma_t * phi * p_HG(w . F/|F|; g * |F|/phi); a surface of normal N facing the light receives max(0, -F . N)",
-        },
-        "method": match args.method {
+    // One run into the folder, its sidecar last, with the run id and every
+    // file's size and checksum that the readers verify (lightdir's docs).
+    let run = Run {
+        scene: args.scene.display().to_string(),
+        method: match args.method {
             SimMethod::Wavefront => "wavefront",
             SimMethod::Photons => "photons",
-        },
-        "options": {
-            "step_voxels": opts.step,
-            "integrator": format!("{:?}", opts.method),
-            "patch_size_voxels": opts.patch_size,
-            "split_voxels": opts.split,
-            "threshold": opts.threshold,
-            "deposit": match opts.deposit {
+        }
+        .into(),
+        options: RunOptions {
+            step_voxels: opts.step,
+            integrator: format!("{:?}", opts.method),
+            patch_size_voxels: opts.patch_size,
+            split_voxels: opts.split,
+            threshold: opts.threshold,
+            deposit: match opts.deposit {
                 DepositRule::Fluence => "fluence",
                 DepositRule::Paper => "paper",
-            },
-            "fresnel": opts.fresnel,
-            "photons": (args.method == SimMethod::Photons).then_some(args.count),
-            "seed": (args.method == SimMethod::Photons).then_some(args.seed),
+            }
+            .into(),
+            fresnel: opts.fresnel,
+            photons: (args.method == SimMethod::Photons).then_some(args.count),
+            seed: (args.method == SimMethod::Photons).then_some(args.seed),
         },
-        "lights": lights,
-        "backend": sim_backend,
-        "seconds": wall,
-    });
-    write_atomic(&args.output.join(SIDECAR), |w| {
-        serde_json::to_writer_pretty(&mut *w, &sidecar)?;
-        w.write_all(b"\n")?;
-        Ok(())
-    })?;
+        backend: sim_backend.clone(),
+        seconds: wall,
+        lights: results
+            .iter()
+            .zip(&scene.lights)
+            .map(|((volume, summary, secs), light)| {
+                (light, volume, LightSummary::new(summary, *secs))
+            })
+            .collect(),
+    };
+    let sidecar = lightdir::write(&args.output, &medium.geometry, &run)?;
     if args.quiet {
     } else if args.json {
         let summaries: Vec<Value> = results
@@ -464,6 +370,7 @@ pub fn simulate(
             "{}",
             serde_json::to_string_pretty(&json!({
                 "output": args.output.display().to_string(),
+                "run_id": sidecar.run_id,
                 "backend": sim_backend,
                 "lights": summaries,
                 "seconds": wall,

@@ -27,6 +27,7 @@ pub mod deposit;
 pub mod gpu;
 pub mod histopyramid;
 pub mod light;
+pub mod lightdir;
 pub mod patch;
 pub mod photons;
 pub mod propagate;
