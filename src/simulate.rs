@@ -123,6 +123,24 @@ fn eta(elapsed: f64, step: usize, crossing: usize) -> String {
     )
 }
 
+/// Trapped power above this fraction of the entered power is warned about.
+pub const TRAPPED_WARNING: f64 = 0.01;
+
+/// The warning for light `i` when more than [`TRAPPED_WARNING`] of the power
+/// that entered was still travelling at the step limit.
+pub fn trapped_warning(i: usize, s: &Summary) -> Option<String> {
+    let f = s.trapped_fraction();
+    (f > TRAPPED_WARNING).then(|| {
+        format!(
+            "warning: light {i}: {:.1}% of the power that entered is trapped: still travelling when no longer followed ({} patches at the step limit of {} steps, {} split too faint to follow), typically held by total internal reflection; the volume holds its light only up to there",
+            100.0 * f,
+            s.step_limit,
+            s.steps,
+            s.faint
+        )
+    })
+}
+
 /// The summary of one light as JSON (as recorded in the sidecar).
 pub fn summary_json(s: &Summary, seconds: f64) -> Value {
     serde_json::to_value(LightSummary::new(s, seconds)).expect("plain data")
@@ -137,8 +155,8 @@ fn print_summary(i: usize, s: &Summary, seconds: f64) {
         s.peak_patches, s.emitted
     );
     println!(
-        "  patches ended  {} exited, {} absorbed, {} at caustics, {} at the step limit",
-        s.exited, s.absorbed, s.caustic, s.step_limit
+        "  patches ended  {} exited, {} absorbed, {} too faint to follow, {} at caustics, {} at the step limit",
+        s.exited, s.absorbed, s.faint, s.caustic, s.step_limit
     );
     if s.held > 0 {
         println!("  held back      {} splits (--max-patches)", s.held);
@@ -149,10 +167,25 @@ fn print_summary(i: usize, s: &Summary, seconds: f64) {
     println!("  reflected      {} W", rgb(s.reflected_power));
     println!("  culled         {} W", rgb(s.culled_power));
     println!(
+        "  trapped        {} W (still travelling: at the step limit or too faint to follow)",
+        rgb(s.trapped_power)
+    );
+    println!(
         "  imbalance      {:.2e} of the entered power",
         s.energy_imbalance()
     );
     println!("  wall time      {seconds:.2} s");
+}
+
+/// A simulation error of light `i`, an overflow located at the light's
+/// power (what scales every value of its volume).
+fn located(scene: &Scene, i: usize, e: eikon_wavefront::Error) -> anyhow::Error {
+    match e {
+        eikon_wavefront::Error::NotFinite(message) => {
+            scene.error_at(&format!("light[{i}].power"), message).into()
+        }
+        e => e.into(),
+    }
 }
 
 impl Args {
@@ -310,17 +343,21 @@ pub fn simulate(
                     bar.tick();
                 };
                 match &gpu {
-                    Some(sim) => sim.simulate(light, &opts, &progress)?,
-                    None => simulate_light(light, medium, &opts, &progress)?,
+                    Some(sim) => sim.simulate(light, &opts, &progress),
+                    None => simulate_light(light, medium, &opts, &progress),
                 }
             }
             SimMethod::Photons => {
                 bar.set_message(format!("tracing {} photons", args.count));
                 bar.enable_steady_tick(std::time::Duration::from_millis(200));
-                simulate_photons(light, medium, args.count, args.seed, &opts)?
+                simulate_photons(light, medium, args.count, args.seed, &opts)
             }
-        };
+        }
+        .map_err(|e| located(scene, i, e))?;
         bar.finish_and_clear();
+        if let Some(w) = trapped_warning(i, &summary) {
+            eprintln!("{w}");
+        }
         results.push((volume, summary, t.elapsed().as_secs_f64()));
     }
     let wall = started.elapsed().as_secs_f64();

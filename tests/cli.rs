@@ -512,6 +512,100 @@ fn simulate_refuses_bad_input_without_writing() {
     assert!(!out.exists(), "no output may be written on failure");
 }
 
+/// Issue 17: a light power beyond the limit is refused at its place; one
+/// within it that a tiny grid still concentrates beyond 32-bit floats is
+/// refused at the same place, with nothing written; trapped light is its
+/// own line of the summary and a warning on stderr.
+#[test]
+fn simulate_refuses_overflow_and_warns_of_trapped_light() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("never");
+    let huge = write_scene(
+        dir.path(),
+        "huge.toml",
+        &LIT.replace("power = [4, 2, 1]", "power = [4, 1e38, 1]"),
+    );
+    let err = expect_error(
+        &[
+            "simulate",
+            huge.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ],
+        &["huge.toml", "light[0].power", "1e20"],
+    );
+    println!("{err}");
+    let tiny = write_scene(
+        dir.path(),
+        "tiny.toml",
+        "[grid]\nresolution = 8\nmin = [0, 0, 0]\nmax = [1e-10, 1e-10, 1e-10]\n\
+         [[light]]\ntype = \"point\"\nposition = [5.1e-11, 4.9e-11, 5.2e-11]\npower = [1e20, 1e20, 1e20]\n",
+    );
+    let err = expect_error(
+        &[
+            "simulate",
+            tiny.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--json",
+        ],
+        &["tiny.toml", "light[0].power", "overflow"],
+    );
+    println!("{err}");
+    assert!(!out.exists(), "no output may be written on failure");
+    // A point light off the centre of a clear n = 3 sphere: geometric
+    // optics traps 83% (`tests/finite.rs` checks the fraction).
+    let trap = write_scene(
+        dir.path(),
+        "trap.toml",
+        "[grid]\nresolution = 16\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
+         [[object]]\nshape = { type = \"sphere\", center = [0, 0, 0], radius = 0.8 }\nindex = 3\n\
+         [[light]]\ntype = \"point\"\nposition = [0.48, 0.01, 0.02]\npower = [1, 1, 1]\n",
+    );
+    let light = dir.path().join("trap");
+    let run = eikon_ok(&[
+        "simulate",
+        trap.to_str().unwrap(),
+        "-o",
+        light.to_str().unwrap(),
+        "--max-steps",
+        "300",
+        "--json",
+    ]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    println!("{stderr}");
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let energy = &v["lights"][0]["energy_w"];
+    let trapped = energy["trapped"][0].as_f64().unwrap();
+    let entered = energy["entered"][0].as_f64().unwrap();
+    assert!(trapped > 0.5 * entered, "{energy}");
+    assert!(energy["imbalance_relative"].as_f64().unwrap() < 1e-9);
+    let pct = format!("{:.1}%", 100.0 * trapped / entered);
+    assert!(
+        stderr.contains("warning: light 0:") && stderr.contains("trapped") && stderr.contains(&pct),
+        "{stderr}"
+    );
+    // The text summary has the line; a light that traps nothing warns of
+    // nothing.
+    let text = eikon_ok(&[
+        "simulate",
+        trap.to_str().unwrap(),
+        "-o",
+        light.to_str().unwrap(),
+        "--max-steps",
+        "300",
+    ]);
+    assert!(String::from_utf8_lossy(&text.stdout).contains("  trapped  "));
+    let lit = write_scene(dir.path(), "lit.toml", LIT);
+    let free = eikon_ok(&[
+        "simulate",
+        lit.to_str().unwrap(),
+        "-o",
+        dir.path().join("free").to_str().unwrap(),
+    ]);
+    assert!(!String::from_utf8_lossy(&free.stderr).contains("trapped"));
+}
+
 #[test]
 fn simulate_with_photons_agrees_with_the_wavefront_in_free_space() {
     let dir = tempfile::tempdir().unwrap();

@@ -487,6 +487,21 @@ pub struct GridSettings {
     pub dispersion: bool,
 }
 
+/// The largest light power accepted, per channel (W, or W/m^2 for a
+/// directional light). Light volumes are stored in f32 (at most 3.4e38),
+/// and light concentrates by many orders of magnitude (a point light's
+/// `P / (4 pi r^2)` a voxel from it, caustics, the renderer's scattering
+/// factors): 1e20 leaves room for that far beyond any physical source.
+/// Whatever still overflows is an error naming the light, never an
+/// infinite value written.
+pub const MAX_LIGHT_POWER: f64 = 1e20;
+
+/// The largest extinction accepted, per channel and world unit. The medium
+/// stores it in f32 (at most 3.4e38), and an infinite value would poison
+/// trilinear interpolation (`0 * inf`); anything this opaque already
+/// transmits nothing over 1e-28 of a world unit.
+pub const MAX_EXTINCTION: f64 = 1e30;
+
 /// A light source. Power is RGB: irradiance (W/m^2) across the beam for a
 /// directional light, radiant power (W) into the full sphere for a point
 /// light, and the power a point light of that size would have for a spot.
@@ -1208,6 +1223,15 @@ fn check_material(
     if extinction.min_element() < 0.0 {
         return Err(c.err(&p("extinction"), "extinction must be >= 0 (1 / world unit)"));
     }
+    if extinction.max_element() > MAX_EXTINCTION {
+        return Err(c.err(
+            &p("extinction"),
+            format!(
+                "extinction {:e} exceeds the limit of {MAX_EXTINCTION:e} per world unit (stored as 32-bit floats)",
+                extinction.max_element()
+            ),
+        ));
+    }
     let albedo = c.rgb_in(&p("albedo"), m.albedo, 0.0, 1.0)?;
     c.finite(&p("g"), &[m.g])?;
     if !(m.g > -1.0 && m.g < 1.0) {
@@ -1353,6 +1377,15 @@ fn check_light(c: &Checker, i: usize, l: &RawLight) -> Result<Light> {
         let v = c.vec3(&p("power"), v)?;
         if v.min_element() < 0.0 {
             return Err(c.err(&p("power"), "power must be >= 0"));
+        }
+        if v.max_element() > MAX_LIGHT_POWER {
+            return Err(c.err(
+                &p("power"),
+                format!(
+                    "power {:e} exceeds the limit of {MAX_LIGHT_POWER:e} per channel (the light volumes are 32-bit floats)",
+                    v.max_element()
+                ),
+            ));
         }
         Ok(v)
     };
@@ -1756,6 +1789,15 @@ fn attach_grids(
             ));
         }
         m.extinction = scale * hi as f64;
+        if m.extinction.max_element() > MAX_EXTINCTION {
+            return Err(c.err(
+                &sp,
+                format!(
+                    "the extinction reaches {:e} (grid maximum {hi} times the scale), over the limit of {MAX_EXTINCTION:e} per world unit",
+                    m.extinction.max_element()
+                ),
+            ));
+        }
         m.extinction_grid = Some(GridExtinction { volume, scale });
     }
     Ok(())

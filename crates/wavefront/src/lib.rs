@@ -63,12 +63,39 @@ pub const DIM_SPLIT: f64 = 0.05;
 
 /// Patches carrying less than this fraction of what one voxel of the
 /// light's unobstructed beam carries end (with the fluence deposit;
-/// [`refine::Rules::faint`]), counted as culled.
+/// [`refine::Rules::faint`]), their power counted as trapped (still
+/// travelling when no longer followed).
 pub const FAINT: f64 = 1e-4;
 
 /// Fixed-point units the whole power of a light deposits over one voxel
-/// length: a piece of a chord is rounded to `2^-40` of that.
+/// length: a piece of a chord is rounded to `2^-40` of that (fewer where
+/// the counters could overflow otherwise: [`units_per_crossing`]).
 pub const UNITS_PER_CROSSING: f64 = (1u64 << 40) as f64;
+
+/// Fixed-point units per voxel crossing of the whole power (the power
+/// bound of the counters) when no cell can be crossed by more than
+/// `crossings` times that power in all: [`UNITS_PER_CROSSING`], or fewer
+/// where a counter could otherwise overflow. Rounding each piece to the
+/// nearest unit at most doubles what it adds (a piece under half a unit
+/// adds nothing), so `2 crossings units` must stay within `2^62`: the
+/// signed 64-bit flux-vector counters' range with a factor two to spare.
+/// The counters hold integers, so overflow would wrap silently; with this
+/// bound it cannot happen.
+pub fn units_per_crossing(crossings: f64) -> f64 {
+    let limit = 2f64.powi(62) / (2.0 * crossings.max(1.0));
+    UNITS_PER_CROSSING.min(limit)
+}
+
+/// The most voxel crossings of the whole power any one cell can receive in
+/// a simulation of at most `max_steps` steps of `step` voxels of optical
+/// path: per step no more than all the power alive (never more than was
+/// emitted) over one step's length, `step / n_min` voxels, plus the
+/// chords from a light inside the volume to the sphere its wavefront
+/// starts on.
+pub(crate) fn crossings_bound(medium: &Medium, step: f64, max_steps: usize) -> f64 {
+    let n_min = (medium.index_range().0 as f64).max(1e-6);
+    step / n_min * max_steps as f64 + light::INNER_RADIUS_VOXELS + 1.0
+}
 
 /// An upper bound of the power `light` can bring into `grid`, per channel
 /// the largest: a point or spot light's power, a directional light's
@@ -147,6 +174,12 @@ pub enum Error {
     /// The GPU backend failed (no adapter, a limit, a validation error).
     #[error(transparent)]
     Gpu(#[from] eikon_gpu::GpuError),
+    /// A value of the light volume or of the energy account is not finite
+    /// (an overflow: the light's power concentrated beyond what f32
+    /// holds). Nothing is written; the caller names the light
+    /// (`light[i].power`).
+    #[error("{0}")]
+    NotFinite(String),
 }
 
 impl Options {
@@ -219,6 +252,9 @@ pub struct Summary {
     pub exited: usize,
     /// Patches eliminated by the transmittance threshold.
     pub absorbed: usize,
+    /// Patches ended as too faint to follow, still travelling (with the
+    /// fluence deposit; [`refine::Rules::faint`]).
+    pub faint: usize,
     /// Patches eliminated at a caustic (the paper's deposit only).
     pub caustic: usize,
     /// Patches still alive at the step limit.
@@ -234,14 +270,22 @@ pub struct Summary {
     pub exited_power: [f64; 3],
     /// RGB power reflected at interfaces (Fresnel) and not traced, W.
     pub reflected_power: [f64; 3],
-    /// RGB power dropped with eliminated patches (threshold, caustics,
-    /// step limit), W.
+    /// RGB power dropped with eliminated patches (transmittance threshold,
+    /// caustics), W.
     pub culled_power: [f64; 3],
+    /// RGB power still travelling when the simulation stopped following
+    /// it, W: patches alive at the step limit, and patches split and
+    /// dimmed until too faint to follow ([`FAINT`]). Light held by total
+    /// internal reflection ends here (in clear glass mostly as faint
+    /// patches: it splits without dimming), as do paths longer than the
+    /// step limit.
+    pub trapped_power: [f64; 3],
 }
 
 impl Summary {
-    /// `entered - (absorbed + exited + reflected + culled)` relative to
-    /// `entered`, the largest over the channels that carry power.
+    /// `entered - (absorbed + exited + reflected + culled + trapped)`
+    /// relative to `entered`, the largest over the channels that carry
+    /// power.
     pub fn energy_imbalance(&self) -> f64 {
         (0..3)
             .filter(|&c| self.entered[c] > 0.0)
@@ -249,11 +293,57 @@ impl Summary {
                 let out = self.absorbed_power[c]
                     + self.exited_power[c]
                     + self.reflected_power[c]
-                    + self.culled_power[c];
+                    + self.culled_power[c]
+                    + self.trapped_power[c];
                 (self.entered[c] - out).abs() / self.entered[c]
             })
             .fold(0.0, f64::max)
     }
+
+    /// The trapped power's fraction of the entered power, the largest over
+    /// the channels that carry power (0 when none entered).
+    pub fn trapped_fraction(&self) -> f64 {
+        (0..3)
+            .filter(|&c| self.entered[c] > 0.0)
+            .map(|c| self.trapped_power[c] / self.entered[c])
+            .fold(0.0, f64::max)
+    }
+
+    /// An error unless every power of the account is finite.
+    pub fn check_finite(&self) -> Result<(), Error> {
+        for (name, v) in [
+            ("entered", self.entered),
+            ("absorbed", self.absorbed_power),
+            ("exited", self.exited_power),
+            ("reflected", self.reflected_power),
+            ("culled", self.culled_power),
+            ("trapped", self.trapped_power),
+        ] {
+            if v.iter().any(|x| !x.is_finite()) {
+                return Err(Error::NotFinite(format!(
+                    "the {name} power {v:?} W is not finite: the light's power overflows"
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// An error unless every value of `volume` is finite (see
+/// [`Error::NotFinite`]): the first cell that is not, and where.
+pub fn check_finite(volume: &LightVolume, summary: &Summary) -> Result<(), Error> {
+    summary.check_finite()?;
+    let arrays = std::iter::once(("fluence", &volume.fluence))
+        .chain(volume.flux.iter().map(|f| ("flux vector", f)));
+    for (name, a) in arrays {
+        if let Some(((i, j, k, c), x)) = a.indexed_iter().find(|(_, x)| !x.is_finite()) {
+            return Err(Error::NotFinite(format!(
+                "the {name} of cell ({i}, {j}, {k}), component {c}, would be {x}: the light's power concentrated there overflows 32-bit floats (at most {:e}); lower the power",
+                f32::MAX
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// Default tessellation limit. A spherical wave's patches grow from about
@@ -456,9 +546,11 @@ impl Summary {
     fn add_ended(&mut self, ended: &refine::Ended) {
         self.exited += ended.exited;
         self.absorbed += ended.absorbed;
+        self.faint += ended.faint;
         self.caustic += ended.caustic;
         add(&mut self.exited_power, &ended.exited_flux);
         add(&mut self.culled_power, &ended.culled_flux);
+        add(&mut self.trapped_power, &ended.faint_flux);
     }
 }
 
@@ -589,23 +681,23 @@ pub fn simulate_light(
     let groups = medium.channels();
     let paper = opts.deposit == DepositRule::Paper;
     let mut paper_volume = paper.then(|| voxelize::PaperVolume::new(grid, groups));
+    let Plan {
+        mut rules,
+        dt,
+        max_steps,
+    } = Plan::new(light, medium, opts);
     let tally = (!paper).then(|| {
         Counters::new(
             grid,
             groups,
             [power_bound(light, grid); 3],
-            UNITS_PER_CROSSING,
+            units_per_crossing(crossings_bound(medium, opts.step, max_steps)),
         )
     });
     let interfaces = opts
         .fresnel
         .then(|| Interfaces::new(medium, probe_length(medium)));
     let mut summary = Summary::default();
-    let Plan {
-        mut rules,
-        dt,
-        max_steps,
-    } = Plan::new(light, medium, opts);
     let (mut p, mut next) = (Patches::default(), Patches::default());
     let mut scratch = refine::Scratch::default();
     let mut losses = Vec::new();
@@ -669,7 +761,7 @@ pub fn simulate_light(
         summary.steps = summary.steps.max(step);
         summary.step_limit += p.len();
         for f in &p.flux {
-            add(&mut summary.culled_power, f);
+            add(&mut summary.trapped_power, f);
         }
     }
     let volume = match (tally, paper_volume) {
@@ -677,5 +769,6 @@ pub fn simulate_light(
         (None, Some(v)) => v.into_volume(),
         (None, None) => unreachable!("one of the two deposits runs"),
     };
+    check_finite(&volume, &summary)?;
     Ok((volume, summary))
 }

@@ -280,6 +280,8 @@ pub struct Ended {
     pub exited: usize,
     /// Below the transmittance threshold.
     pub absorbed: usize,
+    /// Split too faint to follow (their power is trapped).
+    pub faint: usize,
     /// At a caustic (the paper's deposit).
     pub caustic: usize,
     /// Alive at the step limit.
@@ -299,6 +301,9 @@ pub struct Energy {
     pub reflected: [f64; 3],
     /// Dropped with eliminated patches.
     pub culled: [f64; 3],
+    /// Still travelling when no longer followed (the step limit, or too
+    /// faint to follow): light held by total internal reflection.
+    pub trapped: [f64; 3],
     /// [`Summary::energy_imbalance`].
     pub imbalance_relative: f64,
 }
@@ -313,6 +318,7 @@ impl LightSummary {
             ended: Ended {
                 exited: s.exited,
                 absorbed: s.absorbed,
+                faint: s.faint,
                 caustic: s.caustic,
                 step_limit: s.step_limit,
             },
@@ -323,6 +329,7 @@ impl LightSummary {
                 exited: s.exited_power,
                 reflected: s.reflected_power,
                 culled: s.culled_power,
+                trapped: s.trapped_power,
                 imbalance_relative: s.energy_imbalance(),
             },
             seconds,

@@ -80,7 +80,8 @@ use std::f64::consts::PI;
 /// voxel edge-on (a path of one voxel length). Rounding each deposit to a
 /// unit then costs at most 2^-25 of such a deposit, and a 64-bit counter
 /// holds 2^39 (about 5 10^11) such crossings per cell before it could
-/// overflow.
+/// overflow; fewer units where the photons and steps could cross one cell
+/// more often than that ([`crate::units_per_crossing`]).
 const UNITS_PER_CROSSING: f64 = (1u64 << 24) as f64;
 
 /// Photons per work item: the energy sums are taken per chunk and then
@@ -99,7 +100,8 @@ const CHUNK: usize = 1024;
 /// threshold) and `step_limit` how they ended, `steps` is the longest
 /// photon's, and the patch counts (`peak_patches`, `caustic`, `held`) are
 /// zero. The powers are accounted as for the wavefront: culled power is
-/// what photons carried when the threshold or the step limit ended them.
+/// what photons carried when the threshold ended them, trapped power what
+/// they carried at the step limit.
 pub fn simulate_photons(
     light: &Light,
     medium: &Medium,
@@ -126,10 +128,13 @@ pub fn simulate_photons(
     let key = mix(seed.wrapping_add(GOLDEN));
     let mut summary = Summary::default();
     // Fixed-point scale: the largest photon flux of any channel over one
-    // voxel length gives UNITS_PER_CROSSING.
+    // voxel length gives UNITS_PER_CROSSING, or fewer where all the
+    // photons over all the steps could overflow a counter.
     let white = Source::new(light, grid, count, [1.0; 3]);
     let top = white.flux.iter().copied().fold(0.0, f64::max);
-    let tally = Counters::new(grid, groups, [top; 3], UNITS_PER_CROSSING);
+    let crossings = count as f64 * crate::crossings_bound(medium, opts.step, max_steps);
+    let units = UNITS_PER_CROSSING.min(crate::units_per_crossing(crossings));
+    let tally = Counters::new(grid, groups, [top; 3], units);
     let interfaces = opts
         .fresnel
         .then(|| Interfaces::new(medium, probe_length(medium)));
@@ -170,7 +175,9 @@ pub fn simulate_photons(
             t.add_to(&mut summary);
         }
     }
-    Ok((tally.into_volume(), summary))
+    let volume = tally.into_volume();
+    crate::check_finite(&volume, &summary)?;
+    Ok((volume, summary))
 }
 
 // ---------------------------------------------------------------------------
@@ -388,6 +395,7 @@ struct Tally {
     exited: [f64; 3],
     reflected: [f64; 3],
     culled: [f64; 3],
+    trapped: [f64; 3],
     photons: usize,
     exits: usize,
     thresholded: usize,
@@ -403,6 +411,7 @@ impl Tally {
             s.exited_power[c] += self.exited[c];
             s.reflected_power[c] += self.reflected[c];
             s.culled_power[c] += self.culled[c];
+            s.trapped_power[c] += self.trapped[c];
         }
         s.emitted += self.photons;
         s.exited += self.exits;
@@ -508,7 +517,7 @@ impl Tracer<'_> {
         loop {
             if steps == self.max_steps {
                 t.step_limit += 1;
-                add(&mut t.culled, &flux);
+                add(&mut t.trapped, &flux);
                 break;
             }
             steps += 1;

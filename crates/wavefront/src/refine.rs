@@ -29,12 +29,18 @@ pub struct Ended {
     pub exited: usize,
     /// Patches whose transmittance fell below the threshold.
     pub absorbed: usize,
+    /// Patches split and dimmed until too faint to follow
+    /// ([`Rules::faint`]).
+    pub faint: usize,
     /// Patches that flipped at a caustic.
     pub caustic: usize,
     /// RGB flux carried out of the volume.
     pub exited_flux: [f64; 3],
     /// RGB flux of patches dropped by the threshold or at a caustic.
     pub culled_flux: [f64; 3],
+    /// RGB flux of patches too faint to follow, still travelling (light
+    /// held by total internal reflection ends this way, split ever finer).
+    pub faint_flux: [f64; 3],
 }
 
 /// Fate of one patch.
@@ -42,6 +48,7 @@ pub struct Ended {
 enum Fate {
     Exit,
     Absorbed,
+    Faint,
     Caustic,
     Retain,
     Split,
@@ -178,9 +185,11 @@ fn fate(p: &Patches, i: usize, grid: &GridGeometry, rules: &Rules) -> Fate {
     // `faint` of what a voxel of the unobstructed light carries cannot
     // change any cell by more than that fraction: light trapped and
     // bouncing in absorbing glass would otherwise keep splitting for
-    // thousands of steps. It ends as absorbed, its flux counted as culled.
+    // thousands of steps. It ends still travelling, its flux counted as
+    // trapped: in clear glass that is most of what total internal
+    // reflection holds (it splits without dimming until it is faint).
     if rules.faint > 0.0 && f[0] + f[1] + f[2] < rules.faint * rules.incident.at(mid) {
-        return Fate::Absorbed;
+        return Fate::Faint;
     }
     if rules.cull_caustics && normal(&x).dot(dir) <= 0.0 {
         return Fate::Caustic;
@@ -238,6 +247,10 @@ pub fn refine<F: IndexField + ?Sized>(
             Fate::Absorbed => {
                 ended.absorbed += 1;
                 add(&mut ended.culled_flux);
+            }
+            Fate::Faint => {
+                ended.faint += 1;
+                add(&mut ended.faint_flux);
             }
             Fate::Caustic => {
                 ended.caustic += 1;

@@ -11,11 +11,24 @@
 //!
 //! The value deposited is the patch's irradiance carried to the cell
 //! centre, a signed distance `s` (under one cell) along its direction:
-//! `flux * exp(-sigma_t s) / area(corners + s * corner directions)`, the
-//! intensity law over the corners' straight rays and eq 18 with the local
-//! extinction. Without it the kept value would be that of wherever in the
-//! cell the patch happened to be, biased towards the side the light comes
-//! from (by up to `2 h / r` for a point light at distance r).
+//! `flux * exp(-sigma_t max(s, 0)) / area(corners + s * corner directions)`,
+//! the intensity law over the corners' straight rays and eq 18 with the
+//! local extinction. Without it the kept value would be that of wherever in
+//! the cell the patch happened to be, biased towards the side the light
+//! comes from (by up to `2 h / r` for a point light at distance r).
+//!
+//! Attenuation is carried forwards only: a patch that has already passed
+//! the centre (`s < 0`) keeps its own flux. Undoing eq 18 backwards,
+//! `exp(+sigma_t |s|)` with the extinction read at the patch, is unbounded
+//! wherever the patch's own path met less extinction than that: in an
+//! absorbing slab lit obliquely (direction (1, 0.3, 0.2), 64^3) the peak
+//! was 1.16 times the incident at sigma 10, 6.6 at 100, 291 at 300, 1.6e8
+//! at 1000, and at 1e4 the product overflowed f32 (infinite irradiance);
+//! in a glass sphere of red extinction 1e4 red reached 2.5e20 times the
+//! incident. The highest-energy rule keeps the patch before the centre,
+//! carried forwards over the same distance, so nothing is lost where the
+//! extinction is uniform, and a value never exceeds what the patch
+//! carries (`tests/finite.rs`).
 //!
 //! # No deposit across or beside a caustic
 //! A patch deposits nothing into a cell where its corner rays (straight,
@@ -97,7 +110,9 @@ fn deposit_at(
     ) {
         return None;
     }
-    let e = [0, 1, 2].map(|c| p.flux[i][c] * (-ext[c] * s).exp() / ar);
+    // Forwards only (see the module docs): a transmittance, never a gain.
+    let ahead = s.max(0.0);
+    let e = [0, 1, 2].map(|c| p.flux[i][c] * (-ext[c] * ahead).exp() / ar);
     let key = match group {
         None => e[0] + e[1] + e[2],
         Some(c) => e[c],

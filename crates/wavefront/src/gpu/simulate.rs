@@ -25,7 +25,7 @@
 //! [`Counters`] does (fluence per cell and channel, the flux vector per
 //! cell, component and wavefront group in two's complement; the same
 //! scales), each as two u32 words added with a carry; the energy tallies
-//! (absorbed, exited, culled, reflected) are 64-bit fixed point the same
+//! (absorbed, exited, culled, reflected, trapped) are 64-bit fixed point the same
 //! way. Integer addition commutes, so neither depends on the order the
 //! threads run in: the volumes and the summary are the same bit for bit
 //! from run to run. At the end the words are read back and added to the
@@ -84,7 +84,7 @@
 use crate::deposit::Counters;
 use crate::patch::Patches;
 use crate::refine::Incident;
-use crate::{power_bound, DepositRule, Summary, UNITS_PER_CROSSING};
+use crate::{crossings_bound, power_bound, units_per_crossing, DepositRule, Summary};
 use crate::{propagate, refine, Error, LightVolume, Options, Progress};
 use eikon_gpu::{groups, Gpu, GpuError};
 use eikon_grid::interface::{probe_length, Interfaces};
@@ -128,15 +128,16 @@ const DEPOSIT: usize = 6; // six kernels: midpoints (3 passes), corners (3)
 const CULL_REST: usize = 12;
 const PROPAGATE_TUBE: usize = 13;
 
-/// Stats words (see `simulate.wgsl`): four energy categories (absorbed,
-/// exited, culled, reflected) per channel in 64-bit fixed point, then
-/// counts.
-const STATS_WORDS: usize = 30;
-const S_EXITED: usize = 24;
-const S_ABSORBED: usize = 25;
-const S_CAUSTIC: usize = 26;
-const S_HELD: usize = 27;
-const S_KEPT: u64 = 28;
+/// Stats words (see `simulate.wgsl`): five energy categories (absorbed,
+/// exited, culled, reflected, trapped) per channel in 64-bit fixed point,
+/// then counts.
+const STATS_WORDS: usize = 37;
+const S_EXITED: usize = 30;
+const S_ABSORBED: usize = 31;
+const S_CAUSTIC: usize = 32;
+const S_HELD: usize = 33;
+const S_KEPT: u64 = 34;
+const S_FAINT: usize = 36;
 
 /// Storage buffers of the light volume (group 2): the paper's deposit
 /// binds 9 of them, the fluence deposit's counters all 12.
@@ -602,7 +603,7 @@ impl<'a> GpuSimulator<'a> {
                 grid,
                 ngroups,
                 [power_bound(light, grid); 3],
-                UNITS_PER_CROSSING,
+                units_per_crossing(crossings_bound(medium, opts.step, max_steps)),
             )
         });
         let (fl_scale, flux_scale) = tally.as_ref().map_or(([0.0; 3], 0.0), Counters::scales);
@@ -962,9 +963,11 @@ impl<'a> GpuSimulator<'a> {
                 summary.exited_power[c] += energy(1, c);
                 summary.culled_power[c] += energy(2, c);
                 summary.reflected_power[c] += energy(3, c);
+                summary.trapped_power[c] += energy(4, c);
             }
             summary.exited += s[S_EXITED] as usize;
             summary.absorbed += s[S_ABSORBED] as usize;
+            summary.faint += s[S_FAINT] as usize;
             summary.caustic += s[S_CAUSTIC] as usize;
             summary.held += s[S_HELD] as usize;
             match tally.as_mut() {
@@ -991,6 +994,7 @@ impl<'a> GpuSimulator<'a> {
                 LightVolume::from_rays(irradiance, directions)
             }
         };
+        crate::check_finite(&volume, &summary)?;
         Ok((volume, summary))
     }
 }

@@ -125,18 +125,20 @@ struct Level {
 @group(3) @binding(0) var<uniform> L: Level;
 
 // Stats words: energy tallies (category * 3 + channel) as 64-bit fixed
-// point (lo, hi) in words 0..24; then counts.
+// point (lo, hi) in words 0..30; then counts.
 const E_ABSORBED: u32 = 0u;
 const E_EXITED: u32 = 1u;
 const E_CULLED: u32 = 2u;
 const E_REFLECTED: u32 = 3u;
-const S_EXITED: u32 = 24u;
-const S_ABSORBED: u32 = 25u;
-const S_CAUSTIC: u32 = 26u;
-const S_HELD: u32 = 27u;
-const S_KEPT: u32 = 28u;
-const S_SPLITS: u32 = 29u;
-const STATS_WORDS: u32 = 30u;
+const E_TRAPPED: u32 = 4u;
+const S_EXITED: u32 = 30u;
+const S_ABSORBED: u32 = 31u;
+const S_CAUSTIC: u32 = 32u;
+const S_HELD: u32 = 33u;
+const S_KEPT: u32 = 34u;
+const S_SPLITS: u32 = 35u;
+const S_FAINT: u32 = 36u;
+const STATS_WORDS: u32 = 37u;
 
 // Fates (refine.rs `Fate`).
 const F_EXIT: u32 = 0u;
@@ -158,7 +160,7 @@ fn item(id: vec3<u32>, groups: vec3<u32>) -> u32 {
 // threads' tallies in workgroup memory first (`wg_stats`, the layout of
 // `stats`) and adds them to `stats` once (`wg_begin`, `wg_end`): one
 // global atomic per workgroup instead of one per patch.
-var<workgroup> wg_stats: array<atomic<u32>, 30>;
+var<workgroup> wg_stats: array<atomic<u32>, 37>;
 
 fn add_fixed(w: u32, lo_u: u32, hi_u: u32, global: bool) {
     var old = 0u;
@@ -1055,6 +1057,7 @@ fn analyse_patch(i: u32) {
     let flux = aux[3u * i];
     let f0 = aux[3u * i + 1u];
     var f = F_RETAIN;
+    var faint = false;
     var exit = false;
     if (P.fluence == 0u) {
         // The paper's deposit reads the midpoint only.
@@ -1073,7 +1076,9 @@ fn analyse_patch(i: u32) {
     } else if (all(flux.xyz <= P.threshold * f0.xyz)) {
         f = F_ABSORBED;
     } else if (P.faint > 0.0 && total < P.faint * incident_at(mid)) {
+        // Still travelling, too faint to follow: trapped (`Fate::Faint`).
         f = F_ABSORBED;
+        faint = true;
     } else if (P.fluence == 0u && dot(quad_normal(p0, p1, p2, p3), dir) <= 0.0) {
         f = F_CAUSTIC;
     } else if (quad_span(p0, p1, p2, p3) > P.split_span && u32(f0.w) < P.max_depth) {
@@ -1091,8 +1096,13 @@ fn analyse_patch(i: u32) {
             add_energy3(E_EXITED, flux.xyz);
         }
         case 1u: {
-            atomicAdd(&wg_stats[S_ABSORBED], 1u);
-            add_energy3(E_CULLED, flux.xyz);
+            if (faint) {
+                atomicAdd(&wg_stats[S_FAINT], 1u);
+                add_energy3(E_TRAPPED, flux.xyz);
+            } else {
+                atomicAdd(&wg_stats[S_ABSORBED], 1u);
+                add_energy3(E_CULLED, flux.xyz);
+            }
         }
         case 2u: {
             atomicAdd(&wg_stats[S_CAUSTIC], 1u);
@@ -1433,7 +1443,8 @@ fn deposit_at(i: u32, mid: vec3<f32>, d: vec3<f32>, ext: vec3<f32>, flat: u32, t
     if (rays_cross(x, u, d, min(s - half, 0.0), max(s + half, 0.0))) {
         return Deposit(false, 0u, vec3<f32>(0.0));
     }
-    let e = aux[3u * i].xyz * exp(-ext * s) / ar;
+    // Attenuation carried forwards only, never exp(+sigma |s|).
+    let e = aux[3u * i].xyz * exp(-ext * max(s, 0.0)) / ar;
     var k = e.x + e.y + e.z;
     if (P.group >= 0) {
         k = e[P.group];
@@ -1675,7 +1686,7 @@ fn analyse(@builtin(global_invocation_id) id: vec3<u32>,
     wg_end(li);
 }
 
-// Patches alive at the step limit: their flux is culled.
+// Patches alive at the step limit: their flux is trapped.
 @compute @workgroup_size(64)
 fn cull_rest(@builtin(global_invocation_id) id: vec3<u32>,
              @builtin(num_workgroups) groups: vec3<u32>,
@@ -1683,7 +1694,7 @@ fn cull_rest(@builtin(global_invocation_id) id: vec3<u32>,
     wg_begin(li);
     let i = item(id, groups);
     if (i < P.n) {
-        add_energy3(E_CULLED, aux[3u * i].xyz);
+        add_energy3(E_TRAPPED, aux[3u * i].xyz);
     }
     wg_end(li);
 }
