@@ -436,6 +436,23 @@ pub fn parse_ply(bytes: &[u8], name: &str) -> Result<Mesh, MeshError> {
             "the face element has no \"vertex_indices\" list property".into(),
         ));
     }
+    // Every record takes bytes, so the header's counts cannot exceed what
+    // follows it: refuse them before reading (a 3 KB file announcing 2^31
+    // records of an element without properties made the reader loop and
+    // allocate without end).
+    let remaining = reader.get_ref().len() as u64;
+    let mut need = 0u64;
+    for (element, def) in &header.elements {
+        let least = min_record_bytes(def, header.encoding);
+        need = need.saturating_add((def.count as u64).saturating_mul(least));
+        // One byte of slack: the last ASCII line may lack its newline.
+        if need > remaining + 1 {
+            return Err(bad(format!(
+                "the header announces {} \"{element}\" record(s) of at least {least} byte(s) each, more than the {remaining} bytes after the header hold",
+                def.count
+            )));
+        }
+    }
     let vertex_first = header.elements.get_index_of("vertex") == Some(0);
     let mut vertices = Vec::new();
     let mut faces = Vec::new();
@@ -504,6 +521,27 @@ pub fn parse_ply(bytes: &[u8], name: &str) -> Result<Mesh, MeshError> {
         mesh.override_normals(&normals);
     }
     Ok(mesh)
+}
+
+/// The fewest bytes a record of `def` takes: in binary its scalars and the
+/// counts of its lists, in ASCII a character and a separator per property;
+/// at least one byte (an ASCII line, or binary data).
+fn min_record_bytes(def: &ElementDef, encoding: Encoding) -> u64 {
+    let size = |t: &ScalarType| match t {
+        ScalarType::Char | ScalarType::UChar => 1,
+        ScalarType::Short | ScalarType::UShort => 2,
+        ScalarType::Int | ScalarType::UInt | ScalarType::Float => 4,
+        ScalarType::Double => 8,
+    };
+    let bytes: u64 = def
+        .properties
+        .values()
+        .map(|p| match (encoding, &p.data_type) {
+            (Encoding::Ascii, _) => 2,
+            (_, PropertyType::Scalar(t) | PropertyType::List(t, _)) => size(t),
+        })
+        .sum();
+    bytes.max(1)
 }
 
 /// Writes `bytes` beside `path` and renames the result into place.

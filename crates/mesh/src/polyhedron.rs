@@ -19,20 +19,22 @@ pub fn cuboctahedron(edge: f64) -> Result<Mesh, MeshError> {
         });
     }
     let s = edge / 2f64.sqrt();
-    let mut positions = Vec::with_capacity(12);
+    // Corners found among the unscaled vertices (whose coordinates are
+    // exactly 0 and +-1): an edge of 5e-324 scales every vertex to 0, and a
+    // search among scaled ones found none.
+    let mut unit = Vec::with_capacity(12);
     for axis in 0..3 {
         for (a, b) in [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)] {
             // The vertex with a zero on `axis`.
             let mut v = [0.0; 3];
             v[(axis + 1) % 3] = a;
             v[(axis + 2) % 3] = b;
-            positions.push(DVec3::from_array(v) * s);
+            unit.push(DVec3::from_array(v));
         }
     }
     let find = |v: DVec3| {
-        positions
-            .iter()
-            .position(|p| (*p - v * s).length() < 1e-9 * s)
+        unit.iter()
+            .position(|p| *p == v)
             .expect("a cuboctahedron vertex") as u32
     };
     let mut faces: Vec<Vec<u32>> = Vec::new();
@@ -70,7 +72,7 @@ pub fn cuboctahedron(edge: f64) -> Result<Mesh, MeshError> {
     for f in faces {
         for k in 1..f.len() - 1 {
             let mut t = [f[0], f[k], f[k + 1]];
-            let [a, b, c] = t.map(|i| positions[i as usize]);
+            let [a, b, c] = t.map(|i| unit[i as usize]);
             // Convex about the origin: outward means away from it.
             if (b - a).cross(c - a).dot(a + b + c) < 0.0 {
                 t.swap(1, 2);
@@ -78,6 +80,7 @@ pub fn cuboctahedron(edge: f64) -> Result<Mesh, MeshError> {
             triangles.push(t);
         }
     }
+    let positions = unit.iter().map(|v| *v * s).collect();
     Mesh::new(name, positions, triangles)
 }
 
@@ -98,5 +101,17 @@ mod tests {
             m.signed_volume()
         );
         assert!(cuboctahedron(-1.0).is_err());
+    }
+
+    /// Found by `tests/fuzz.rs` (family `scene`): `edge = 5e-324` in a
+    /// scene panicked with "a cuboctahedron vertex" (every scaled vertex
+    /// was 0, and the search among them found none).
+    #[test]
+    fn tiny_and_huge_edges_do_not_panic() {
+        for edge in [5e-324, 1e-310, 1e-300, 1e300, f64::MAX] {
+            let m = cuboctahedron(edge).unwrap();
+            assert_eq!((m.vertex_count(), m.triangle_count()), (12, 20));
+            assert!(m.positions().iter().all(|p| p.is_finite()));
+        }
     }
 }

@@ -292,3 +292,37 @@ fn writing_to_a_bad_place_fails_cleanly() {
         MeshError::UnknownExtension { .. }
     ));
 }
+
+/// Found by `tests/fuzz.rs` (family `ply`): a header announcing more
+/// records than the file can hold is refused before reading. A 3 KB binary
+/// file with `element end_header 2147483647` (an element without
+/// properties, whose records take no bytes) made the reader allocate until
+/// the process was killed.
+#[test]
+fn ply_counts_beyond_the_file_are_refused() {
+    let file = |count: &str| {
+        let mut f = format!("ply\nformat binary_big_endian 1.0\nelement end_header {count}\nelement vertex 3\nproperty double x\nproperty double y\nproperty double z\nelement face 1\nproperty list uchar uint vertex_indices\nend_header\n").into_bytes();
+        for v in [0.0f64, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0] {
+            f.extend_from_slice(&v.to_be_bytes());
+        }
+        f.push(3);
+        for i in [0u32, 1, 2] {
+            f.extend_from_slice(&i.to_be_bytes());
+        }
+        f
+    };
+    let start = std::time::Instant::now();
+    let e = parse_ply(&file("2147483647"), "fuzzed.ply").unwrap_err();
+    assert!(start.elapsed().as_secs_f64() < 1.0);
+    assert!(matches!(e, MeshError::Parse { .. }), "{e}");
+    assert!(e.to_string().contains("2147483647 \"end_header\""), "{e}");
+    // With the count the data holds (none), the file loads.
+    assert_eq!(parse_ply(&file("0"), "ok.ply").unwrap().triangle_count(), 1);
+    // Counts beyond the data in ASCII and binary: refused the same way.
+    let ascii = b"ply\nformat ascii 1.0\nelement vertex 4294967295\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+    let e = parse_ply(ascii, "ascii.ply").unwrap_err();
+    assert!(e.to_string().contains("4294967295 \"vertex\""), "{e}");
+    let binary = b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 100\nproperty list uchar uint vertex_indices\nend_header\n";
+    let e = parse_ply(binary, "binary.ply").unwrap_err();
+    assert!(e.to_string().contains("more than the 0 bytes"), "{e}");
+}

@@ -36,6 +36,11 @@ pub const MAX_TEXELS: usize = 1 << 28;
 /// uncompressed, with room for the header.
 pub const MAX_EXR_BYTES: u64 = (MAX_TEXELS as u64) * 16 + (1 << 20);
 
+/// The most OpenEXR data is compressed: pixel bytes per file byte, with
+/// room to spare (zip stops near 1032:1, PIZ's run-length Huffman codes
+/// near 400:1, RLE and B44 far below).
+pub const MAX_COMPRESSION: u64 = 4096;
+
 /// Why an environment map could not be loaded or built.
 #[derive(Debug, thiserror::Error)]
 pub enum EnvironmentError {
@@ -74,6 +79,22 @@ pub enum EnvironmentError {
         width: usize,
         /// Height in texels.
         height: usize,
+    },
+    /// The header announces more texels than the file can hold, even
+    /// compressed as well as OpenEXR compresses ([`MAX_COMPRESSION`]).
+    #[error(
+        "{}: a {width}x{height} texel image cannot be stored in {len} bytes: corrupt header",
+        path.display()
+    )]
+    Corrupt {
+        /// The file.
+        path: PathBuf,
+        /// Width in texels.
+        width: usize,
+        /// Height in texels.
+        height: usize,
+        /// The file's size in bytes.
+        len: usize,
     },
     /// The EXR decoder failed (corrupt or unsupported file).
     #[error("{}: cannot decode OpenEXR file", path.display())]
@@ -236,7 +257,9 @@ impl LatLongMap {
     ///
     /// An [`EnvironmentError`] naming the file: `Io` if it cannot be read,
     /// `NotExr` if it is not an OpenEXR file, `NoRgb` if no layer has R, G
-    /// and B, `TooLarge` above [`MAX_TEXELS`], `Decode` if decoding fails.
+    /// and B, `TooLarge` above [`MAX_TEXELS`], `Corrupt` when the header
+    /// announces more texels than the file can hold, `Decode` if decoding
+    /// fails.
     pub fn from_exr(path: impl AsRef<Path>) -> Result<LatLongMap, EnvironmentError> {
         let path = path.as_ref();
         let bytes = eikon_mesh::load::read_file(path, MAX_EXR_BYTES).map_err(|source| {
@@ -292,6 +315,20 @@ impl LatLongMap {
                 path: path_buf(),
                 width,
                 height,
+            });
+        }
+        // A header announcing far more pixels than the file can hold is
+        // refused before the decoder allocates them (an 800-byte file
+        // asking for 10289168 x 8 texels took seconds and a gigabyte).
+        let pixel_bytes = (width as u64)
+            .saturating_mul(height as u64)
+            .saturating_mul(header.channels.bytes_per_pixel.max(1) as u64);
+        if pixel_bytes > MAX_COMPRESSION.saturating_mul(bytes.len() as u64) {
+            return Err(EnvironmentError::Corrupt {
+                path: path_buf(),
+                width,
+                height,
+                len: bytes.len(),
             });
         }
         let image = read()
@@ -643,6 +680,55 @@ mod tests {
             );
             assert!(err.to_string().contains("cut.exr"));
         }
+    }
+
+    /// Found by `tests/fuzz.rs` (family `exr`): a header whose data window
+    /// announces far more texels than the file holds is refused before
+    /// decoding; an 800-byte file asking for 10289168 x 8 texels took
+    /// seconds and a gigabyte.
+    #[test]
+    fn header_larger_than_the_file_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("wide.exr");
+        write_exr(&path, 16, 8, &ramp(16, 8));
+        let mut bytes = std::fs::read(&path).unwrap();
+        let key = b"dataWindow\0box2i\0";
+        let at = bytes.windows(key.len()).position(|w| w == key).unwrap() + key.len() + 4;
+        // x max of the box (x min, y min, x max, y max).
+        bytes[at + 8..at + 12].copy_from_slice(&10_289_167i32.to_le_bytes());
+        let start = std::time::Instant::now();
+        let err = LatLongMap::from_exr_bytes(&bytes, &path).unwrap_err();
+        assert!(start.elapsed().as_secs_f64() < 0.5, "{:?}", start.elapsed());
+        assert!(
+            matches!(
+                err,
+                EnvironmentError::Corrupt {
+                    width: 10_289_168,
+                    height: 8,
+                    ..
+                }
+            ),
+            "{err:?}"
+        );
+        assert!(err.to_string().contains("wide.exr"), "{err}");
+        // A map that compresses about as well as zip can (one colour) loads.
+        let (w, h) = (1024, 512);
+        let layer = exr::prelude::Layer::new(
+            (w, h),
+            exr::prelude::LayerAttributes::default(),
+            exr::prelude::Encoding::SMALL_LOSSLESS,
+            SpecificChannels::rgb(|_| (0.25f32, 0.5f32, 1.0f32)),
+        );
+        let mut bytes = Vec::new();
+        exr::prelude::Image::from_layer(layer)
+            .write()
+            .non_parallel()
+            .to_buffered(std::io::Cursor::new(&mut bytes))
+            .unwrap();
+        let ratio = (w * h * 12) as f64 / bytes.len() as f64;
+        assert!(ratio > 100.0, "{ratio}");
+        let map = LatLongMap::from_exr_bytes(&bytes, &path).unwrap();
+        assert_eq!((map.width(), map.height()), (w, h));
     }
 
     #[test]
