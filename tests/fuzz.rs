@@ -197,10 +197,7 @@ enum Outcome {
 /// ignored regression test: (signature in standard error, description).
 /// A case that ends so is counted as `known`; remove the entry with the
 /// fix, and the family fails again should the crash come back.
-const KNOWN_CRASHES: [(&str, &str); 1] = [(
-    "memory allocation of",
-    "an .npy header whose shape asks for more data than the file holds makes `eikon probe` and `eikon render --light` abort allocating it (src/probe.rs, src/render.rs: read_npy trusts the header; regression test light_volume_npy_shape_larger_than_the_file)",
-)];
+const KNOWN_CRASHES: [(&str, &str); 0] = [];
 
 /// Counts of one family's run.
 #[derive(Default)]
@@ -2637,10 +2634,9 @@ fn fuzz_light_volumes() {
 /// render --light` abort with "memory allocation of 1649267441664 bytes
 /// failed": `ndarray_npy::read_npy` allocates what the header says before
 /// reading (src/probe.rs and src/render.rs call it on the file directly).
-/// The fix belongs there: compare the header's shape with the file's
-/// length (or read through a length-limited reader) before reading.
+/// Fixed by `eikon_wavefront::lightdir`, which compares the header's shape
+/// with the file's length before reading.
 #[test]
-#[ignore = "crash in src/probe.rs and src/render.rs (read_npy trusts the .npy header); not fixed here"]
 fn light_volume_npy_shape_larger_than_the_file() {
     let dir = Scratch::new("npy-regression");
     let sun = "[[light]]\ntype = \"directional\"\ndirection = [0.0, -1.0, 0.0]\npower = [1.0, 1.0, 1.0]\n";
