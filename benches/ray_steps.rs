@@ -9,16 +9,9 @@ use criterion::{black_box, criterion_group, criterion_main, Criterion, Throughpu
 use eikon_grid::{trace, trace_many, Form, Medium, Method, Scene, TraceOptions};
 use glam::DVec3;
 
-const SCENE: &str = r#"
-[grid]
-resolution = 128
-min = [-1, -1, -1]
-max = [1, 1, 1]
-
-[[object]]
-shape = { type = "sphere", center = [0, 0, 0], radius = 0.8 }
-index = { type = "luneburg" }
-"#;
+#[path = "common/ray_steps_workload.rs"]
+mod workload;
+use workload::{origins, SCENE};
 
 fn bench(c: &mut Criterion) {
     let scene = Scene::parse(SCENE, "bench").expect("scene");
@@ -26,12 +19,7 @@ fn bench(c: &mut Criterion) {
     let field = medium.field(0);
     let geom = &scene.grid.geometry;
     // A 16 x 16 fan of parallel rays across the lens.
-    let origins: Vec<DVec3> = (0..256)
-        .map(|i| {
-            let (a, b) = ((i % 16) as f64 / 15.0, (i / 16) as f64 / 15.0);
-            DVec3::new(1.6 * a - 0.8, 1.6 * b - 0.8, -1.0)
-        })
-        .collect();
+    let origins = origins();
     let mut group = c.benchmark_group("ray_steps_128");
     for method in [Method::Euler, Method::Rk4] {
         let opts = TraceOptions::in_voxels(geom, Form::EqualDistance, method, 0.5);

@@ -12,16 +12,9 @@ use eikon_grid::{trace, trace_many, Form, Medium, Method, Scene, TraceOptions};
 use glam::DVec3;
 
 /// The bench's scene: a 128^3 voxelized Luneburg lens.
-const SCENE: &str = r#"
-[grid]
-resolution = 128
-min = [-1, -1, -1]
-max = [1, 1, 1]
-
-[[object]]
-shape = { type = "sphere", center = [0, 0, 0], radius = 0.8 }
-index = { type = "luneburg" }
-"#;
+#[path = "../benches/common/ray_steps_workload.rs"]
+mod workload;
+use workload::{origins, SCENE};
 
 #[inline(never)]
 fn fan_one(
@@ -57,12 +50,7 @@ fn main() {
     let medium = Medium::build(&scene).expect("medium");
     let field = medium.field(0);
     let g = &scene.grid.geometry;
-    let origins: Vec<DVec3> = (0..256)
-        .map(|i| {
-            let (a, b) = ((i % 16) as f64 / 15.0, (i / 16) as f64 / 15.0);
-            DVec3::new(1.6 * a - 0.8, 1.6 * b - 0.8, -1.0)
-        })
-        .collect();
+    let origins = origins();
     let rays: Vec<(DVec3, DVec3)> = origins.iter().map(|&o| (o, DVec3::Z)).collect();
     let opts = TraceOptions::in_voxels(g, Form::EqualDistance, method, 0.5);
     let t = std::time::Instant::now();

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 mod binary;
 
-use binary::{eikon, eikon_ok, expect_error};
+use binary::{eikon, eikon_ok, expect_error, expect_error_after_notes};
 
 fn config(name: &str) -> String {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -913,20 +913,6 @@ fn inputs_that_would_make_unbounded_work_are_refused() {
 /// refused with the items listed.
 #[test]
 fn memory_estimates_are_checked_against_the_limit() {
-    // Refused: exit 1, the fragments in the last line (the grid flags
-    // print what they build first), no panic.
-    let refused = |args: &[&str], fragments: &[&str]| -> String {
-        let o = eikon(args);
-        let err = String::from_utf8_lossy(&o.stderr).to_string();
-        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
-        assert!(!err.contains("panicked"), "{err}");
-        let last = err.lines().last().unwrap_or("").to_string();
-        assert!(last.starts_with("error: "), "{err}");
-        for f in fragments {
-            assert!(last.contains(f), "{f:?} not in {last}");
-        }
-        last
-    };
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("out");
     let o = out.to_str().unwrap();
@@ -935,7 +921,7 @@ fn memory_estimates_are_checked_against_the_limit() {
     let ok = eikon_ok(&[&["simulate", &scene, "-o", o][..], &small].concat());
     let err = String::from_utf8_lossy(&ok.stderr);
     assert!(err.contains("patches fit the memory limit"), "{err}");
-    let e = refused(
+    let e = expect_error_after_notes(
         &[
             &["simulate", &scene, "-o", o, "--max-patches", "100000"][..],
             &small,
@@ -944,7 +930,7 @@ fn memory_estimates_are_checked_against_the_limit() {
         &["patch list at its cap", "--max-memory"],
     );
     assert!(e.contains("light volumes") && e.contains("medium"), "{e}");
-    refused(
+    expect_error_after_notes(
         &[
             "simulate",
             &scene,
@@ -958,7 +944,7 @@ fn memory_estimates_are_checked_against_the_limit() {
         &["grid.resolution", "--max-memory"],
     );
     let png = tmp.path().join("big.png");
-    refused(
+    expect_error_after_notes(
         &[
             "render",
             &scene,

@@ -35,3 +35,22 @@ pub fn expect_error(args: &[&str], fragments: &[&str]) -> String {
     }
     err
 }
+
+/// [`expect_error`] for commands that print what they will build on stderr
+/// before failing (the grid flags): the error is the first line that starts
+/// with `error: `, and what follows it; returns it.
+pub fn expect_error_after_notes(args: &[&str], fragments: &[&str]) -> String {
+    let out = eikon(args);
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert_eq!(out.status.code(), Some(1), "args {args:?}\nstderr: {err}");
+    assert!(!err.contains("panicked"), "panic: {err}");
+    let at = err
+        .find("error: ")
+        .unwrap_or_else(|| panic!("no error in: {err}"));
+    assert!(at == 0 || err[..at].ends_with('\n'), "{err}");
+    let error = err[at..].to_string();
+    for f in fragments {
+        assert!(error.contains(f), "missing `{f}` in: {error}");
+    }
+    error
+}
