@@ -4,7 +4,7 @@
 
 use crate::label;
 use crate::output::{build_medium, write_atomic};
-use crate::render::{self, check_outputs, write_image, ExactOptions, Overrides, RenderMethod};
+use crate::render::{self, check_outputs, write_images, ExactOptions, Overrides, RenderMethod};
 use crate::simulate;
 use anyhow::{bail, Context, Result};
 use eikon_view::image::luminance;
@@ -197,9 +197,8 @@ pub fn run(args: Args) -> Result<()> {
     })?;
     let mut rows = Vec::new();
     for (m, image, seconds) in &results {
-        for e in ["exr", "png"] {
-            write_image(&args.output.join(format!("{}.{e}", m.name())), image, &tone)?;
-        }
+        let paths = ["exr", "png"].map(|e| args.output.join(format!("{}.{e}", m.name())));
+        write_images(&paths, image, &tone)?;
         let lum: Vec<f64> = image.data.iter().map(|&p| luminance(p)).collect();
         rows.push(json!({
             "method": m.name(),
@@ -229,7 +228,7 @@ pub fn run(args: Args) -> Result<()> {
         4,
         white,
     );
-    write_image(&args.output.join("contact.png"), &sheet, &tone)?;
+    write_images(&[args.output.join("contact.png")], &sheet, &tone)?;
     let table = json!({
         "scene": args.scene.display().to_string(),
         "reference": args.reference.name(),

@@ -8,7 +8,8 @@ use crate::output::{build_medium, write_atomic};
 use crate::render::load_light_volumes;
 use anyhow::{bail, Context, Result};
 use eikon_grid::vdb::{self, Grid, GridClass, GridData, Transform, Tree, VectorType};
-use eikon_grid::{Medium, Scene};
+use eikon_grid::{GridGeometry, Medium, Scene};
+use eikon_wavefront::staging::{new_run_id, plain_name, remove_stale_temps, Staging};
 use eikon_wavefront::LightVolume;
 use ndarray::{s, Array3, Array4, Axis};
 use ndarray_npy::WriteNpyExt;
@@ -352,60 +353,7 @@ pub fn run(args: Args) -> Result<()> {
     }
 
     if let Some(dir) = &args.npy {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("{}: cannot create the --npy directory", dir.display()))?;
-        let mut list = Vec::new();
-        for v in &volumes {
-            let file = format!("{}.npy", v.name);
-            let path = dir.join(&file);
-            let (shape, background): (Vec<usize>, Value) = match &v.values {
-                Values::Float(a, bg) => {
-                    write_npy(&path, a)?;
-                    (a.shape().to_vec(), json!(bg))
-                }
-                Values::Vec3(a, bg, _) => {
-                    write_npy(&path, a)?;
-                    (a.shape().to_vec(), json!(bg))
-                }
-            };
-            let mut entry = json!({
-                "name": v.name,
-                "file": file,
-                "shape": shape,
-                "dtype": "float32",
-                "units": v.units,
-                "description": v.description,
-                "background": background,
-                "class": v.class.as_str(),
-            });
-            if let Values::Vec3(_, _, vt) = &v.values {
-                entry["vector_type"] = json!(vt.as_str());
-            }
-            list.push(entry);
-        }
-        let sidecar = json!({
-            "format": "eikon-volumes",
-            "version": 1,
-            "scene": args.scene.display().to_string(),
-            "grid": {
-                "dims": geometry.dims,
-                "min": geometry.min.to_array(),
-                "max": geometry.max.to_array(),
-                "spacing": geometry.spacing().to_array(),
-            },
-            "axis_order": "array[i, j, k] (and [i, j, k, c] for vectors, c = x, y, z or R, G, B) is the cell centred at min + (i + 0.5, j + 0.5, k + 0.5) * spacing: x slowest, z fastest (C order); it is VDB voxel (i, j, k)",
-            "vdb_transform": {
-                "voxel_size": transform.voxel_size.to_array(),
-                "translation": transform.translation.to_array(),
-            },
-            "volumes": list,
-        });
-        let path = dir.join("volumes.json");
-        write_atomic(&path, |w| {
-            serde_json::to_writer_pretty(&mut *w, &sidecar)
-                .with_context(|| format!("{}: write failed", path.display()))?;
-            writeln!(w).with_context(|| format!("{}: write failed", path.display()))
-        })?;
+        write_npy_dir(dir, &args.scene, geometry, &transform, &volumes)?;
         summary["npy"] = json!({
             "dir": dir.display().to_string(),
             "files": volumes.iter().map(|v| format!("{}.npy", v.name)).collect::<Vec<_>>(),
@@ -420,11 +368,99 @@ pub fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
-fn write_npy<A: WriteNpyExt>(path: &Path, a: &A) -> Result<()> {
-    write_atomic(path, |w| {
-        a.write_npy(w)
-            .with_context(|| format!("{}: writing NumPy data", path.display()))
-    })
+/// The sidecar of an `--npy` folder.
+pub const NPY_SIDECAR: &str = "volumes.json";
+
+/// Write one `.npy` per volume and [`NPY_SIDECAR`] into `dir` as one run
+/// (`eikon_wavefront::staging`): the arrays to temporaries, renamed into
+/// place once all are complete, the sidecar last, naming a fresh run id and
+/// every array's size and CRC-32 so a reader can tell a folder a killed
+/// re-export left half-updated. Arrays of an earlier export that this one
+/// does not write again are removed; other files are left alone.
+fn write_npy_dir(
+    dir: &Path,
+    scene: &Path,
+    geometry: &GridGeometry,
+    transform: &Transform,
+    volumes: &[Volume],
+) -> Result<()> {
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("{}: cannot create the --npy directory", dir.display()))?;
+    let sidecar_path = dir.join(NPY_SIDECAR);
+    let before: Vec<String> = std::fs::read(&sidecar_path)
+        .ok()
+        .and_then(|b| serde_json::from_slice::<Value>(&b).ok())
+        .map(|v| {
+            v["volumes"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .filter_map(|e| e["file"].as_str().map(str::to_string))
+                .collect()
+        })
+        .unwrap_or_default();
+    let mut staging = Staging::new();
+    let mut list = Vec::new();
+    for v in volumes {
+        let file = format!("{}.npy", v.name);
+        let path = dir.join(&file);
+        let (shape, background): (Vec<usize>, Value) = match &v.values {
+            Values::Float(a, bg) => {
+                staging.add(&path, |w| a.write_npy(w))?;
+                (a.shape().to_vec(), json!(bg))
+            }
+            Values::Vec3(a, bg, _) => {
+                staging.add(&path, |w| a.write_npy(w))?;
+                (a.shape().to_vec(), json!(bg))
+            }
+        };
+        let mut entry = json!({
+            "name": v.name,
+            "file": file,
+            "shape": shape,
+            "dtype": "float32",
+            "units": v.units,
+            "description": v.description,
+            "background": background,
+            "class": v.class.as_str(),
+        });
+        if let Values::Vec3(_, _, vt) = &v.values {
+            entry["vector_type"] = json!(vt.as_str());
+        }
+        list.push(entry);
+    }
+    let sidecar = json!({
+        "format": "eikon-volumes",
+        "version": 2,
+        "run_id": new_run_id(),
+        "scene": scene.display().to_string(),
+        "grid": {
+            "dims": geometry.dims,
+            "min": geometry.min.to_array(),
+            "max": geometry.max.to_array(),
+            "spacing": geometry.spacing().to_array(),
+        },
+        "axis_order": "array[i, j, k] (and [i, j, k, c] for vectors, c = x, y, z or R, G, B) is the cell centred at min + (i + 0.5, j + 0.5, k + 0.5) * spacing: x slowest, z fastest (C order); it is VDB voxel (i, j, k)",
+        "vdb_transform": {
+            "voxel_size": transform.voxel_size.to_array(),
+            "translation": transform.translation.to_array(),
+        },
+        "volumes": list,
+        "files": staging.files(),
+    });
+    staging.add(&sidecar_path, |w| {
+        serde_json::to_writer_pretty(&mut *w, &sidecar)?;
+        w.write_all(b"\n").map_err(serde_json::Error::io)
+    })?;
+    staging.commit()?;
+    let written: Vec<String> = volumes.iter().map(|v| format!("{}.npy", v.name)).collect();
+    for old in before {
+        if plain_name(&old) && !written.contains(&old) && old.ends_with(".npy") {
+            let _ = std::fs::remove_file(dir.join(old));
+        }
+    }
+    remove_stale_temps(dir, |f| f == NPY_SIDECAR || f.ends_with(".npy"));
+    Ok(())
 }
 
 fn mib(b: u64) -> String {

@@ -1,6 +1,7 @@
 //! Shared CLI plumbing: argument parsing, atomic writes, colour maps.
 
 use anyhow::{Context, Result};
+use eikon_wavefront::staging::Staging;
 use glam::DVec3;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -29,36 +30,33 @@ pub fn parse_vec3(s: &str) -> std::result::Result<DVec3, String> {
 /// which is renamed into place only once complete, so a failure never
 /// leaves a half-written output.
 pub fn write_atomic(path: &Path, write: impl FnOnce(&mut dyn Write) -> Result<()>) -> Result<()> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let name = path
-        .file_name()
-        .with_context(|| format!("{}: not a file path", path.display()))?;
-    let tmp = dir.join(format!(
-        ".{}.{}.tmp",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    let result = (|| -> Result<()> {
-        let file = std::fs::File::create(&tmp)
-            .with_context(|| format!("{}: cannot create output", path.display()))?;
-        let mut w = std::io::BufWriter::new(file);
-        write(&mut w)?;
-        let file = w
-            .into_inner()
-            .map_err(|e| e.into_error())
-            .with_context(|| format!("{}: write failed", path.display()))?;
-        file.sync_all()
-            .with_context(|| format!("{}: write failed", path.display()))?;
-        std::fs::rename(&tmp, path)
-            .with_context(|| format!("{}: cannot move output into place", path.display()))
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
+    let mut staging = Staging::new();
+    // The writer's own error (with its context) is the one reported.
+    let mut failure = None;
+    let staged = staging.add(path, |w| {
+        write(w).map_err(|e| {
+            let m = format!("{e:#}");
+            failure = Some(e);
+            m
+        })
+    });
+    if let Some(e) = failure {
+        return Err(e);
     }
-    result
+    staged?;
+    Ok(staging.commit()?)
+}
+
+/// Write several outputs of one run (images in several formats): each to a
+/// temporary beside it, all renamed into place together only once every
+/// one is complete, so a failed or killed run never leaves one output new
+/// and its companion old or half-written.
+pub fn write_all_atomic(outputs: &[(PathBuf, Vec<u8>)]) -> Result<()> {
+    let mut staging = Staging::new();
+    for (path, bytes) in outputs {
+        staging.add(path, |w| w.write_all(bytes))?;
+    }
+    Ok(staging.commit()?)
 }
 
 /// Viridis colour map at `t` in [0, 1] (piecewise-linear through 9 stops of

@@ -2,7 +2,7 @@
 //! `eikon simulate`.
 
 use crate::backend::Backend;
-use crate::output::{build_medium, write_atomic};
+use crate::output::{build_medium, write_all_atomic};
 use anyhow::{bail, Context, Result};
 use clap::ValueEnum;
 use eikon_grid::{Medium, Method, Scene};
@@ -147,9 +147,7 @@ pub fn run(args: Args) -> Result<()> {
             crate::exact::render(&scene, &camera, method, args.exact.guaranteed, seed)?;
         let seconds = started.elapsed().as_secs_f64();
         let tone = tone(&scene, &args.overrides);
-        for o in &args.output {
-            write_image(o, &image, &tone)?;
-        }
+        write_images(&args.output, &image, &tone)?;
         let names: Vec<String> = args
             .output
             .iter()
@@ -286,9 +284,7 @@ pub fn render_scene(
 ) -> Result<()> {
     let (image, stats, seconds) = render_image(scene, medium, volumes, overrides, backend)?;
     let tone = tone(scene, overrides);
-    for o in outputs {
-        write_image(o, &image, &tone)?;
-    }
+    write_images(outputs, &image, &tone)?;
     report(&image, &stats, seconds, outputs, json)
 }
 
@@ -361,22 +357,23 @@ pub fn render_image(
     Ok((image, stats, seconds))
 }
 
-/// Write `image` to `path`: EXR (linear) or PNG (tone-mapped by `tone`),
-/// through a temporary file.
-pub fn write_image(path: &Path, image: &Image, tone: &ToneMap) -> Result<()> {
-    let bytes = match extension(path).as_deref() {
-        Some("exr") => encode_exr(image),
-        _ => encode_png(image, tone),
+/// Write `image` to each of `paths`: EXR (linear) or PNG (tone-mapped by
+/// `tone`), all renamed into place together once every one is complete.
+pub fn write_images(paths: &[PathBuf], image: &Image, tone: &ToneMap) -> Result<()> {
+    let mut outputs = Vec::with_capacity(paths.len());
+    for path in paths {
+        let bytes = match extension(path).as_deref() {
+            Some("exr") => encode_exr(image),
+            _ => encode_png(image, tone),
+        }
+        .with_context(|| format!("{}: encoding the image", path.display()))?;
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir)
+                .with_context(|| format!("{}: cannot create the folder", dir.display()))?;
+        }
+        outputs.push((path.clone(), bytes));
     }
-    .with_context(|| format!("{}: encoding the image", path.display()))?;
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("{}: cannot create the folder", dir.display()))?;
-    }
-    write_atomic(path, |w| {
-        w.write_all(&bytes)
-            .with_context(|| format!("{}: write failed", path.display()))
-    })
+    write_all_atomic(&outputs)
 }
 
 fn report(

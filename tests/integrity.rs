@@ -277,12 +277,12 @@ fn probe_values(light: &Path) -> Result<serde_json::Value, String> {
 }
 
 /// Run `eikon args` with `env` and kill -9 it `delay` after it starts or,
-/// with `renames_in`, after it has written its sidecar's temporary file in
-/// that folder (its renames begin then): whether it was still running.
+/// with `sidecar`, after it has written the temporary file of that sidecar
+/// (its renames begin then): whether it was still running.
 fn kill_after(
     args: &[&str],
     env: &[(&str, &str)],
-    renames_in: Option<&Path>,
+    sidecar: Option<&Path>,
     delay: Duration,
 ) -> bool {
     let mut child = Command::new(env!("CARGO_BIN_EXE_eikon"))
@@ -292,8 +292,9 @@ fn kill_after(
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    if let Some(dir) = renames_in {
-        let tmp = dir.join(format!(".{SIDECAR}.{}.tmp", child.id()));
+    if let Some(sidecar) = sidecar {
+        let name = sidecar.file_name().unwrap().to_str().unwrap();
+        let tmp = sidecar.with_file_name(format!(".{name}.{}.tmp", child.id()));
         let t = Instant::now();
         while !tmp.exists() && child.try_wait().unwrap().is_none() {
             assert!(t.elapsed().as_secs() < 60, "no {}", tmp.display());
@@ -433,11 +434,11 @@ fn killed_runs_leave_the_old_run_or_the_new_one() {
         let (env, renames_in, delay): (&[(&str, &str)], _, f64) = match i % 4 {
             3 => (&[], None, rng.uniform() * 1.5 * seconds[k]),
             1 => (&PAUSE, None, rng.uniform() * 1.3 * (seconds[k] + window)),
-            _ => (&PAUSE, Some(work.as_path()), rng.uniform() * window),
+            _ => (&PAUSE, Some(work.join(SIDECAR)), rng.uniform() * window),
         };
         let args = simulate_args(&work, k);
         let delay = Duration::from_secs_f64(delay);
-        alive += kill_after(&strs(&args), env, renames_in, delay) as usize;
+        alive += kill_after(&strs(&args), env, renames_in.as_deref(), delay) as usize;
         let refused = tally[2];
         check(&work, &mut tally);
         assert_eq!(std::fs::read(work.join("notes.txt")).unwrap(), b"mine");
@@ -504,4 +505,138 @@ fn killed_runs_leave_the_old_run_or_the_new_one() {
     // Kills between renames leave a mixed folder, which readers refuse;
     // none at all means the test missed the moment it is about.
     assert!(tally[2] > 0, "no kill landed between the renames");
+}
+
+/// CRC-32 (IEEE, reflected, as zlib), bit by bit: the test's own, not the
+/// engine's.
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut c = !0u32;
+    for &b in bytes {
+        c ^= u32::from(b);
+        for _ in 0..8 {
+            c = if c & 1 == 1 {
+                (c >> 1) ^ 0xedb8_8320
+            } else {
+                c >> 1
+            };
+        }
+    }
+    !c
+}
+
+/// The arrays of an `export --npy` folder (name and bytes, sorted) if every
+/// file its `volumes.json` lists has the size and CRC-32 recorded there;
+/// otherwise which file disagrees.
+fn verified_npy(dir: &Path) -> Result<Vec<(String, Vec<u8>)>, String> {
+    let side = std::fs::read(dir.join("volumes.json")).map_err(|e| e.to_string())?;
+    let v: serde_json::Value =
+        serde_json::from_slice(&side).expect("a sidecar at its final path is complete JSON");
+    let mut out = Vec::new();
+    for f in v["files"].as_array().expect("files") {
+        let name = f["name"].as_str().unwrap().to_string();
+        let bytes = std::fs::read(dir.join(&name)).map_err(|e| format!("{name}: {e}"))?;
+        if bytes.len() as u64 != f["bytes"].as_u64().unwrap()
+            || format!("{:08x}", crc32(&bytes)) != f["crc32"].as_str().unwrap()
+        {
+            return Err(format!("{name}: not the file the sidecar names"));
+        }
+        out.push((name, bytes));
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// `export --npy` re-run into a folder and killed at random moments (many
+/// of them between its renames): the folder's sidecar either verifies and
+/// the arrays are exactly one export's, or a file disagrees with it (a
+/// mixed folder, which a reader checking the sidecar refuses); no array at
+/// a final path is ever partial. The sidecar's checksums are checked
+/// against an independent CRC-32.
+#[test]
+fn killed_npy_exports_verify_as_one_run_or_not_at_all() {
+    let (dir, scene) = setup();
+    let tmp = dir.path();
+    let export = |k: usize, out: &Path| -> Vec<String> {
+        let light = tmp.join(format!("light{k}"));
+        ["export", s(&scene), "--light", s(&light), "--npy", s(out)]
+            .iter()
+            .map(|a| a.to_string())
+            .collect()
+    };
+    let refs: Vec<Vec<(String, Vec<u8>)>> = (0..2)
+        .map(|k| {
+            simulate(&scene, &tmp.join(format!("light{k}")), SETTINGS[k]);
+            let out = tmp.join(format!("ref{k}"));
+            eikon_ok(&strs(&export(k, &out)));
+            verified_npy(&out).unwrap()
+        })
+        .collect();
+    assert_ne!(refs[0], refs[1], "the two exports must differ");
+    assert!(refs[0].iter().any(|(n, _)| n == "fluence.npy"));
+    let work = tmp.join("work");
+    eikon_ok(&strs(&export(0, &work)));
+    std::fs::write(work.join("notes.txt"), "mine").unwrap();
+    let seconds = {
+        let t = Instant::now();
+        eikon_ok(&strs(&export(1, &work)));
+        t.elapsed().as_secs_f64()
+    };
+    const PAUSE: [(&str, &str); 1] = [("EIKON_TEST_RENAME_PAUSE_MS", "30")];
+    let mut rng = Rng(0x0e4b_0127_5eed_0001);
+    let (mut whole, mut mixed) = ([0usize; 2], 0usize);
+    for i in 0..12 {
+        let now = refs
+            .iter()
+            .position(|r| Ok(r) == verified_npy(&work).as_ref())
+            .expect("each kill starts from a whole export");
+        let k = 1 - now;
+        let (sidecar, delay) = if i % 3 == 2 {
+            (None, rng.uniform() * 1.3 * seconds)
+        } else {
+            (Some(work.join("volumes.json")), rng.uniform() * 0.2)
+        };
+        let args = export(k, &work);
+        kill_after(
+            &strs(&args),
+            &PAUSE,
+            sidecar.as_deref(),
+            Duration::from_secs_f64(delay),
+        );
+        for (n, (name, _)) in refs[0].iter().enumerate() {
+            let bytes = std::fs::read(work.join(name)).unwrap();
+            assert!(
+                refs.iter().any(|r| r[n].1 == bytes),
+                "{name}: a partial or foreign array at a final path"
+            );
+        }
+        match verified_npy(&work) {
+            Ok(files) => {
+                let r = refs.iter().position(|r| *r == files);
+                whole[r.expect("a verified folder holds one export's arrays")] += 1;
+            }
+            Err(e) => {
+                assert!(e.contains("not the file the sidecar names"), "{e}");
+                mixed += 1;
+                eikon_ok(&strs(&export(k, &work)));
+            }
+        }
+        assert_eq!(std::fs::read(work.join("notes.txt")).unwrap(), b"mine");
+    }
+    eprintln!("npy exports killed: whole old or new {whole:?}, mixed and refused {mixed}");
+    assert!(mixed > 0, "no kill landed between the renames");
+    assert!(
+        whole.iter().sum::<usize>() > 0,
+        "every kill left a mixed folder"
+    );
+    // A complete export cleans up the killed runs' temporaries.
+    eikon_ok(&strs(&export(0, &work)));
+    let mut left: Vec<String> = std::fs::read_dir(&work)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    let mut want: Vec<String> = refs[0].iter().map(|(n, _)| n.clone()).collect();
+    want.extend(["notes.txt".to_string(), "volumes.json".to_string()]);
+    want.sort();
+    assert_eq!(left, want);
 }

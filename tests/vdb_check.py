@@ -18,7 +18,9 @@ this checks, exactly (no tolerance on values):
   precision with --half); inactive voxels read as the background;
 * the transform puts voxel (i, j, k) at min + (i + 0.5, j + 0.5, k + 0.5) *
   spacing, and worldToIndexCellCentered maps that point back to (i, j, k);
-* the metadata file_bbox_min/max and file_voxel_count agree with the grid.
+* the metadata file_bbox_min/max and file_voxel_count agree with the grid;
+* volumes.json (version 2) names a run id, and every .npy file has the size
+  and CRC-32 (zlib's) it records, and every volume's file is among them.
 
 Prints one line per grid, then `ok`; on the first difference prints what
 differs and exits with status 1.
@@ -27,6 +29,7 @@ differs and exits with status 1.
 import json
 import os
 import sys
+import zlib
 
 import numpy as np
 import pyopenvdb as vdb
@@ -40,6 +43,18 @@ def fail(msg):
 def check(path, npy_dir, half):
     with open(os.path.join(npy_dir, "volumes.json")) as f:
         side = json.load(f)
+    if side.get("version") != 2 or len(side.get("run_id", "")) != 16:
+        fail("volumes.json: version %r, run id %r" % (side.get("version"), side.get("run_id")))
+    records = {r["name"]: r for r in side["files"]}
+    for v in side["volumes"]:
+        if v["file"] not in records:
+            fail("%s: not among the files volumes.json records" % v["file"])
+    for name, r in records.items():
+        with open(os.path.join(npy_dir, name), "rb") as f:
+            data = f.read()
+        if len(data) != r["bytes"] or "%08x" % zlib.crc32(data) != r["crc32"]:
+            fail("%s: %d bytes, CRC-32 %08x; volumes.json records %d, %s"
+                 % (name, len(data), zlib.crc32(data), r["bytes"], r["crc32"]))
     dims = side["grid"]["dims"]
     lo = np.array(side["grid"]["min"], dtype=np.float64)
     spacing = np.array(side["grid"]["spacing"], dtype=np.float64)

@@ -32,6 +32,7 @@ pub mod patch;
 pub mod photons;
 pub mod propagate;
 pub mod refine;
+pub mod staging;
 pub mod volume;
 pub mod voxelize;
 

@@ -12,39 +12,30 @@
 //!   lights, units, the options and summary of the run, its run id, and the
 //!   size and CRC-32 of every file of the run.
 //!
-//! # A folder holds one whole run (design choice)
-//! Replacing the folder as a whole (write the run into a temporary folder
-//! beside it, rename that into place) does not work here: the output
-//! folder may hold files that are not ours (`eikon run` writes
-//! `image.png` and `image.exr` beside the volumes, `eikon demo` its
-//! `demo.toml`, users keep their own files there), and a directory cannot
-//! be renamed over a non-empty one. So the folder is updated file by file,
-//! and the sidecar binds the files of one run:
-//!
-//! 1. every volume goes to a temporary file beside its final name
-//!    (`.NAME.PID.tmp`), is flushed to disk, and only when all are
-//!    complete are they renamed into place: a final path only ever holds a
-//!    complete file;
-//! 2. the sidecar, naming a fresh run id and the size and CRC-32 (IEEE, as
-//!    zlib and `crc32` compute it) of each file, is written last, the same
-//!    way;
-//! 3. every reader checks each file's size against the sidecar before
-//!    reading it, its `.npy` header against its size before allocating,
-//!    its CRC-32 after reading, and that every value is finite.
+//! # A folder holds one whole run
+//! The folder is written through [`crate::staging`]: every volume to a
+//! temporary beside its final name, renamed into place only when all are
+//! complete, the sidecar (a fresh run id and the size and CRC-32 of every
+//! file) last. Every reader checks each file's size against the sidecar
+//! before reading it, its `.npy` header against its size before
+//! allocating, its CRC-32 after reading, and that every value is finite.
 //!
 //! A re-run killed between its renames leaves new volumes beside the old
 //! sidecar: their sizes or checksums disagree with it, and every reader
 //! refuses the folder, naming the file, instead of mixing two runs.
 //! Otherwise a reader sees the whole old run or the whole new one.
 //! Leftover `.NAME.PID.tmp` files of a killed run are never read, and the
-//! next complete run into the folder removes them.
+//! next complete run into the folder removes them. Files that are not ours
+//! (images of `eikon run`, the user's) are left alone.
 
+use crate::staging::{err, new_run_id, plain_name, remove_stale_temps, Staging};
+pub use crate::staging::{Error, FileRecord, RENAME_PAUSE_ENV};
 use crate::{LightVolume, Summary};
 use eikon_grid::{GridGeometry, Light};
 use ndarray::{Array4, ArrayD, Axis, Ix4, IxDyn, ShapeBuilder};
 use serde::{Deserialize, Serialize};
 use std::fs::File;
-use std::io::{self, Read, Write};
+use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
 /// The sidecar that describes a light-volume folder.
@@ -56,29 +47,6 @@ pub const FORMAT: &str = "eikon-light-volumes";
 /// The format version this code writes and reads: 3 added the run id and
 /// the files' sizes and checksums (2 stored fluence and flux without them).
 pub const VERSION: u32 = 3;
-
-/// Test knob: when set, [`write()`] waits this many milliseconds before each
-/// rename, so that crash tests killing `eikon simulate` at random moments
-/// land between renames often. Unset in normal use.
-pub const RENAME_PAUSE_ENV: &str = "EIKON_TEST_RENAME_PAUSE_MS";
-
-/// A light-volume folder that cannot be written or read: the file and
-/// what is wrong with it.
-#[derive(Debug, thiserror::Error)]
-#[error("{}: {message}", path.display())]
-pub struct Error {
-    /// The file (or folder) concerned.
-    pub path: PathBuf,
-    /// What is wrong.
-    pub message: String,
-}
-
-fn err(path: &Path, message: impl Into<String>) -> Error {
-    Error {
-        path: path.to_path_buf(),
-        message: message.into(),
-    }
-}
 
 /// `light_volumes.json`: everything about one run of `eikon simulate`.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -337,49 +305,6 @@ impl LightSummary {
     }
 }
 
-/// One file of a run: its name in the folder, size and CRC-32.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub struct FileRecord {
-    /// File name (no directory part).
-    pub name: String,
-    /// Size in bytes.
-    pub bytes: u64,
-    /// CRC-32 (IEEE 802.3, as zlib), 8 lowercase hex digits.
-    pub crc32: String,
-}
-
-impl FileRecord {
-    /// The record of the file at `path` as it is now (for tools and tests
-    /// that rewrite a file on purpose).
-    pub fn of_file(path: &Path) -> Result<FileRecord, Error> {
-        let mut f = File::open(path).map_err(|e| err(path, format!("cannot read: {e}")))?;
-        let mut h = crc32fast::Hasher::new();
-        let mut buf = vec![0u8; 1 << 16];
-        let mut bytes = 0u64;
-        loop {
-            let n = f
-                .read(&mut buf)
-                .map_err(|e| err(path, format!("cannot read: {e}")))?;
-            if n == 0 {
-                break;
-            }
-            h.update(&buf[..n]);
-            bytes += n as u64;
-        }
-        Ok(FileRecord {
-            name: file_name(path),
-            bytes,
-            crc32: format!("{:08x}", h.finalize()),
-        })
-    }
-}
-
-fn file_name(path: &Path) -> String {
-    path.file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default()
-}
-
 impl Sidecar {
     /// The grid as geometry.
     pub fn geometry(&self) -> GridGeometry {
@@ -410,81 +335,6 @@ pub struct Run<'a> {
     pub seconds: f64,
     /// Per light, in the scene's order: the light, its volume, its summary.
     pub lights: Vec<(&'a Light, &'a LightVolume, LightSummary)>,
-}
-
-/// A fresh run id: 16 hex digits from the clock, the process and a counter.
-fn new_run_id() -> String {
-    use std::sync::atomic::{AtomicU64, Ordering};
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos() as u64);
-    let mut x = nanos
-        ^ (u64::from(std::process::id()) << 40)
-        ^ COUNTER
-            .fetch_add(1, Ordering::Relaxed)
-            .wrapping_mul(0x9e37_79b9_7f4a_7c15);
-    // splitmix64's finalizer.
-    x = (x ^ (x >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    x = (x ^ (x >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    format!("{:016x}", x ^ (x >> 31))
-}
-
-/// A writer that counts and checksums what passes through it.
-struct Tally<W> {
-    inner: W,
-    crc: crc32fast::Hasher,
-    bytes: u64,
-}
-
-impl<W: Write> Write for Tally<W> {
-    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
-        let n = self.inner.write(buf)?;
-        self.crc.update(&buf[..n]);
-        self.bytes += n as u64;
-        Ok(n)
-    }
-    fn flush(&mut self) -> io::Result<()> {
-        self.inner.flush()
-    }
-}
-
-/// Write `name` in `dir` as a temporary file beside it, flushed to disk:
-/// its path and record.
-fn write_temp(
-    dir: &Path,
-    name: &str,
-    write: impl FnOnce(&mut dyn Write) -> Result<(), String>,
-) -> Result<(PathBuf, FileRecord), Error> {
-    let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
-    let fail = |m: String| err(&dir.join(name), m);
-    let result = (|| {
-        let file = File::create(&tmp).map_err(|e| fail(format!("cannot create: {e}")))?;
-        let mut w = Tally {
-            inner: io::BufWriter::new(file),
-            crc: crc32fast::Hasher::new(),
-            bytes: 0,
-        };
-        write(&mut w).map_err(fail)?;
-        let file = w
-            .inner
-            .into_inner()
-            .map_err(|e| fail(format!("write failed: {}", e.error())))?;
-        file.sync_all()
-            .map_err(|e| fail(format!("write failed: {e}")))?;
-        Ok(FileRecord {
-            name: name.to_string(),
-            bytes: w.bytes,
-            crc32: format!("{:08x}", w.crc.finalize()),
-        })
-    })();
-    match result {
-        Ok(r) => Ok((tmp, r)),
-        Err(e) => {
-            let _ = std::fs::remove_file(&tmp);
-            Err(e)
-        }
-    }
 }
 
 fn write_array<A: ndarray_npy::WriteNpyExt>(
@@ -523,15 +373,6 @@ fn unravel(mut pos: usize, shape: &[usize], fortran: bool) -> Vec<usize> {
 fn fmt_index(idx: &[usize]) -> String {
     let parts: Vec<String> = idx.iter().map(usize::to_string).collect();
     format!("[{}]", parts.join(", "))
-}
-
-fn pause_before_rename() {
-    if let Some(ms) = std::env::var(RENAME_PAUSE_ENV)
-        .ok()
-        .and_then(|v| v.parse::<u64>().ok())
-    {
-        std::thread::sleep(std::time::Duration::from_millis(ms));
-    }
 }
 
 /// Write the volumes of `run` on `grid` into `dir` (created if missing) as
@@ -573,45 +414,30 @@ pub fn write(dir: &Path, grid: &GridGeometry, run: &Run<'_>) -> Result<Sidecar, 
         })
         .unwrap_or_default();
 
-    let mut temps: Vec<(PathBuf, FileRecord)> = Vec::new();
+    let mut staging = Staging::new();
     let mut lights = Vec::new();
-    let written = (|| -> Result<(), Error> {
-        for (i, (light, volume, summary)) in run.lights.iter().enumerate() {
-            let fluence_file = format!("light{i}_fluence.npy");
-            temps.push(write_temp(
-                dir,
-                &fluence_file,
-                write_array(&volume.fluence),
-            )?);
-            let flux_file = format!("light{i}_flux.npy");
-            let flux_shape = if volume.flux.len() == 1 {
-                temps.push(write_temp(dir, &flux_file, write_array(&volume.flux[0]))?);
-                volume.flux[0].shape().to_vec()
-            } else {
-                let views: Vec<_> = volume.flux.iter().map(Array4::view).collect();
-                let stacked = ndarray::stack(Axis(0), &views)
-                    .map_err(|e| err(&dir.join(&flux_file), e.to_string()))?;
-                temps.push(write_temp(dir, &flux_file, write_array(&stacked))?);
-                stacked.shape().to_vec()
-            };
-            lights.push(LightRecord {
-                source: LightSource::from(*light),
-                fluence_file,
-                flux_file,
-                flux_shape,
-                summary: summary.clone(),
-            });
-        }
-        Ok(())
-    })();
-    let remove_temps = |temps: &[(PathBuf, FileRecord)]| {
-        for (t, _) in temps {
-            let _ = std::fs::remove_file(t);
-        }
-    };
-    if let Err(e) = written {
-        remove_temps(&temps);
-        return Err(e);
+    for (i, (light, volume, summary)) in run.lights.iter().enumerate() {
+        let fluence_file = format!("light{i}_fluence.npy");
+        staging.add(&dir.join(&fluence_file), write_array(&volume.fluence))?;
+        let flux_file = format!("light{i}_flux.npy");
+        let flux_path = dir.join(&flux_file);
+        let flux_shape = if volume.flux.len() == 1 {
+            staging.add(&flux_path, write_array(&volume.flux[0]))?;
+            volume.flux[0].shape().to_vec()
+        } else {
+            let views: Vec<_> = volume.flux.iter().map(Array4::view).collect();
+            let stacked =
+                ndarray::stack(Axis(0), &views).map_err(|e| err(&flux_path, e.to_string()))?;
+            staging.add(&flux_path, write_array(&stacked))?;
+            stacked.shape().to_vec()
+        };
+        lights.push(LightRecord {
+            source: LightSource::from(*light),
+            fluence_file,
+            flux_file,
+            flux_shape,
+            summary: summary.clone(),
+        });
     }
     let spacing = grid.spacing();
     let sidecar = Sidecar {
@@ -630,59 +456,24 @@ pub fn write(dir: &Path, grid: &GridGeometry, run: &Run<'_>) -> Result<Sidecar, 
         method: run.method.clone(),
         options: run.options.clone(),
         lights,
-        files: temps.iter().map(|(_, r)| r.clone()).collect(),
+        files: staging.files(),
         backend: run.backend.clone(),
         seconds: run.seconds,
     };
-    let side_tmp = match write_temp(dir, SIDECAR, |w| {
-        serde_json::to_writer_pretty(&mut *w, &sidecar).map_err(|e| e.to_string())?;
-        w.write_all(b"\n").map_err(|e| e.to_string())
-    }) {
-        Ok((t, _)) => t,
-        Err(e) => {
-            remove_temps(&temps);
-            return Err(e);
-        }
-    };
-    // Every file is complete on disk: rename them into place, the sidecar
-    // last. Until it lands, the old sidecar's sizes and checksums refuse
-    // the new volumes.
-    for (n, (tmp, record)) in temps.iter().enumerate() {
-        pause_before_rename();
-        let to = dir.join(&record.name);
-        if let Err(e) = std::fs::rename(tmp, &to) {
-            remove_temps(&temps[n..]);
-            let _ = std::fs::remove_file(&side_tmp);
-            return Err(err(&to, format!("cannot move output into place: {e}")));
-        }
-    }
-    pause_before_rename();
-    if let Err(e) = std::fs::rename(&side_tmp, &sidecar_path) {
-        let _ = std::fs::remove_file(&side_tmp);
-        return Err(err(
-            &sidecar_path,
-            format!("cannot move output into place: {e}"),
-        ));
-    }
-    if let Ok(d) = File::open(dir) {
-        let _ = d.sync_all();
-    }
+    // Every volume is complete on disk; the sidecar is renamed last, so
+    // until it lands the old sidecar's sizes and checksums refuse the new
+    // volumes.
+    staging.add(&sidecar_path, |w| {
+        serde_json::to_writer_pretty(&mut *w, &sidecar)?;
+        w.write_all(b"\n").map_err(serde_json::Error::io)
+    })?;
+    staging.commit()?;
     for old in before {
         if plain_name(&old) && sidecar.file(&old).is_none() && old != SIDECAR {
             let _ = std::fs::remove_file(dir.join(old));
         }
     }
-    remove_stale_temps(dir);
-    Ok(sidecar)
-}
-
-/// Remove the temporaries of runs killed before their renames (this run's
-/// are all renamed by now): `.NAME.PID.tmp` for the names a run writes.
-fn remove_stale_temps(dir: &Path) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    let ours = |file: &str| {
+    remove_stale_temps(dir, |file| {
         file == SIDECAR
             || file
                 .strip_prefix("light")
@@ -691,31 +482,8 @@ fn remove_stale_temps(dir: &Path) {
                         .or_else(|| r.strip_suffix("_flux.npy"))
                 })
                 .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
-    };
-    for e in entries.flatten() {
-        let name = e.file_name();
-        let Some(inner) = name
-            .to_str()
-            .and_then(|n| n.strip_prefix('.'))
-            .and_then(|n| n.strip_suffix(".tmp"))
-        else {
-            continue;
-        };
-        if let Some((file, pid)) = inner.rsplit_once('.') {
-            if !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit()) && ours(file) {
-                let _ = std::fs::remove_file(e.path());
-            }
-        }
-    }
-}
-
-/// A file name without any directory part, not hidden (so never one of our
-/// temporaries).
-fn plain_name(name: &str) -> bool {
-    !name.is_empty()
-        && !name.starts_with('.')
-        && !name.contains(['/', '\\', '\0'])
-        && Path::new(name).file_name().is_some_and(|n| n == name)
+    });
+    Ok(sidecar)
 }
 
 /// A light-volume folder whose sidecar has been read and checked; the
@@ -1222,13 +990,6 @@ mod tests {
         position: DVec3::ZERO,
         power: DVec3::ONE,
     };
-
-    #[test]
-    fn crc32_is_zlibs() {
-        let mut h = crc32fast::Hasher::new();
-        h.update(b"123456789");
-        assert_eq!(h.finalize(), 0xcbf4_3926);
-    }
 
     #[test]
     fn round_trip_and_rewrite() {

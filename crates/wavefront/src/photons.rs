@@ -88,6 +88,9 @@ const UNITS_PER_CROSSING: f64 = (1u64 << 24) as f64;
 /// added in chunk order, so they do not depend on the thread count.
 const CHUNK: usize = 1024;
 
+/// Chunks traced between two reductions of their tallies.
+const BATCH: usize = 4096;
+
 /// Trace `count` photons of `light` through `medium` (one set per colour
 /// channel with dispersion, each through its own index field, from the
 /// same draws) and estimate the fluence rate and the net flux per cell, the
@@ -157,22 +160,28 @@ pub fn simulate_photons(
             interfaces: interfaces.as_ref(),
             channel: g,
         };
-        let tallies: Vec<Tally> = (0..count.div_ceil(CHUNK))
-            .into_par_iter()
-            .map(|chunk| {
-                let mut t = Tally::default();
-                for i in chunk * CHUNK..((chunk + 1) * CHUNK).min(count) {
-                    let mut rng = Rng::new(key, i as u64);
-                    let (a, b) = strata.draw(i, &mut rng);
-                    if let Some((s, flux)) = source.launch(a, b, grid, &tracer.field) {
-                        tracer.trace(s, flux, &mut t);
+        // Chunks run in batches so that the per-chunk tallies held at once
+        // stay bounded whatever the count; they are added in chunk order,
+        // so the sums do not depend on the thread count.
+        let chunks = count.div_ceil(CHUNK);
+        for batch in (0..chunks).step_by(BATCH) {
+            let tallies: Vec<Tally> = (batch..(batch + BATCH).min(chunks))
+                .into_par_iter()
+                .map(|chunk| {
+                    let mut t = Tally::default();
+                    for i in chunk * CHUNK..((chunk + 1) * CHUNK).min(count) {
+                        let mut rng = Rng::new(key, i as u64);
+                        let (a, b) = strata.draw(i, &mut rng);
+                        if let Some((s, flux)) = source.launch(a, b, grid, &tracer.field) {
+                            tracer.trace(s, flux, &mut t);
+                        }
                     }
-                }
-                t
-            })
-            .collect();
-        for t in &tallies {
-            t.add_to(&mut summary);
+                    t
+                })
+                .collect();
+            for t in &tallies {
+                t.add_to(&mut summary);
+            }
         }
     }
     let volume = tally.into_volume();
