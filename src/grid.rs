@@ -155,8 +155,17 @@ pub struct Needs {
     pub counters: bool,
     /// A wavefront of at most this many patches.
     pub patches: Option<usize>,
+    /// The interface sides Fresnel reads (a simulation with Fresnel).
+    pub interfaces: bool,
+    /// The photon tracer's working tables.
+    pub photons: bool,
+    /// The eikonal renderer's packed properties (interface sides included).
+    pub renderer: bool,
     /// An image of this many pixels (HDR accumulation and output).
     pub pixels: Option<u64>,
+    /// Bytes of GPU buffers and textures (device memory; host memory on a
+    /// software adapter such as lavapipe, so counted against the limit).
+    pub gpu: Option<u64>,
 }
 
 /// The bytes `needs` take for `scene`, item by item.
@@ -173,6 +182,39 @@ fn itemize(scene: &Scene, needs: &Needs) -> Vec<(&'static str, u128)> {
         let bytes = n as u128 * eikon_wavefront::Patches::BYTES_PER_PATCH as u128;
         items.push(("patch list at its cap", bytes));
     }
+    let cells = scene
+        .grid
+        .geometry
+        .dims
+        .iter()
+        .map(|&d| d as u128)
+        .product::<u128>();
+    let channels = scene.channels();
+    if needs.interfaces {
+        items.push((
+            "interface sides",
+            eikon_grid::interface::Interfaces::bytes(cells, channels),
+        ));
+    }
+    if needs.photons {
+        items.push((
+            "photon tracer tables",
+            eikon_wavefront::photons::working_bytes(cells),
+        ));
+    }
+    if needs.renderer {
+        let emits = scene
+            .objects
+            .iter()
+            .any(|o| o.material.emission != glam::DVec3::ZERO);
+        items.push((
+            "renderer tables",
+            eikon_view::properties::Properties::bytes(cells, channels, emits),
+        ));
+    }
+    if let Some(b) = needs.gpu {
+        items.push(("GPU buffers", b as u128));
+    }
     if let Some(p) = needs.pixels {
         // Linear RGB f32 image, its tone-mapped copy and encoder buffers.
         items.push(("image", p as u128 * 3 * (4 + 4 + 1)));
@@ -180,9 +222,11 @@ fn itemize(scene: &Scene, needs: &Needs) -> Vec<(&'static str, u128)> {
     items
 }
 
-/// Check that a command with `needs` fits the memory limit (the medium's
-/// build peak is checked when it is built); the error lists what takes it.
-pub fn check_memory(scene: &Scene, needs: &Needs) -> Result<()> {
+/// Check that a command with `needs` fits the memory limit: the bytes it
+/// will hold at its peak (the medium's build peak or everything it holds
+/// while running, whichever is larger), else an error listing what takes
+/// them.
+pub fn check_memory(scene: &Scene, needs: &Needs) -> Result<u128> {
     let items = itemize(scene, needs);
     let total: u128 = items.iter().map(|(_, b)| b).sum();
     let limit = memory_limit();
@@ -199,17 +243,33 @@ pub fn check_memory(scene: &Scene, needs: &Needs) -> Result<()> {
             format_bytes(limit)
         );
     }
-    Ok(())
+    Ok(total.max(Medium::memory_estimate(scene).peak))
+}
+
+/// The most memory this process has held resident (Linux `VmHWM`), to
+/// report beside the estimate; `None` where the system does not say.
+pub fn peak_resident() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line
+        .trim_start_matches("VmHWM:")
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kib * 1024)
 }
 
 /// The most patches that fit the memory left once everything else of a
 /// simulation is held, at most `cap`.
-pub fn patches_that_fit(scene: &Scene, cap: usize) -> usize {
+pub fn patches_that_fit(scene: &Scene, cap: usize, fresnel: bool) -> usize {
     let rest: u128 = itemize(
         scene,
         &Needs {
             light_volumes: true,
             counters: true,
+            interfaces: fresnel,
             ..Needs::default()
         },
     )

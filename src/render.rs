@@ -303,6 +303,7 @@ pub fn render_image(
         scene,
         &crate::grid::Needs {
             light_volumes: !volumes.is_empty(),
+            renderer: true,
             pixels: Some(camera.width() as u64 * camera.height() as u64),
             ..crate::grid::Needs::default()
         },

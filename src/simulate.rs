@@ -285,7 +285,7 @@ pub fn simulate(
     // The patch list at its cap is part of the memory the run needs: the
     // default cap is lowered to what fits, a cap the user gave is checked.
     if args.method == SimMethod::Wavefront && args.max_patches.is_none() {
-        let fit = crate::grid::patches_that_fit(scene, opts.max_patches);
+        let fit = crate::grid::patches_that_fit(scene, opts.max_patches, opts.fresnel);
         if fit < opts.max_patches {
             if !args.quiet {
                 eprintln!(
@@ -296,13 +296,15 @@ pub fn simulate(
             opts.check()?;
         }
     }
-    crate::grid::check_memory(
+    let estimate = crate::grid::check_memory(
         scene,
         &crate::grid::Needs {
             light_volumes: true,
             counters: true,
             patches: (args.method == SimMethod::Wavefront).then_some(opts.max_patches),
-            pixels: None,
+            interfaces: opts.fresnel,
+            photons: args.method == SimMethod::Photons,
+            ..crate::grid::Needs::default()
         },
     )?;
     check_scene(scene, medium, &opts)?;
@@ -411,6 +413,10 @@ pub fn simulate(
                 "backend": sim_backend,
                 "lights": summaries,
                 "seconds": wall,
+                "memory": {
+                    "estimate_bytes": estimate as u64,
+                    "peak_resident_bytes": crate::grid::peak_resident(),
+                },
             }))?
         );
     } else {

@@ -59,6 +59,12 @@ pub fn probe_length(medium: &Medium) -> f64 {
 }
 
 impl Interfaces {
+    /// Bytes the sides of a grid of `cells` voxels with `channels` index
+    /// channels take (for the memory estimate checked before a run).
+    pub fn bytes(cells: u128, channels: usize) -> u128 {
+        cells * channels as u128 * std::mem::size_of::<[f32; 2]>() as u128
+    }
+
     /// The sides of every voxel of `medium`, read `probe` world units
     /// either side of each boundary voxel ([`probe_length`] is the usual
     /// choice).

@@ -42,6 +42,19 @@ pub struct Properties {
 }
 
 impl Properties {
+    /// Bytes the packed properties of a grid of `cells` voxels with
+    /// `channels` index channels take, `emission` when the medium emits
+    /// (for the memory estimate checked before a render).
+    pub fn bytes(cells: u128, channels: usize, emission: bool) -> u128 {
+        let per_cell = std::mem::size_of::<[Vec4; 2]>()
+            + if emission {
+                std::mem::size_of::<Vec4>()
+            } else {
+                0
+            };
+        cells * per_cell as u128 + Interfaces::bytes(cells, channels)
+    }
+
     /// Pack `medium`; interface sides are read `probe` world units either
     /// side of each boundary voxel.
     pub fn new(medium: &Medium, probe: f64) -> Self {

@@ -30,10 +30,13 @@ pub struct Patches {
 }
 
 impl Patches {
-    /// Bytes one patch takes in the list, and again in the list the
-    /// tessellation analysis builds beside it: what a wavefront of `n`
-    /// patches holds at most is `n * BYTES_PER_PATCH`.
+    /// Bytes one patch takes at most: in the list, and again in the list
+    /// the tessellation rebuilds it into, each of which `Vec`'s amortized
+    /// growth may leave with capacity for up to twice the patches it
+    /// holds. What a wavefront of `n` patches holds at most is
+    /// `n * BYTES_PER_PATCH`.
     pub const BYTES_PER_PATCH: usize = 2
+        * 2
         * (4 * std::mem::size_of::<RayState>()
             + 3 * std::mem::size_of::<[f64; 3]>()
             + std::mem::size_of::<f64>()

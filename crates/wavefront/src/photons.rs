@@ -91,6 +91,13 @@ const CHUNK: usize = 1024;
 /// Chunks traced between two reductions of their tallies.
 const BATCH: usize = 4096;
 
+/// Bytes the photon tracer holds besides the light volume and its
+/// counters, on a grid of `cells` voxels: the clear-cell mask and one
+/// batch of chunk tallies (the interface sides are counted apart).
+pub fn working_bytes(cells: u128) -> u128 {
+    cells * std::mem::size_of::<bool>() as u128 + (BATCH * std::mem::size_of::<Tally>()) as u128
+}
+
 /// Trace `count` photons of `light` through `medium` (one set per colour
 /// channel with dispersion, each through its own index field, from the
 /// same draws) and estimate the fluence rate and the net flux per cell, the
