@@ -10,7 +10,14 @@
 //!   panicked on.
 //! * No adapter is [`GpuError::NoAdapter`], with a message that says what
 //!   was looked for, so a caller can fall back to the CPU.
+//! * Every buffer and texture the backends create goes through [`Gpu`]'s
+//!   helpers, which tally their bytes ([`Gpu::allocated_bytes`],
+//!   [`Gpu::live_bytes`], [`Gpu::peak_bytes`]): the tests hold the
+//!   backends' estimates of device memory (checked before a run) to what a
+//!   run really creates.
 
+use std::ops::Deref;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use wgpu::util::DeviceExt;
 
@@ -68,6 +75,86 @@ pub struct Gpu {
     /// What the adapter is.
     pub info: wgpu::AdapterInfo,
     uncaptured: Arc<Mutex<Vec<String>>>,
+    tally: Arc<Tally>,
+}
+
+/// Bytes of the buffers and textures made by [`Gpu`]'s helpers.
+#[derive(Debug, Default)]
+struct Tally {
+    /// Ever created.
+    created: AtomicU64,
+    /// Created and not yet dropped.
+    live: AtomicU64,
+    /// Highest `live` since the device opened or [`Gpu::reset_peak`].
+    peak: AtomicU64,
+}
+
+impl Tally {
+    fn add(&self, bytes: u64) {
+        self.created.fetch_add(bytes, Ordering::Relaxed);
+        let now = self.live.fetch_add(bytes, Ordering::Relaxed) + bytes;
+        self.peak.fetch_max(now, Ordering::Relaxed);
+    }
+}
+
+/// A buffer made by [`Gpu`]'s helpers: a `wgpu::Buffer` (it derefs to one)
+/// whose bytes leave [`Gpu::live_bytes`] when it is dropped, so the tally
+/// follows what a run holds, not only what it ever made.
+#[derive(Debug)]
+pub struct Buffer {
+    buffer: wgpu::Buffer,
+    tally: Arc<Tally>,
+}
+
+impl Deref for Buffer {
+    type Target = wgpu::Buffer;
+    fn deref(&self) -> &wgpu::Buffer {
+        &self.buffer
+    }
+}
+
+impl Drop for Buffer {
+    fn drop(&mut self) {
+        self.tally
+            .live
+            .fetch_sub(self.buffer.size(), Ordering::Relaxed);
+    }
+}
+
+/// A 3D texture made by [`Gpu::texture_3d`], with its default view (it
+/// derefs to the `wgpu::Texture`); tallied as [`Buffer`] is.
+#[derive(Debug)]
+pub struct Texture {
+    texture: wgpu::Texture,
+    /// The whole texture, as the kernels bind it.
+    pub view: wgpu::TextureView,
+    bytes: u64,
+    tally: Arc<Tally>,
+}
+
+impl Deref for Texture {
+    type Target = wgpu::Texture;
+    fn deref(&self) -> &wgpu::Texture {
+        &self.texture
+    }
+}
+
+impl Drop for Texture {
+    fn drop(&mut self) {
+        self.tally.live.fetch_sub(self.bytes, Ordering::Relaxed);
+    }
+}
+
+/// Smallest buffer the helpers make, bytes (wgpu refuses empty buffers):
+/// estimates of device memory count an empty array as this much.
+pub const MIN_BUFFER_BYTES: u64 = 4;
+
+/// Bytes of a `dims` (grid x, y, z) 3D texture of `format`: texels times
+/// the texel size, as [`Gpu::texture_3d`] tallies it (a driver may pad
+/// rows or tiles on top). Shared by the tally and the estimates.
+pub fn texture_bytes(dims: [usize; 3], format: wgpu::TextureFormat) -> u64 {
+    let texel = u64::from(format.block_copy_size(None).expect("a colour format"));
+    dims.iter().map(|&d| d as u64).product::<u64>() * texel
 }
 
 /// Threads per workgroup of every eikon kernel (1-D).
@@ -134,7 +221,47 @@ impl Gpu {
             queue,
             info,
             uncaptured,
+            tally: Arc::default(),
         })
+    }
+
+    /// Bytes of every buffer and texture ever created through these
+    /// helpers (dropped ones included): what a run made in all.
+    pub fn allocated_bytes(&self) -> u64 {
+        self.tally.created.load(Ordering::Relaxed)
+    }
+
+    /// Bytes of the helpers' buffers and textures not yet dropped (wgpu
+    /// frees one's memory once its last bind group and submission are done
+    /// with it as well; the backends drop those together).
+    pub fn live_bytes(&self) -> u64 {
+        self.tally.live.load(Ordering::Relaxed)
+    }
+
+    /// The most [`Self::live_bytes`] since the device opened or the last
+    /// [`Self::reset_peak`]: the device memory a run needed at its peak,
+    /// which the backends' `device_bytes` estimates must cover. Not
+    /// counted: wgpu's own transient staging for `write_buffer` and
+    /// `write_texture` (at most one upload's bytes, freed once submitted)
+    /// and drivers' padding.
+    pub fn peak_bytes(&self) -> u64 {
+        self.tally.peak.load(Ordering::Relaxed)
+    }
+
+    /// Start a new peak from what is live now (before measuring a run).
+    pub fn reset_peak(&self) {
+        self.tally
+            .peak
+            .store(self.tally.live.load(Ordering::Relaxed), Ordering::Relaxed);
+    }
+
+    /// Tally `buffer`.
+    fn track(&self, buffer: wgpu::Buffer) -> Buffer {
+        self.tally.add(buffer.size());
+        Buffer {
+            buffer,
+            tally: self.tally.clone(),
+        }
     }
 
     /// A one-line description: adapter name and backend.
@@ -193,11 +320,7 @@ impl Gpu {
 
     /// A bind group for group 0 of `pipeline`, binding `i` to
     /// `buffers[i]` whole.
-    pub fn bind(
-        &self,
-        pipeline: &wgpu::ComputePipeline,
-        buffers: &[&wgpu::Buffer],
-    ) -> wgpu::BindGroup {
+    pub fn bind(&self, pipeline: &wgpu::ComputePipeline, buffers: &[&Buffer]) -> wgpu::BindGroup {
         let entries: Vec<wgpu::BindGroupEntry> = buffers
             .iter()
             .enumerate()
@@ -214,40 +337,116 @@ impl Gpu {
     }
 
     /// A storage buffer holding `data` (also a copy source and target).
-    pub fn storage<T: bytemuck::Pod>(&self, label: &str, data: &[T]) -> wgpu::Buffer {
-        self.device
-            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents: bytemuck::cast_slice(data),
-                usage: wgpu::BufferUsages::STORAGE
-                    | wgpu::BufferUsages::COPY_SRC
-                    | wgpu::BufferUsages::COPY_DST,
-            })
+    pub fn storage<T: bytemuck::Pod>(&self, label: &str, data: &[T]) -> Buffer {
+        self.track(
+            self.device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some(label),
+                    contents: bytemuck::cast_slice(data),
+                    usage: wgpu::BufferUsages::STORAGE
+                        | wgpu::BufferUsages::COPY_SRC
+                        | wgpu::BufferUsages::COPY_DST,
+                }),
+        )
     }
 
-    /// An empty storage buffer of `bytes` (at least 4).
-    pub fn storage_empty(&self, label: &str, bytes: u64) -> wgpu::Buffer {
-        self.device.create_buffer(&wgpu::BufferDescriptor {
+    /// An empty storage buffer of `bytes` (at least [`MIN_BUFFER_BYTES`]).
+    pub fn storage_empty(&self, label: &str, bytes: u64) -> Buffer {
+        self.track(self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
-            size: bytes.max(4),
+            size: bytes.max(MIN_BUFFER_BYTES),
             usage: wgpu::BufferUsages::STORAGE
                 | wgpu::BufferUsages::COPY_SRC
                 | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
-        })
+        }))
     }
 
-    /// A uniform buffer holding `data`.
-    pub fn uniform<T: bytemuck::Pod>(&self, label: &str, data: &[T]) -> wgpu::Buffer {
-        self.device
-            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents: bytemuck::cast_slice(data),
-                usage: wgpu::BufferUsages::UNIFORM,
-            })
+    /// A uniform buffer holding `data` (also a copy target, to be
+    /// rewritten with `queue.write_buffer`).
+    pub fn uniform<T: bytemuck::Pod>(&self, label: &str, data: &[T]) -> Buffer {
+        self.track(
+            self.device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some(label),
+                    contents: bytemuck::cast_slice(data),
+                    usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                }),
+        )
     }
 
-    /// Copy `len` elements of `buffer` back to the CPU.
+    /// A `dims` (grid x, y, z) 3D texture of `format` sampled by the
+    /// kernels, whose cell `(i, j, k)` sits at texel `(k, j, i)`, filled
+    /// by `slab(i0, i1)` with the bytes of grid slabs `i0..i1` (C order).
+    /// Slabs of about 16 MiB keep wgpu's staging copies small.
+    pub fn texture_3d(
+        &self,
+        label: &str,
+        dims: [usize; 3],
+        format: wgpu::TextureFormat,
+        slab: &dyn Fn(usize, usize) -> Vec<u8>,
+    ) -> Texture {
+        let [nx, ny, nz] = dims;
+        let texture = self.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d {
+                width: nz as u32,
+                height: ny as u32,
+                depth_or_array_layers: nx as u32,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D3,
+            format,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        let bytes = texture_bytes(dims, format);
+        self.tally.add(bytes);
+        let texel = format.block_copy_size(None).expect("a colour format") as usize;
+        let per = (16usize << 20) / (ny * nz * texel).max(1);
+        let per = per.clamp(1, nx.max(1));
+        let mut i0 = 0;
+        while i0 < nx {
+            let i1 = (i0 + per).min(nx);
+            let data = slab(i0, i1);
+            self.queue.write_texture(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &texture,
+                    mip_level: 0,
+                    origin: wgpu::Origin3d {
+                        x: 0,
+                        y: 0,
+                        z: i0 as u32,
+                    },
+                    aspect: wgpu::TextureAspect::All,
+                },
+                &data,
+                wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some((nz * texel) as u32),
+                    rows_per_image: Some(ny as u32),
+                },
+                wgpu::Extent3d {
+                    width: nz as u32,
+                    height: ny as u32,
+                    depth_or_array_layers: (i1 - i0) as u32,
+                },
+            );
+            i0 = i1;
+        }
+        Texture {
+            view: texture.create_view(&Default::default()),
+            texture,
+            bytes,
+            tally: self.tally.clone(),
+        }
+    }
+
+    /// Copy `len` elements of `buffer` back to the CPU, through a staging
+    /// buffer of their size that is tallied while the read lasts (it is
+    /// dropped before this returns: it counts towards
+    /// [`Self::peak_bytes`], not [`Self::live_bytes`] after).
     pub fn read<T: bytemuck::Pod>(
         &self,
         buffer: &wgpu::Buffer,
@@ -257,12 +456,12 @@ impl Gpu {
         if bytes == 0 {
             return Ok(Vec::new());
         }
-        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+        let staging = self.track(self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("readback"),
             size: bytes,
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
-        });
+        }));
         let mut enc = self.device.create_command_encoder(&Default::default());
         enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, bytes);
         self.queue.submit([enc.finish()]);

@@ -632,3 +632,110 @@ type = "sky"
     );
     assert!(db >= 40.0, "{db}");
 }
+
+/// The estimate of device memory checked before a render
+/// ([`GpuRenderer::device_bytes`]) covers what the renderer holds at its
+/// peak ([`Gpu::peak_bytes`] over uploading the scene and rendering a frame
+/// read back with its counters), and by at most a quarter more (plus 64
+/// KiB): a glass sphere under the sky (a lat-long map) with one light
+/// volume, a dispersive one (three flux arrays) with skipping off, an
+/// emissive volume with three samples per pixel, two light volumes, and no
+/// light volume at all. Everything is freed afterwards.
+#[test]
+fn device_bytes_bound_the_peak() {
+    let Some(gpu) = gpu() else { return };
+    let sphere = |extra: &str, index: &str, light: bool| {
+        format!(
+            r#"
+[grid]
+resolution = 24
+min = [-1, -1, -1]
+max = [1, 1, 1]
+{extra}
+
+[[object]]
+shape = {{ type = "sphere", center = [0, 0.15, 0], radius = 0.45 }}
+index = {index}
+extinction = [0.05, 0.03, 0.03]
+{}
+[camera]
+position = [0.5, 0.75, 2.9]
+target = [0.1, -0.3, 0]
+fov = 45
+resolution = [80, 60]
+samples = 2
+
+[background]
+type = "sky"
+"#,
+            if light {
+                "[[light]]\ntype = \"directional\"\ndirection = [0.2, -1.0, 0.1]\npower = [1, 1, 1]\n"
+            } else {
+                ""
+            }
+        )
+    };
+    let no_skip = Options {
+        skip_empty: false,
+        ..Options::default()
+    };
+    let cases = [
+        (sphere("", "1.5", true), Options::default()),
+        (
+            sphere("dispersion = true", "[1.45, 1.5, 1.55]", true),
+            no_skip,
+        ),
+        (sphere("", "1.5", false), Options::default()),
+        (TWO_LIGHTS.to_string(), Options::default()),
+        (
+            TWO_LIGHTS
+                .replace("resolution = 32", "resolution = 20")
+                .replace("g = -0.3", "g = -0.3\nemission = [0.6, 0.3, 0.1]")
+                .replace(
+                    "resolution = [64, 48]",
+                    "resolution = [64, 48]\nsamples = 3",
+                ),
+            no_skip,
+        ),
+    ];
+    for (text, opts) in cases {
+        let (scene, medium, volumes) = setup(&text);
+        let env = load_environment(&scene.background).unwrap();
+        let environment_texels = match &env {
+            eikon_view::Environment::LatLong(m) => m.width() * m.height(),
+            eikon_view::Environment::Constant(_) => 0,
+        };
+        let s = Surroundings::new(&scene, env, &volumes, &medium.geometry);
+        let cam = camera(&scene);
+        let size = eikon_view::gpu::DeviceSize {
+            dims: medium.geometry.dims,
+            channels: medium.channels(),
+            volumes: volumes.len(),
+            flux_arrays: volumes.first().map_or(1, |v| v.flux.len()),
+            emission: medium.emission.iter().any(|&e| e != 0.0),
+            skip_empty: opts.skip_empty,
+            environment_texels,
+            width: cam.width(),
+            height: cam.height(),
+            samples: cam.samples(),
+        };
+        let base = gpu.live_bytes();
+        gpu.reset_peak();
+        {
+            let r = GpuRenderer::new(&gpu, &medium, &volumes, &s, &cam, opts).unwrap();
+            r.render_with_stats().unwrap();
+        }
+        assert_eq!(gpu.live_bytes(), base, "everything is freed");
+        let peak = gpu.peak_bytes() - base;
+        let estimate = GpuRenderer::device_bytes(&size);
+        println!(
+            "{size:?}: estimate {estimate} bytes, peak {peak} ({:.3})",
+            estimate as f64 / peak as f64
+        );
+        assert!(estimate >= peak, "{estimate} < {peak}");
+        assert!(
+            estimate <= peak + peak / 4 + (64 << 10),
+            "{estimate} >> {peak}"
+        );
+    }
+}

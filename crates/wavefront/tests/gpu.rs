@@ -943,3 +943,72 @@ fn time_glass_sphere_128() {
         println!("128^3 ({:?}): {a:?}", opts.deposit);
     }
 }
+
+/// The estimate of device memory checked before a run
+/// ([`GpuSimulator::device_bytes`]) covers what the simulator holds at its
+/// peak ([`Gpu::peak_bytes`] over constructing it and simulating all three
+/// lights of the glass sphere), and by at most a quarter more (plus 64
+/// KiB): with and without dispersion and Fresnel, with either deposit,
+/// with `max_patches` below the wavefronts' natural peak so that the
+/// lists reach their cap (from the first step, and grown by doubling).
+/// Everything is freed afterwards.
+#[test]
+fn gpu_device_bytes_bound_the_peak() {
+    let Some(gpu) = gpu() else { return };
+    let plain = glass_sphere(24, "");
+    let dispersive =
+        glass_sphere(24, "dispersion = true").replace("index = 1.5", "index = [1.48, 1.5, 1.54]");
+    let cases = [
+        (&plain, fluence(), 4096),
+        (&plain, paper(), 12000),
+        (&dispersive, fluence(), 20000),
+        (
+            &dispersive,
+            Options {
+                fresnel: false,
+                ..fluence()
+            },
+            4096,
+        ),
+        (
+            &dispersive,
+            Options {
+                fresnel: true,
+                ..paper()
+            },
+            4096,
+        ),
+    ];
+    for (text, opts, max_patches) in cases {
+        let (scene, m) = medium(text);
+        let opts = Options {
+            max_patches,
+            ..opts
+        };
+        let base = gpu.live_bytes();
+        gpu.reset_peak();
+        let mut peak_patches = 0;
+        {
+            let sim = GpuSimulator::new(&gpu, &m).unwrap();
+            for light in &scene.lights {
+                let (_, s) = sim.simulate(light, &opts, &|_, _| {}).unwrap();
+                peak_patches = peak_patches.max(s.peak_patches);
+            }
+        }
+        assert_eq!(gpu.live_bytes(), base, "everything is freed");
+        let peak = gpu.peak_bytes() - base;
+        let estimate = GpuSimulator::device_bytes(m.geometry.dims, m.channels(), &opts);
+        println!(
+            "{} channel(s), {:?}, Fresnel {}, max_patches {max_patches} (peak {peak_patches}): estimate {estimate} bytes, peak {peak} ({:.3})",
+            m.channels(),
+            opts.deposit,
+            opts.fresnel,
+            estimate as f64 / peak as f64
+        );
+        assert!(estimate >= peak, "{estimate} < {peak}");
+        assert!(
+            estimate <= peak + peak / 4 + (64 << 10),
+            "{estimate} >> {peak}"
+        );
+    }
+}

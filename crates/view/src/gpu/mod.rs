@@ -44,7 +44,7 @@ use crate::macrocell::{MacroCells, BLOCK};
 use crate::phase::G_MAX;
 use crate::properties::Properties;
 use crate::render::{probe_length, Options, Stats, MIRROR_COS};
-use eikon_gpu::{Gpu, GpuError};
+use eikon_gpu::{texture_bytes, Buffer, Gpu, GpuError, Texture, MIN_BUFFER_BYTES};
 use eikon_grid::{Light, Medium, Method};
 use eikon_wavefront::LightVolume;
 use std::time::Instant;
@@ -61,6 +61,50 @@ const RAY_CHUNK: u64 = 64 << 20;
 /// Workgroup edge (8 x 8 pixels).
 const TILE: u32 = 8;
 
+/// Bytes per pixel of the radiance sums and of one sample's eye-ray
+/// directions (three f32 each).
+const PIXEL_BYTES: u64 = 12;
+
+/// Bytes of the frame's counters: ray-equation steps and empty-space
+/// skips, 64 bits each.
+const COUNTER_BYTES: u64 = 16;
+
+/// Rows of four words in the uniform block (`Params` in the shader): 21
+/// fixed ones, then three per light.
+const PARAM_ROWS: usize = 21 + 3 * MAX_LIGHTS;
+
+/// Format of the medium's and the light volumes' textures, and of the
+/// interface sides.
+const RGBA: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
+const RG: wgpu::TextureFormat = wgpu::TextureFormat::Rg32Float;
+
+/// What the GPU renderer's device memory depends on, all known before a
+/// run (see [`GpuRenderer::device_bytes`]), so that a render that does not
+/// fit the device can be refused before it starts.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct DeviceSize {
+    /// Grid cells along x, y and z.
+    pub dims: [usize; 3],
+    /// Index channels of the medium: 3 with dispersion, else 1.
+    pub channels: usize,
+    /// Light volumes rendered (one per light; 0 renders without).
+    pub volumes: usize,
+    /// Flux arrays of each light volume: 3 with dispersion, else 1.
+    pub flux_arrays: usize,
+    /// Whether the medium emits (true when unsure: an upper bound).
+    pub emission: bool,
+    /// Whether empty-space skipping is on ([`Options::skip_empty`]).
+    pub skip_empty: bool,
+    /// Texels of a lat-long environment map (0 for a constant one).
+    pub environment_texels: usize,
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Samples per pixel.
+    pub samples: u32,
+}
+
 /// The view renderer on a GPU, with the scene uploaded.
 pub struct GpuRenderer<'a> {
     gpu: &'a Gpu,
@@ -68,7 +112,7 @@ pub struct GpuRenderer<'a> {
     seed: u64,
     pipeline: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
-    params: wgpu::Buffer,
+    params: Buffer,
     /// idx0..2, propa, propb, emission, sides0..2.
     medium_views: Vec<wgpu::TextureView>,
     /// Per pass: fluence, flux vector 0..2.
@@ -76,13 +120,13 @@ pub struct GpuRenderer<'a> {
     /// Per pass: how many flux arrays its volume has (1, or 3 with
     /// dispersion).
     volume_arrays: Vec<u32>,
-    skip: wgpu::Buffer,
-    env: wgpu::Buffer,
-    rays: wgpu::Buffer,
-    accum: wgpu::Buffer,
+    skip: Buffer,
+    env: Buffer,
+    rays: Buffer,
+    accum: Buffer,
     /// The frame's ray-equation steps and empty-space skips, each a
     /// 64-bit count in two words (low first), summed by the shader.
-    counters: wgpu::Buffer,
+    counters: Buffer,
     /// Samples per chunk of rays.
     chunk: u32,
     /// The rays of the only chunk are uploaded once.
@@ -90,7 +134,7 @@ pub struct GpuRenderer<'a> {
     /// Whether there are light volumes (without, one pass binds a dark
     /// placeholder).
     lit: bool,
-    _textures: Vec<wgpu::Texture>,
+    _textures: Vec<Texture>,
 }
 
 /// Pack `[f32; 4]` as words.
@@ -109,84 +153,16 @@ fn too_big(gpu: &Gpu, message: String) -> GpuError {
     }
 }
 
-/// A 3D texture of `dims` (grid x, y, z) whose texel `(i, j, k)` sits at
-/// texture `(k, j, i)`, filled by `slab(i0, i1)` with the bytes of grid
-/// slabs `i0..i1` (C order, `bytes` per texel).
-fn texture_3d(
-    gpu: &Gpu,
-    label: &str,
-    dims: [usize; 3],
-    format: wgpu::TextureFormat,
-    bytes: usize,
-    slab: &dyn Fn(usize, usize) -> Vec<u8>,
-) -> wgpu::Texture {
-    let [nx, ny, nz] = dims;
-    let texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
-        label: Some(label),
-        size: wgpu::Extent3d {
-            width: nz as u32,
-            height: ny as u32,
-            depth_or_array_layers: nx as u32,
-        },
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D3,
-        format,
-        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-        view_formats: &[],
-    });
-    // Slabs of about 16 MiB keep the staging copies small.
-    let per = (16usize << 20) / (ny * nz * bytes).max(1);
-    let per = per.clamp(1, nx.max(1));
-    let mut i0 = 0;
-    while i0 < nx {
-        let i1 = (i0 + per).min(nx);
-        let data = slab(i0, i1);
-        gpu.queue.write_texture(
-            wgpu::TexelCopyTextureInfo {
-                texture: &texture,
-                mip_level: 0,
-                origin: wgpu::Origin3d {
-                    x: 0,
-                    y: 0,
-                    z: i0 as u32,
-                },
-                aspect: wgpu::TextureAspect::All,
-            },
-            &data,
-            wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some((nz * bytes) as u32),
-                rows_per_image: Some(ny as u32),
-            },
-            wgpu::Extent3d {
-                width: nz as u32,
-                height: ny as u32,
-                depth_or_array_layers: (i1 - i0) as u32,
-            },
-        );
-        i0 = i1;
-    }
-    texture
-}
-
 /// A texture of 3-vectors per cell (`(nx, ny, nz, 3)` C order) as RGBA.
-fn vec3_texture(gpu: &Gpu, label: &str, dims: [usize; 3], data: &[f32]) -> wgpu::Texture {
+fn vec3_texture(gpu: &Gpu, label: &str, dims: [usize; 3], data: &[f32]) -> Texture {
     let [_, ny, nz] = dims;
-    texture_3d(
-        gpu,
-        label,
-        dims,
-        wgpu::TextureFormat::Rgba32Float,
-        16,
-        &|i0, i1| {
-            let mut out = Vec::with_capacity((i1 - i0) * ny * nz * 4);
-            for c in data[i0 * ny * nz * 3..i1 * ny * nz * 3].chunks_exact(3) {
-                out.extend_from_slice(&[c[0], c[1], c[2], 0.0]);
-            }
-            bytemuck::cast_slice(&out).to_vec()
-        },
-    )
+    gpu.texture_3d(label, dims, RGBA, &|i0, i1| {
+        let mut out = Vec::with_capacity((i1 - i0) * ny * nz * 4);
+        for c in data[i0 * ny * nz * 3..i1 * ny * nz * 3].chunks_exact(3) {
+            out.extend_from_slice(&[c[0], c[1], c[2], 0.0]);
+        }
+        bytemuck::cast_slice(&out).to_vec()
+    })
 }
 
 /// A texture of `width` floats per cell straight from a C-order array.
@@ -197,10 +173,10 @@ fn flat_texture(
     format: wgpu::TextureFormat,
     width: usize,
     data: &[f32],
-) -> wgpu::Texture {
+) -> Texture {
     let [_, ny, nz] = dims;
     let layer = ny * nz * width;
-    texture_3d(gpu, label, dims, format, width * 4, &|i0, i1| {
+    gpu.texture_3d(label, dims, format, &|i0, i1| {
         bytemuck::cast_slice(&data[i0 * layer..i1 * layer]).to_vec()
     })
 }
@@ -254,7 +230,7 @@ impl<'a> GpuRenderer<'a> {
         let mut textures = Vec::new();
 
         // Index channels (reused for absent channels).
-        let r32 = wgpu::TextureFormat::Rgba32Float;
+        let r32 = RGBA;
         for (c, idx) in medium.index.iter().enumerate() {
             let data = idx.as_slice().expect("standard layout");
             textures.push(flat_texture(gpu, &format!("index {c}"), dims, r32, 4, data));
@@ -281,8 +257,8 @@ impl<'a> GpuRenderer<'a> {
                 out
             }
         };
-        let propa = texture_3d(gpu, "sigma delta", dims, r32, 16, &pick(0));
-        let propb = texture_3d(gpu, "scatter g", dims, r32, 16, &pick(1));
+        let propa = gpu.texture_3d("sigma delta", dims, r32, &pick(0));
+        let propb = gpu.texture_3d("scatter g", dims, r32, &pick(1));
         let tiny = [1usize, 1, 1];
         let emission = match &properties.emission {
             Some(e) => {
@@ -291,21 +267,14 @@ impl<'a> GpuRenderer<'a> {
             }
             None => flat_texture(gpu, "no emission", tiny, r32, 4, &[0.0; 4]),
         };
-        let sides: Vec<wgpu::Texture> = properties
+        let sides: Vec<Texture> = properties
             .sides
             .sides
             .iter()
             .enumerate()
             .map(|(c, s)| {
                 let data: &[f32] = bytemuck::cast_slice(s);
-                flat_texture(
-                    gpu,
-                    &format!("sides {c}"),
-                    dims,
-                    wgpu::TextureFormat::Rg32Float,
-                    2,
-                    data,
-                )
+                flat_texture(gpu, &format!("sides {c}"), dims, RG, 2, data)
             })
             .collect();
         let view = |t: &wgpu::Texture| t.create_view(&Default::default());
@@ -330,7 +299,7 @@ impl<'a> GpuRenderer<'a> {
                 v.fluence.as_slice().expect("standard layout"),
             );
             volume_arrays.push(v.flux.len() as u32);
-            let dirs: Vec<wgpu::Texture> = v
+            let dirs: Vec<Texture> = v
                 .flux
                 .iter()
                 .enumerate()
@@ -409,7 +378,7 @@ impl<'a> GpuRenderer<'a> {
         // Image and rays.
         let (w, h) = (camera.width(), camera.height());
         let pixels = u64::from(w) * u64::from(h);
-        check("image", pixels * 12)?;
+        check("image", pixels * PIXEL_BYTES)?;
         let groups = w.div_ceil(TILE).max(h.div_ceil(TILE));
         if groups > limits.max_compute_workgroups_per_dimension {
             return Err(too_big(
@@ -420,13 +389,13 @@ impl<'a> GpuRenderer<'a> {
                 ),
             ));
         }
-        let per_sample = pixels * 12;
+        let per_sample = pixels * PIXEL_BYTES;
         check("eye rays of one sample", per_sample)?;
         let chunk = (RAY_CHUNK.min(max_binding) / per_sample).clamp(1, u64::from(camera.samples()));
         let chunk = chunk as u32;
         let rays = gpu.storage_empty("eye rays", per_sample * u64::from(chunk));
-        let accum = gpu.storage_empty("radiance", pixels * 12);
-        let counters = gpu.storage_empty("render counters", 16);
+        let accum = gpu.storage_empty("radiance", pixels * PIXEL_BYTES);
+        let counters = gpu.storage_empty("render counters", COUNTER_BYTES);
 
         // Uniforms, in the order of `Params` in the shader.
         let hvox = g.voxel_size();
@@ -502,6 +471,7 @@ impl<'a> GpuRenderer<'a> {
             };
             p.extend(l);
         }
+        debug_assert_eq!(p.len(), PARAM_ROWS);
         let params = gpu.uniform("view params", &p);
 
         let (pipeline, layout) = gpu.checked("view renderer pipeline", || {
@@ -596,6 +566,69 @@ impl<'a> GpuRenderer<'a> {
             renderer.upload_rays(0, camera.samples());
         }
         Ok(renderer)
+    }
+
+    /// Device memory, bytes, that [`Self::new`] and then rendering a frame
+    /// (read back with its counters) hold at their peak for a render of
+    /// `size`: an upper bound of what [`Gpu::peak_bytes`] counts over them.
+    /// From the layouts the code allocates with, item by item:
+    ///
+    /// * per index channel an rgba32float texture, and an rg32float one of
+    ///   its interface sides;
+    /// * the packed properties (two rgba32float textures) and the emission
+    ///   (one, or a single texel without);
+    /// * per light volume its fluence and flux arrays, rgba32float each (a
+    ///   single dark texel without any volume);
+    /// * the empty-space tables (per channel four words per block and a
+    ///   byte per cell) with skipping on, else one word;
+    /// * the environment map, RGB f32 per texel (one texel if constant);
+    /// * the eye rays of one chunk of samples (at most 64 MiB, at least one
+    ///   sample), the radiance sums, the frame's counters, the uniforms;
+    /// * the largest transient: the staging buffer the image is read back
+    ///   through, or a frame's per-pass uniforms.
+    ///
+    /// Not counted: wgpu's own staging of uploads (at most one upload,
+    /// 16 MiB slabs for textures, freed once submitted) and drivers'
+    /// padding.
+    pub fn device_bytes(size: &DeviceSize) -> u64 {
+        let buffer = |bytes: u64| bytes.max(MIN_BUFFER_BYTES);
+        let dims = size.dims;
+        let channels = size.channels as u64;
+        let tiny = [1usize, 1, 1];
+        let field = texture_bytes(dims, RGBA);
+        let mut b = channels * (field + texture_bytes(dims, RG));
+        b += 2 * field;
+        b += if size.emission {
+            field
+        } else {
+            texture_bytes(tiny, RGBA)
+        };
+        b += if size.volumes == 0 {
+            texture_bytes(tiny, RGBA)
+        } else {
+            size.volumes as u64 * (1 + size.flux_arrays as u64) * field
+        };
+        let words = if size.skip_empty {
+            let blocks = dims
+                .iter()
+                .map(|&d| d.div_ceil(BLOCK) as u64)
+                .product::<u64>();
+            let cells = dims.iter().map(|&d| d as u64).product::<u64>();
+            channels * (4 * blocks + cells.div_ceil(4))
+        } else {
+            1
+        };
+        b += buffer(words * 4);
+        b += buffer(size.environment_texels.max(1) as u64 * PIXEL_BYTES);
+        let pixels = u64::from(size.width) * u64::from(size.height);
+        let per_sample = pixels * PIXEL_BYTES;
+        let chunk = (RAY_CHUNK / per_sample.max(1)).clamp(1, u64::from(size.samples.max(1)));
+        b += buffer(per_sample * chunk);
+        let accum = buffer(pixels * PIXEL_BYTES);
+        b += accum + COUNTER_BYTES;
+        b += (PARAM_ROWS * std::mem::size_of::<[u32; 4]>()) as u64;
+        let passes = size.volumes.max(1) as u64;
+        b + accum.max(passes * std::mem::size_of::<[u32; 4]>() as u64)
     }
 
     /// Write the eye-ray directions of samples `s0..s1` (sample-major,

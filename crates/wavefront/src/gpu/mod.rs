@@ -66,7 +66,7 @@ impl<'a> GpuHistoPyramid<'a> {
         // Reduction: one dispatch per level, in order.
         gpu.checked("histopyramid reduce", || {
             let mut enc = gpu.device.create_command_encoder(&Default::default());
-            let uniforms: Vec<wgpu::Buffer> = (1..depth)
+            let uniforms: Vec<eikon_gpu::Buffer> = (1..depth)
                 .map(|l| {
                     gpu.uniform(
                         "histopyramid level",

@@ -47,7 +47,9 @@
 //! MiB binding limit. The patch lists grow as needed up to that limit (64
 //! bytes of corner positions per patch: 2M patches at 128 MiB);
 //! `max_patches` is lowered to what fits, and anything that still does not
-//! fit is a [`GpuError::TooLarge`].
+//! fit is a [`GpuError::TooLarge`]. [`GpuSimulator::device_bytes`]
+//! estimates the peak from these layouts before a run; the lists are
+//! sized by `max_patches`, which the grants keep them under.
 //!
 //! # Differences from the CPU
 //! * f32 throughout the steps and the deposit (the CPU works in f64;
@@ -86,7 +88,7 @@ use crate::patch::Patches;
 use crate::refine::Incident;
 use crate::{crossings_bound, power_bound, units_per_crossing, DepositRule, Summary};
 use crate::{propagate, refine, Error, LightVolume, Options, Progress};
-use eikon_gpu::{groups, Gpu, GpuError};
+use eikon_gpu::{groups, texture_bytes, Buffer, Gpu, GpuError, Texture, MIN_BUFFER_BYTES};
 use eikon_grid::interface::{probe_length, Interfaces};
 use eikon_grid::{EmptySpace, Light, Medium, Method};
 use glam::DVec3;
@@ -95,8 +97,21 @@ use std::sync::OnceLock;
 
 const SOURCE: &str = include_str!("simulate.wgsl");
 
+/// Bytes per patch of a list's arrays (see [`PatchSet`]): four corner
+/// positions with their optical path lengths, four gradients, and the
+/// flux, initial flux and irradiance (with area and depth).
+const POS_BYTES: u64 = 64;
+const VEL_BYTES: u64 = 64;
+const AUX_BYTES: u64 = 48;
 /// Bytes of the largest per-patch array (four corner positions).
-const PATCH_BYTES: u64 = 64;
+const PATCH_BYTES: u64 = POS_BYTES;
+/// Bytes per patch of the paper's deposit's scratch: each patch's five
+/// deposits of a step.
+const DEPOSIT_BYTES: u64 = 40;
+/// Smallest capacity of the patch lists (grown by doubling from there).
+const FIRST_CAP: usize = 4096;
+/// Format of the medium's textures.
+const TEXEL: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 /// Storage buffers bound at once (groups 0 to 2 of `simulate.wgsl`).
 const STORAGE_BUFFERS: u32 = 24;
 /// Most pyramid levels (4^15 entries).
@@ -142,6 +157,7 @@ const S_FAINT: usize = 36;
 /// Storage buffers of the light volume (group 2): the paper's deposit
 /// binds 9 of them, the fluence deposit's counters all 12.
 const VOLUME_BUFFERS: usize = 12;
+const PAPER_VOLUME_BUFFERS: usize = 9;
 
 /// Simulate one light on the GPU: [`crate::simulate_light`]'s result
 /// computed by [`GpuSimulator`] (which uploads `medium` first).
@@ -162,15 +178,15 @@ pub struct GpuSimulator<'a> {
     medium: &'a Medium,
     layouts: [wgpu::BindGroupLayout; 4],
     kernels: Vec<wgpu::ComputePipeline>,
-    /// Per index channel: its texture view and empty-space table.
-    index: Vec<(wgpu::TextureView, wgpu::Buffer)>,
-    extinction: wgpu::TextureView,
+    /// Per index channel: its texture and empty-space table.
+    index: Vec<(Texture, Buffer)>,
+    extinction: Texture,
     /// Per index channel, the interface sides and the boundary indicator
     /// for Fresnel, `(n_lo, n_hi, delta, 0)` per cell: uploaded with the
     /// first simulation that asks for Fresnel.
-    fresnel: OnceLock<Vec<wgpu::TextureView>>,
+    fresnel: OnceLock<Vec<Texture>>,
     /// Bound in place of those without Fresnel.
-    no_fresnel: wgpu::TextureView,
+    no_fresnel: Texture,
     /// Largest storage binding, bytes.
     binding_limit: u64,
     /// Blocks of the empty-space tables and their inverse size.
@@ -228,51 +244,11 @@ fn too_large(what: &str, need: u64, limit: u64, hint: &str) -> GpuError {
 
 /// Upload a `(nx, ny, nz, 4)` f32 array as an rgba32float 3D texture of
 /// texel `(k, j, i)` for cell `(i, j, k)`.
-fn texture(gpu: &Gpu, label: &str, dims: [usize; 3], data: &[f32]) -> wgpu::TextureView {
-    let [nx, ny, nz] = dims;
-    let size = wgpu::Extent3d {
-        width: nz as u32,
-        height: ny as u32,
-        depth_or_array_layers: nx as u32,
-    };
-    let tex = gpu.device.create_texture(&wgpu::TextureDescriptor {
-        label: Some(label),
-        size,
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D3,
-        format: wgpu::TextureFormat::Rgba32Float,
-        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-        view_formats: &[],
-    });
-    // One slab of x at a time, so no single staging copy is huge.
-    let slab = ny * nz * 4;
-    for i in 0..nx {
-        gpu.queue.write_texture(
-            wgpu::TexelCopyTextureInfo {
-                texture: &tex,
-                mip_level: 0,
-                origin: wgpu::Origin3d {
-                    x: 0,
-                    y: 0,
-                    z: i as u32,
-                },
-                aspect: wgpu::TextureAspect::All,
-            },
-            bytemuck::cast_slice(&data[i * slab..(i + 1) * slab]),
-            wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(nz as u32 * 16),
-                rows_per_image: Some(ny as u32),
-            },
-            wgpu::Extent3d {
-                width: nz as u32,
-                height: ny as u32,
-                depth_or_array_layers: 1,
-            },
-        );
-    }
-    tex.create_view(&Default::default())
+fn texture(gpu: &Gpu, label: &str, dims: [usize; 3], data: &[f32]) -> Texture {
+    let slab = dims[1] * dims[2] * 4;
+    gpu.texture_3d(label, dims, TEXEL, &|i0, i1| {
+        bytemuck::cast_slice(&data[i0 * slab..i1 * slab]).to_vec()
+    })
 }
 
 /// The uniform index of every empty block, or -1 (`EmptySpace`'s table,
@@ -298,9 +274,9 @@ fn empty_table(medium: &Medium, channel: usize) -> (Vec<f32>, [u32; 3], DVec3) {
 /// Growable GPU patch list.
 struct PatchSet {
     cap: usize,
-    pos: wgpu::Buffer,
-    vel: wgpu::Buffer,
-    aux: wgpu::Buffer,
+    pos: Buffer,
+    vel: Buffer,
+    aux: Buffer,
 }
 
 impl PatchSet {
@@ -308,11 +284,24 @@ impl PatchSet {
         let cap = cap.max(1) as u64;
         Self {
             cap: cap as usize,
-            pos: gpu.storage_empty("patch positions", cap * 64),
-            vel: gpu.storage_empty("patch gradients", cap * 64),
-            aux: gpu.storage_empty("patch flux", cap * 48),
+            pos: gpu.storage_empty("patch positions", cap * POS_BYTES),
+            vel: gpu.storage_empty("patch gradients", cap * VEL_BYTES),
+            aux: gpu.storage_empty("patch flux", cap * AUX_BYTES),
         }
     }
+
+    /// Device bytes of a list of `cap` patches.
+    fn bytes(cap: usize) -> u64 {
+        cap.max(1) as u64 * (POS_BYTES + VEL_BYTES + AUX_BYTES)
+    }
+}
+
+/// Bytes of the per-patch scratch over `n` patches: the pyramids of the
+/// counts and of the split flags, the fates, and each patch's deposits
+/// (`dep_bytes` per patch).
+fn scratch_bytes(n: usize, dep_bytes: u64) -> [u64; 4] {
+    let pyramid = pyramid_size(n) as u64 * 4;
+    [pyramid, pyramid, n as u64 * 4, n as u64 * dep_bytes]
 }
 
 /// Entries of a pyramid over `n` entries (all levels).
@@ -509,6 +498,70 @@ impl<'a> GpuSimulator<'a> {
         (self.binding_limit / PATCH_BYTES) as usize
     }
 
+    /// Device memory, bytes, that [`Self::new`] and then [`Self::simulate`]
+    /// of any one light with `opts` hold at their peak, for a medium of
+    /// `dims` cells with `channels` index channels (3 with dispersion, else
+    /// 1): an upper bound of what [`Gpu::peak_bytes`] counts over them, so
+    /// that a run that does not fit the device can be refused before it
+    /// starts. From the layouts the code allocates with, item by item:
+    ///
+    /// * the medium: per index channel an rgba32float texture and an
+    ///   empty-space table (one f32 per block), the extinction texture and
+    ///   the one-texel stand-in for the interfaces;
+    /// * with `opts.fresnel`, the interface sides, one texture per channel
+    ///   (kept by the simulator for later lights);
+    /// * the light volume: one u32 per cell for each of its 12 arrays
+    ///   (fluence deposit) or 9 (paper's, 3 unused placeholders);
+    /// * the uniforms (parameters, one per pyramid level), the stats and
+    ///   the word the list's length is read from;
+    /// * the two patch lists at `opts.max_patches` (the grants never let a
+    ///   list grow past it; the device may lower it to
+    ///   [`Self::patch_limit`], which only lowers the need);
+    /// * the per-patch scratch at that cap: two pyramids, the fates and,
+    ///   with the paper's deposit, the deposits;
+    /// * the largest transient: the old scratch while it is copied into a
+    ///   larger one, or the staging buffer one volume array is read back
+    ///   through.
+    ///
+    /// A wavefront emitted larger than `opts.max_patches` (emission checks
+    /// only that it stays under `EMIT_PER_PATCH_LIMIT` times it) sizes the
+    /// lists itself and is not covered. Not counted either: wgpu's own
+    /// staging of uploads (at most one upload, freed once submitted) and
+    /// drivers' padding.
+    pub fn device_bytes(dims: [usize; 3], channels: usize, opts: &Options) -> u64 {
+        let cells = dims.iter().map(|&d| d as u64).product::<u64>();
+        let buffer = |bytes: u64| bytes.max(MIN_BUFFER_BYTES);
+        let blocks = dims
+            .iter()
+            .map(|&d| d.div_ceil(EmptySpace::BLOCK) as u64)
+            .product::<u64>();
+        let field = texture_bytes(dims, TEXEL);
+        let channels = channels as u64;
+        let mut medium = channels * (field + buffer(blocks * 4));
+        medium += field + texture_bytes([1, 1, 1], TEXEL);
+        if opts.fresnel {
+            medium += channels * field;
+        }
+        let fluence = opts.deposit == DepositRule::Fluence;
+        let word = buffer(cells * 4);
+        let volume = if fluence {
+            VOLUME_BUFFERS as u64 * word
+        } else {
+            PAPER_VOLUME_BUFFERS as u64 * word
+                + (VOLUME_BUFFERS - PAPER_VOLUME_BUFFERS) as u64 * MIN_BUFFER_BYTES
+        };
+        let small = buffer(PARAMS_WORDS as u64 * 4)
+            + MAX_LEVELS as u64 * std::mem::size_of::<[u32; 4]>() as u64
+            + buffer(STATS_WORDS as u64 * 4)
+            + MIN_BUFFER_BYTES;
+        let cap = opts.max_patches;
+        let lists = 2 * PatchSet::bytes(cap);
+        let dep_bytes = if fluence { 0 } else { DEPOSIT_BYTES };
+        let scratch: u64 = scratch_bytes(cap, dep_bytes).into_iter().map(buffer).sum();
+        let transient = scratch.max(word).max(PatchSet::bytes(0));
+        medium + volume + small + lists + scratch + transient
+    }
+
     fn bind(&self, layout: usize, entries: &[wgpu::BindingResource]) -> wgpu::BindGroup {
         let entries: Vec<_> = entries
             .iter()
@@ -543,7 +596,7 @@ impl<'a> GpuSimulator<'a> {
 
     /// The Fresnel textures of every index channel (see [`Self::fresnel`]),
     /// computed ([`Interfaces::new`], as the CPU) and uploaded on first use.
-    fn fresnel_textures(&self) -> Result<&[wgpu::TextureView], GpuError> {
+    fn fresnel_textures(&self) -> Result<&[Texture], GpuError> {
         if let Some(v) = self.fresnel.get() {
             return Ok(v);
         }
@@ -611,7 +664,7 @@ impl<'a> GpuSimulator<'a> {
         // The light volume: one buffer of one word per cell for each array
         // (see `simulate.wgsl`, group 2).
         let vol = |label: &str| gpu.storage_empty(label, cells as u64 * 4);
-        let volume: Vec<wgpu::Buffer> = if fluence {
+        let volume: Vec<Buffer> = if fluence {
             let mut v: Vec<_> = ["fluence lo", "fluence hi"]
                 .into_iter()
                 .flat_map(|w| (0..3).map(move |c| (w, c)))
@@ -639,7 +692,9 @@ impl<'a> GpuSimulator<'a> {
             .into_iter()
             .map(vol)
             .collect();
-            v.extend((0..3).map(|_| gpu.storage_empty("unused", 4)));
+            v.extend(
+                (PAPER_VOLUME_BUFFERS..VOLUME_BUFFERS).map(|_| gpu.storage_empty("unused", 0)),
+            );
             v
         };
         let volume_group = self.bind(
@@ -649,19 +704,17 @@ impl<'a> GpuSimulator<'a> {
                 .map(|b| b.as_entire_binding())
                 .collect::<Vec<_>>(),
         );
-        let level_groups: Vec<wgpu::BindGroup> = (0..MAX_LEVELS as u32)
-            .map(|l| {
-                let u = gpu.uniform("pyramid level", &[l, 0, 0, 0]);
-                self.bind(3, &[u.as_entire_binding()])
-            })
+        // The level uniforms live as long as their bind groups (so that the
+        // tally of live bytes is what the device holds).
+        let level_uniforms: Vec<Buffer> = (0..MAX_LEVELS as u32)
+            .map(|l| gpu.uniform("pyramid level", &[l, 0, 0, 0]))
+            .collect();
+        let level_groups: Vec<wgpu::BindGroup> = level_uniforms
+            .iter()
+            .map(|u| self.bind(3, &[u.as_entire_binding()]))
             .collect();
         let stats = gpu.storage_empty("stats", STATS_WORDS as u64 * 4);
-        let params_buf = gpu.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("params"),
-            size: PARAMS_WORDS as u64 * 4,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let params_buf = gpu.uniform("params", &[0u32; PARAMS_WORDS]);
         let top = gpu.storage_empty("pyramid top", 4);
 
         let mut directions = Vec::with_capacity(ngroups);
@@ -759,7 +812,10 @@ impl<'a> GpuSimulator<'a> {
             params.f(56, grid.voxel_size());
 
             // Upload the list.
-            let cap = (2 * n0).max(4096).min(self.patch_limit());
+            // The lists never hold more than `max_patches` (the grants
+            // refuse splits beyond it) or the emitted wavefront.
+            let most = max_patches.max(n0);
+            let cap = (2 * n0).max(FIRST_CAP).min(most);
             let mut sets = [PatchSet::new(gpu, cap), PatchSet::new(gpu, cap)];
             {
                 let mut pos = Vec::with_capacity(n0 * 16);
@@ -788,14 +844,14 @@ impl<'a> GpuSimulator<'a> {
             }
             let mut pyr_cap = cap;
             // The paper's deposit keeps each patch's five deposits of a step.
-            let dep_bytes = if fluence { 0 } else { 40 };
+            let dep_bytes = if fluence { 0 } else { DEPOSIT_BYTES };
             let make_pyramid = |n: usize| {
-                let words = pyramid_size(n) as u64;
+                let [l, s, f, d] = scratch_bytes(n, dep_bytes);
                 (
-                    gpu.storage_empty("counts pyramid", words * 4),
-                    gpu.storage_empty("splits pyramid", words * 4),
-                    gpu.storage_empty("fates", n as u64 * 4),
-                    gpu.storage_empty("deposits", n as u64 * dep_bytes),
+                    gpu.storage_empty("counts pyramid", l),
+                    gpu.storage_empty("splits pyramid", s),
+                    gpu.storage_empty("fates", f),
+                    gpu.storage_empty("deposits", d),
                 )
             };
             let (mut levels, mut splits, mut fates, mut deps) = make_pyramid(pyr_cap);
@@ -809,15 +865,15 @@ impl<'a> GpuSimulator<'a> {
                     0,
                     &[
                         params_buf.as_entire_binding(),
-                        wgpu::BindingResource::TextureView(view),
-                        wgpu::BindingResource::TextureView(&self.extinction),
+                        wgpu::BindingResource::TextureView(&view.view),
+                        wgpu::BindingResource::TextureView(&self.extinction.view),
                         empty.as_entire_binding(),
                         stats.as_entire_binding(),
                         levels.as_entire_binding(),
                         splits.as_entire_binding(),
                         fates.as_entire_binding(),
                         deps.as_entire_binding(),
-                        wgpu::BindingResource::TextureView(faces),
+                        wgpu::BindingResource::TextureView(&faces.view),
                     ],
                 )
             };
@@ -915,7 +971,7 @@ impl<'a> GpuSimulator<'a> {
                 // The walk writes `total` patches into the other list.
                 let dst = 1 - cur;
                 if total > sets[dst].cap {
-                    let cap = total.max(2 * sets[dst].cap).min(self.patch_limit());
+                    let cap = total.max(2 * sets[dst].cap).min(most);
                     if total > cap {
                         return Err(too_large(
                             "the wavefront (patches)",
@@ -925,6 +981,10 @@ impl<'a> GpuSimulator<'a> {
                         )
                         .into());
                     }
+                    // The walk overwrites the other list: free it, with the
+                    // bind groups that hold it, before making the larger.
+                    drop(patch_groups);
+                    sets[dst] = PatchSet::new(gpu, 0);
                     sets[dst] = PatchSet::new(gpu, cap);
                     patch_groups = [
                         self.bind_patches(&sets[0], &sets[1]),
@@ -933,7 +993,7 @@ impl<'a> GpuSimulator<'a> {
                 }
                 if total > pyr_cap {
                     // The walk still reads the old pyramid: carry it over.
-                    let new_cap = total.max(2 * pyr_cap).min(self.patch_limit());
+                    let new_cap = total.max(2 * pyr_cap).min(most);
                     let (l2, s2, f2, d2) = make_pyramid(new_cap);
                     let mut enc = gpu.device.create_command_encoder(&Default::default());
                     enc.copy_buffer_to_buffer(&levels, 0, &l2, 0, levels.size());
@@ -1015,7 +1075,7 @@ fn read_u64(
 }
 
 /// Three per-component buffers interleaved into `(nx, ny, nz, 3)`.
-fn read_rgb(gpu: &Gpu, bufs: &[wgpu::Buffer], dims: [usize; 3]) -> Result<Array4<f32>, GpuError> {
+fn read_rgb(gpu: &Gpu, bufs: &[Buffer], dims: [usize; 3]) -> Result<Array4<f32>, GpuError> {
     let cells = dims[0] * dims[1] * dims[2];
     let mut out = Array4::zeros((dims[0], dims[1], dims[2], 3));
     let flat = out.as_slice_mut().expect("contiguous");
