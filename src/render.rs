@@ -299,15 +299,6 @@ pub fn render_image(
     backend: &Backend,
 ) -> Result<(Image, Stats, f64)> {
     let camera = camera(scene, overrides)?;
-    crate::grid::check_memory(
-        scene,
-        &crate::grid::Needs {
-            light_volumes: !volumes.is_empty(),
-            renderer: true,
-            pixels: Some(camera.width() as u64 * camera.height() as u64),
-            ..crate::grid::Needs::default()
-        },
-    )?;
     let r = &scene.render;
     let opts = Options {
         step: overrides.step.unwrap_or(r.step),
@@ -330,6 +321,23 @@ pub fn render_image(
             "warning: no --light volumes given: in-scatter and the receiver are dark (run `eikon simulate` first, or `eikon run`)"
         );
     }
+    let gpu = match backend {
+        Backend::Gpu(g) => {
+            let size = eikon_view::gpu::DeviceSize::of(medium, volumes, &env, &camera, &opts);
+            crate::grid::gpu_host_bytes(g, eikon_view::gpu::GpuRenderer::device_bytes(&size))
+        }
+        Backend::Cpu => None,
+    };
+    crate::grid::check_memory(
+        scene,
+        &crate::grid::Needs {
+            light_volumes: !volumes.is_empty(),
+            renderer: true,
+            pixels: Some(camera.width() as u64 * camera.height() as u64),
+            gpu,
+            ..crate::grid::Needs::default()
+        },
+    )?;
     let surroundings = Surroundings::new(scene, env, volumes, &medium.geometry);
     crate::backend::announce();
     if let Backend::Gpu(gpu) = backend {

@@ -304,6 +304,17 @@ pub fn simulate(
             patches: (args.method == SimMethod::Wavefront).then_some(opts.max_patches),
             interfaces: opts.fresnel,
             photons: args.method == SimMethod::Photons,
+            gpu: match backend {
+                Backend::Gpu(g) if args.method == SimMethod::Wavefront => {
+                    let bytes = eikon_wavefront::gpu::GpuSimulator::device_bytes(
+                        scene.grid.geometry.dims,
+                        scene.channels(),
+                        &opts,
+                    );
+                    crate::grid::gpu_host_bytes(g, bytes)
+                }
+                _ => None,
+            },
             ..crate::grid::Needs::default()
         },
     )?;

@@ -235,3 +235,58 @@ fn bench_prints_a_row_per_scene_and_backend() {
         assert_eq!(r["dims"], serde_json::json!([16, 16, 16]));
     }
 }
+
+/// On a software or integrated adapter (lavapipe in CI) the GPU's buffers
+/// are host memory: the memory check lists them beside the host's arrays,
+/// for the simulator and the renderer.
+#[test]
+fn gpu_buffers_are_in_the_memory_check() {
+    if !has_gpu() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let scene = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("configs/glass-sphere.toml")
+        .to_str()
+        .unwrap()
+        .to_string();
+    let out = dir.path().join("out");
+    let small = ["--resolution", "16", "--backend", "gpu"];
+    let o = eikon(
+        &[
+            &["simulate", &scene, "-o", out.to_str().unwrap()][..],
+            &small,
+            &["--max-patches", "100000", "--max-memory", "8M"],
+        ]
+        .concat(),
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("GPU buffers") && err.contains("patch list"),
+        "{err}"
+    );
+    let png = dir.path().join("big.png");
+    let o = eikon(
+        &[
+            &["render", &scene, "-o", png.to_str().unwrap()][..],
+            &small,
+            &[
+                "--width",
+                "3000",
+                "--height",
+                "3000",
+                "--max-memory",
+                "200M",
+            ],
+        ]
+        .concat(),
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("GPU buffers") && err.contains("image"),
+        "{err}"
+    );
+    assert!(!png.exists());
+}

@@ -462,6 +462,16 @@ pub enum Environment {
 }
 
 impl Environment {
+    /// Texels of its map: 0 for a constant one (for memory estimates).
+    pub fn texels(&self) -> usize {
+        match self {
+            Environment::Constant(_) => 0,
+            Environment::LatLong(m) => m.width() * m.height(),
+        }
+    }
+}
+
+impl Environment {
     /// Loads a lat-long map from an OpenEXR file; see
     /// [`LatLongMap::from_exr`].
     ///

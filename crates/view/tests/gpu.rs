@@ -701,24 +701,9 @@ type = "sky"
     for (text, opts) in cases {
         let (scene, medium, volumes) = setup(&text);
         let env = load_environment(&scene.background).unwrap();
-        let environment_texels = match &env {
-            eikon_view::Environment::LatLong(m) => m.width() * m.height(),
-            eikon_view::Environment::Constant(_) => 0,
-        };
-        let s = Surroundings::new(&scene, env, &volumes, &medium.geometry);
         let cam = camera(&scene);
-        let size = eikon_view::gpu::DeviceSize {
-            dims: medium.geometry.dims,
-            channels: medium.channels(),
-            volumes: volumes.len(),
-            flux_arrays: volumes.first().map_or(1, |v| v.flux.len()),
-            emission: medium.emission.iter().any(|&e| e != 0.0),
-            skip_empty: opts.skip_empty,
-            environment_texels,
-            width: cam.width(),
-            height: cam.height(),
-            samples: cam.samples(),
-        };
+        let size = eikon_view::gpu::DeviceSize::of(&medium, &volumes, &env, &cam, &opts);
+        let s = Surroundings::new(&scene, env, &volumes, &medium.geometry);
         let base = gpu.live_bytes();
         gpu.reset_peak();
         {

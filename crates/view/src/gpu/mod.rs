@@ -105,6 +105,31 @@ pub struct DeviceSize {
     pub samples: u32,
 }
 
+impl DeviceSize {
+    /// The size of a render of `medium` lit by `volumes` under `env`
+    /// through `camera` with `opts`.
+    pub fn of(
+        medium: &Medium,
+        volumes: &[LightVolume],
+        env: &Environment,
+        camera: &Camera,
+        opts: &Options,
+    ) -> Self {
+        DeviceSize {
+            dims: medium.geometry.dims,
+            channels: medium.channels(),
+            volumes: volumes.len(),
+            flux_arrays: volumes.first().map_or(1, |v| v.flux.len()),
+            emission: medium.emission.iter().any(|&e| e != 0.0),
+            skip_empty: opts.skip_empty,
+            environment_texels: env.texels(),
+            width: camera.width(),
+            height: camera.height(),
+            samples: camera.samples(),
+        }
+    }
+}
+
 /// The view renderer on a GPU, with the scene uploaded.
 pub struct GpuRenderer<'a> {
     gpu: &'a Gpu,
