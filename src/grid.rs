@@ -117,6 +117,16 @@ impl GridFlags {
         Ok(scene)
     }
 
+    /// Read `path` as an animation (a static scene is one frame) with these
+    /// flags applied to every frame.
+    pub fn load_animation(&self, path: &Path) -> Result<eikon_grid::animation::Animation> {
+        self.set_limit();
+        Ok(eikon_grid::animation::Animation::load_with(
+            path,
+            &self.grid_override(),
+        )?)
+    }
+
     /// [`GridFlags::load`] for scene text (`origin` names it).
     pub fn parse(&self, text: &str, origin: &str) -> Result<Scene> {
         self.set_limit();

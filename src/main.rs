@@ -5,6 +5,7 @@ mod bench;
 mod compare;
 mod exact;
 mod export;
+mod frames;
 mod gallery;
 mod grid;
 mod info;
@@ -52,6 +53,8 @@ enum Command {
     Compare(compare::Args),
     /// Write a scene's volumes (index, gradient, extinction, light) as OpenVDB grids and/or NumPy arrays.
     Export(export::Args),
+    /// List the frames of a --frames run that are done, missing or failed (over every shard's manifest).
+    Status(frames::StatusArgs),
     /// Make the pictures of docs/gallery from its manifest, or check that they still match what this code renders.
     Gallery(gallery::Args),
 }
@@ -78,6 +81,7 @@ fn main() -> ExitCode {
         Command::Compare(a) => compare::run(a),
         Command::Bench(a) => bench::run(a),
         Command::Gallery(a) => gallery::run(a),
+        Command::Status(a) => frames::status(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -47,7 +47,7 @@ enum Integrator {
 }
 
 /// Arguments of `eikon simulate`.
-#[derive(clap::Args)]
+#[derive(clap::Args, Clone)]
 pub struct Args {
     /// Scene file (TOML).
     scene: PathBuf,
@@ -102,6 +102,8 @@ pub struct Args {
     #[command(flatten)]
     grid: crate::grid::GridFlags,
     /// Print nothing (for commands that simulate on the way to something else).
+    #[command(flatten)]
+    frames: crate::frames::FrameFlags,
     #[arg(skip)]
     quiet: bool,
 }
@@ -239,21 +241,115 @@ impl Args {
 /// Run `eikon simulate`.
 pub fn run(args: Args) -> Result<()> {
     args.options()?;
+    if args.frames.frames.is_some() {
+        return run_frames(&args);
+    }
     let scene = args.grid.load(&args.scene)?;
     let medium = build_medium(&scene)?;
-    let gpu_asked = args.backend.backend == Some(crate::backend::BackendArg::Gpu);
-    let backend = if args.method == SimMethod::Photons {
-        if gpu_asked {
-            bail!(
-                "--backend gpu: photons run on the CPU only (--method wavefront runs on the GPU)"
-            );
-        }
-        Backend::Cpu
-    } else {
-        args.backend.select(args.json)?
-    };
+    let backend = args.select_backend()?;
     simulate(&args, &scene, &medium, &backend)?;
     Ok(())
+}
+
+impl Args {
+    fn select_backend(&self) -> Result<Backend> {
+        let gpu_asked = self.backend.backend == Some(crate::backend::BackendArg::Gpu);
+        if self.method == SimMethod::Photons {
+            if gpu_asked {
+                bail!(
+                    "--backend gpu: photons run on the CPU only (--method wavefront runs on the GPU)"
+                );
+            }
+            return Ok(Backend::Cpu);
+        }
+        self.backend.select(self.json)
+    }
+
+    /// The settings that shape the volumes, as one line (a frame run's
+    /// manifest records it; a resumed run must have the same).
+    fn settings(&self, backend: &Backend) -> Result<String> {
+        let method = self.method.to_possible_value().expect("no skipped values");
+        Ok(format!(
+            "method {}; {:?}; photons {}; seed {}; backend {}; grid {:?}",
+            method.get_name(),
+            self.options()?,
+            self.count,
+            self.seed,
+            backend.name(),
+            self.grid.grid_override()
+        ))
+    }
+}
+
+/// `eikon simulate --frames`: each frame's light volumes in
+/// `OUT/frame_NNNN/`, the medium built once when only lights and the
+/// camera move (see [`crate::frames`]).
+fn run_frames(args: &Args) -> Result<()> {
+    use crate::frames::{frame_dir, Job, Output, Range, Shard};
+    let anim = args.grid.load_animation(&args.scene)?;
+    let range = Range::parse(args.frames.frames.as_deref().unwrap_or("all"), anim.frames)?;
+    let shard = Shard::detect(args.frames.shard.as_deref(), &|k| std::env::var(k).ok())?;
+    let backend = args.select_backend()?;
+    let mut job = Job::open(
+        &args.output,
+        "simulate",
+        &args.scene,
+        anim.text(),
+        args.settings(&backend)?,
+        range,
+        shard,
+        args.frames.force,
+        args.quiet,
+    )?;
+    let reuse = !anim.moves_medium();
+    let mut kept: Option<Medium> = None;
+    job.run(|f| {
+        let scene = anim.frame(f)?;
+        let note;
+        let built;
+        let medium = match &kept {
+            Some(m) => {
+                note = ", medium reused";
+                m
+            }
+            None => {
+                let t = Instant::now();
+                built = build_medium(&scene)?;
+                note = "";
+                if reuse {
+                    if !args.quiet {
+                        eprintln!(
+                            "medium built in {:.2} s, reused for every frame (only lights and the camera move)",
+                            t.elapsed().as_secs_f64()
+                        );
+                    }
+                    kept = Some(built);
+                    kept.as_ref().expect("just kept")
+                } else {
+                    &built
+                }
+            }
+        };
+        let dir = frame_dir(&args.output, f);
+        let frame_args = Args {
+            output: dir.clone(),
+            quiet: true,
+            ..args.clone()
+        };
+        simulate(&frame_args, &scene, medium, &backend)?;
+        let sidecar = lightdir::LightDir::open(&dir)?.sidecar;
+        let name = dir.file_name().expect("a frame folder").to_owned();
+        let mut files: Vec<PathBuf> = sidecar
+            .files
+            .iter()
+            .map(|r| PathBuf::from(&name).join(&r.name))
+            .collect();
+        files.push(PathBuf::from(&name).join(lightdir::SIDECAR));
+        Ok(Output {
+            files,
+            note: note.to_string(),
+        })
+    })
 }
 
 /// [`simulate`] without printing the summary.
@@ -264,10 +360,8 @@ pub fn simulate_quiet(
     backend: &Backend,
 ) -> Result<Vec<LightVolume>> {
     let quiet = Args {
-        scene: args.scene.clone(),
-        output: args.output.clone(),
         quiet: true,
-        ..*args
+        ..args.clone()
     };
     simulate(&quiet, scene, medium, backend)
 }

@@ -12,6 +12,7 @@
 //! * [`ray`]: eqs 9-10 and 14-15 with Euler, RK4 and Dormand-Prince.
 //! * [`vdb`]: OpenVDB export (our own writer) and import of float grids.
 
+pub mod animation;
 pub mod error;
 pub mod field;
 pub mod fresnel;

@@ -39,6 +39,9 @@ struct RawScene {
     background: Option<RawBackground>,
     #[serde(default)]
     render: Option<RawRender>,
+    /// Read by [`crate::animation`]; a frame's scene carries it unchanged.
+    #[serde(default, rename = "animation")]
+    _animation: Option<toml::Value>,
 }
 
 #[derive(Clone, Copy, Deserialize)]
@@ -646,9 +649,41 @@ pub struct Scene {
     pub render: RenderSettings,
 }
 
+/// A scene file's text (a regular file of at most [`MAX_SCENE_BYTES`],
+/// UTF-8).
+pub(crate) fn read_text(path: &Path) -> Result<String> {
+    let bytes =
+        eikon_mesh::load::read_file(path, MAX_SCENE_BYTES).map_err(|source| Error::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    String::from_utf8(bytes).map_err(|_| Error::Read {
+        path: path.to_path_buf(),
+        source: std::io::Error::new(std::io::ErrorKind::InvalidData, "not UTF-8 text"),
+    })
+}
+
+/// `text` read as `T` through serde, a failure located by line, column
+/// and field.
+pub(crate) fn deserialize<T: serde::de::DeserializeOwned>(text: &str, origin: &str) -> Result<T> {
+    let de = toml::Deserializer::new(text);
+    serde_path_to_error::deserialize(de).map_err(|e| {
+        let field = e.path().to_string();
+        let inner = e.into_inner();
+        Error::Invalid {
+            at: Location {
+                file: origin.to_string(),
+                line_column: inner.span().map(|s| line_column(text, s.start)),
+                field: if field == "." { String::new() } else { field },
+            },
+            message: inner.message().trim().replace('\n', ": "),
+        }
+    })
+}
+
 /// One step of a field path.
 #[derive(Clone, Copy, Debug)]
-enum Seg<'a> {
+pub(crate) enum Seg<'a> {
     Key(&'a str),
     Index(usize),
 }
@@ -716,13 +751,13 @@ fn locate(text: &str, path: &[Seg]) -> Option<usize> {
 }
 
 /// Builds located errors while a scene is checked.
-struct Checker<'a> {
-    origin: &'a str,
-    text: &'a str,
+pub(crate) struct Checker<'a> {
+    pub(crate) origin: &'a str,
+    pub(crate) text: &'a str,
 }
 
 impl Checker<'_> {
-    fn err(&self, path: &[Seg], message: impl Into<String>) -> Error {
+    pub(crate) fn err(&self, path: &[Seg], message: impl Into<String>) -> Error {
         Error::Invalid {
             at: Location {
                 file: self.origin.to_string(),
@@ -848,16 +883,7 @@ impl Scene {
 
     /// Read a scene file, change its `[grid]` by `grid`, and check it.
     pub fn load_with(path: &Path, grid: &GridOverride) -> Result<Scene> {
-        let bytes =
-            eikon_mesh::load::read_file(path, MAX_SCENE_BYTES).map_err(|source| Error::Read {
-                path: path.to_path_buf(),
-                source,
-            })?;
-        let text = String::from_utf8(bytes).map_err(|_| Error::Read {
-            path: path.to_path_buf(),
-            source: std::io::Error::new(std::io::ErrorKind::InvalidData, "not UTF-8 text"),
-        })?;
-        Scene::parse_with(&text, &path.display().to_string(), grid)
+        Scene::parse_with(&read_text(path)?, &path.display().to_string(), grid)
     }
 
     /// Parse and check scene text; `origin` names it in errors.
@@ -866,21 +892,20 @@ impl Scene {
     }
 
     /// [`Scene::parse`] with the `[grid]` changed by `grid` before the checks.
+    /// An animated scene (one with `[animation]`) gives its frame 0
+    /// ([`crate::animation::Animation`] gives the others).
     pub fn parse_with(text: &str, origin: &str, grid: &GridOverride) -> Result<Scene> {
+        if crate::animation::is_animated(text) {
+            return crate::animation::Animation::parse_with(text, origin, grid)?.frame(0);
+        }
+        Scene::parse_static(text, origin, grid)
+    }
+
+    /// Parse and check `text` as it stands (an `[animation]` table is
+    /// carried, not applied).
+    pub(crate) fn parse_static(text: &str, origin: &str, grid: &GridOverride) -> Result<Scene> {
         let c = Checker { origin, text };
-        let de = toml::Deserializer::new(text);
-        let mut raw: RawScene = serde_path_to_error::deserialize(de).map_err(|e| {
-            let field = e.path().to_string();
-            let inner = e.into_inner();
-            Error::Invalid {
-                at: Location {
-                    file: origin.to_string(),
-                    line_column: inner.span().map(|s| line_column(text, s.start)),
-                    field: if field == "." { String::new() } else { field },
-                },
-                message: inner.message().trim().replace('\n', ": "),
-            }
-        })?;
+        let mut raw: RawScene = deserialize(text, origin)?;
         raw.grid.resolution = grid.apply(&raw.grid.resolution);
         if let Some(sigma) = grid.smoothing {
             raw.grid.smoothing = sigma;

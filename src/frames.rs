@@ -1,0 +1,774 @@
+//! Frame sequences: `--frames A..B` over an animated scene (docs/SCENES.md,
+//! "Animation"), shared out over processes by `--shard K/N`, a Slurm array
+//! or a Kubernetes indexed job (docs/CLUSTER.md), and resumable.
+//!
+//! Every process keeps a manifest of the frames it finished (`manifest.json`,
+//! or `manifest.K-of-N.json` for shard K of N): the scene's hash, the
+//! settings, and per frame its files with their sizes and CRC-32. A frame
+//! counts as done only once it is in a manifest and its files still match
+//! it, so a run killed at any moment loses at most the frame in flight: its
+//! files are written through temporaries (`eikon_wavefront::staging`) and
+//! the manifest, rewritten after each frame the same way, never names a
+//! frame whose files are not complete. `eikon status` merges the manifests.
+
+use crate::output::write_atomic;
+use anyhow::{bail, Context, Result};
+use eikon_wavefront::staging::FileRecord;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// The `--frames`, `--shard` and `--force` flags.
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct FrameFlags {
+    /// Frames to run: `A..B` (both included), `A`, or `all`. Each frame's
+    /// output goes to its own files; a frame already done (in the
+    /// output's manifest, its files intact) is skipped.
+    #[arg(long)]
+    pub frames: Option<String>,
+    /// Run shard K of N (0-based): every N-th frame of the range from its
+    /// K-th. Without it, a Slurm array task (`SLURM_ARRAY_TASK_ID`) or a
+    /// Kubernetes indexed job (`JOB_COMPLETION_INDEX`, with the count in
+    /// `EIKON_SHARD_COUNT`) takes its shard from its environment.
+    #[arg(long, requires = "frames")]
+    pub shard: Option<String>,
+    /// Run over an output whose manifest records another scene or other
+    /// settings: its frames are done again.
+    #[arg(long, requires = "frames")]
+    pub force: bool,
+}
+
+/// An inclusive range of frames.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Range {
+    /// First frame.
+    pub first: usize,
+    /// Last frame (included).
+    pub last: usize,
+}
+
+impl Range {
+    /// `A..B`, `A..=B`, `A` or `all`, within an animation of `frames`.
+    pub fn parse(s: &str, frames: usize) -> Result<Range> {
+        let num = |t: &str| -> Result<usize> {
+            t.trim().parse::<usize>().with_context(|| {
+                format!("--frames: `{t}` is not a frame number (give A..B, A or all)")
+            })
+        };
+        let r = if s.trim() == "all" {
+            Range {
+                first: 0,
+                last: frames - 1,
+            }
+        } else if let Some((a, b)) = s.split_once("..") {
+            let b = b.strip_prefix('=').unwrap_or(b);
+            Range {
+                first: num(a)?,
+                last: num(b)?,
+            }
+        } else {
+            let f = num(s)?;
+            Range { first: f, last: f }
+        };
+        if r.first > r.last {
+            bail!("--frames: {s} is empty (the first frame is after the last)");
+        }
+        if r.last >= frames {
+            bail!(
+                "--frames: frame {} does not exist: the scene has {frames} frame{} (0 to {})",
+                r.last,
+                if frames == 1 { "" } else { "s" },
+                frames - 1
+            );
+        }
+        Ok(r)
+    }
+
+    /// The frames of the range in order.
+    pub fn frames(&self) -> std::ops::RangeInclusive<usize> {
+        self.first..=self.last
+    }
+}
+
+/// Which share of the frames this process runs.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Shard {
+    /// 0-based index.
+    pub index: usize,
+    /// Number of shards.
+    pub count: usize,
+    /// Where the figures came from (`--shard`, `SLURM_ARRAY_TASK_ID`, ...).
+    pub source: String,
+}
+
+impl Shard {
+    /// The whole range in one process.
+    pub fn single() -> Shard {
+        Shard {
+            index: 0,
+            count: 1,
+            source: "one process".into(),
+        }
+    }
+
+    /// `--shard K/N`, else a Slurm array task's or a Kubernetes indexed
+    /// job's place, else the whole range; `env` reads the environment.
+    pub fn detect(flag: Option<&str>, env: &dyn Fn(&str) -> Option<String>) -> Result<Shard> {
+        let parse = |what: &str, v: &str| -> Result<usize> {
+            v.trim()
+                .parse::<usize>()
+                .with_context(|| format!("{what}: `{v}` is not a whole number"))
+        };
+        let checked = |index: usize, count: usize, source: String| -> Result<Shard> {
+            if count == 0 || index >= count {
+                bail!(
+                    "{source}: shard {index} of {count} does not exist (shards are 0 to count - 1)"
+                );
+            }
+            Ok(Shard {
+                index,
+                count,
+                source,
+            })
+        };
+        if let Some(f) = flag {
+            let (k, n) = f
+                .split_once('/')
+                .with_context(|| format!("--shard: `{f}` is not K/N (e.g. 0/4)"))?;
+            return checked(parse("--shard", k)?, parse("--shard", n)?, "--shard".into());
+        }
+        if let Some(id) = env("SLURM_ARRAY_TASK_ID") {
+            let id = parse("SLURM_ARRAY_TASK_ID", &id)?;
+            let min = match env("SLURM_ARRAY_TASK_MIN") {
+                Some(m) => parse("SLURM_ARRAY_TASK_MIN", &m)?,
+                None => 0,
+            };
+            let count = match (env("SLURM_ARRAY_TASK_COUNT"), env("SLURM_ARRAY_TASK_MAX")) {
+                (Some(c), _) => parse("SLURM_ARRAY_TASK_COUNT", &c)?,
+                (None, Some(m)) => parse("SLURM_ARRAY_TASK_MAX", &m)? + 1 - min,
+                (None, None) => bail!(
+                    "SLURM_ARRAY_TASK_ID is set but neither SLURM_ARRAY_TASK_COUNT nor SLURM_ARRAY_TASK_MAX: give --shard K/N"
+                ),
+            };
+            if id < min {
+                bail!("SLURM_ARRAY_TASK_ID {id} is below SLURM_ARRAY_TASK_MIN {min}");
+            }
+            return checked(id - min, count, "Slurm array (SLURM_ARRAY_TASK_ID)".into());
+        }
+        if let Some(i) = env("JOB_COMPLETION_INDEX") {
+            let i = parse("JOB_COMPLETION_INDEX", &i)?;
+            let n = env("EIKON_SHARD_COUNT").with_context(|| {
+                "JOB_COMPLETION_INDEX is set but EIKON_SHARD_COUNT is not: set it to the job's completions (docs/CLUSTER.md)"
+            })?;
+            return checked(
+                i,
+                parse("EIKON_SHARD_COUNT", &n)?,
+                "Kubernetes indexed job (JOB_COMPLETION_INDEX)".into(),
+            );
+        }
+        Ok(Shard::single())
+    }
+
+    /// Whether frame `f` of `range` is this shard's.
+    pub fn takes(&self, range: &Range, f: usize) -> bool {
+        (f - range.first) % self.count == self.index
+    }
+
+    /// This shard's manifest file name.
+    pub fn manifest_name(&self) -> String {
+        if self.count == 1 {
+            "manifest.json".into()
+        } else {
+            format!("manifest.{}-of-{}.json", self.index, self.count)
+        }
+    }
+}
+
+/// The manifest format.
+pub const FORMAT: &str = "eikon-frames";
+/// Its version.
+pub const VERSION: u32 = 1;
+
+/// What one process of a frame run has done.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Manifest {
+    /// [`FORMAT`].
+    pub format: String,
+    /// [`VERSION`].
+    pub version: u32,
+    /// The command (`simulate`, `render`, `run`, `export`).
+    pub command: String,
+    /// The scene file.
+    pub scene: String,
+    /// CRC-32 of the scene file's text.
+    pub scene_hash: String,
+    /// The settings that shape the outputs, as one line.
+    pub settings: String,
+    /// The frames asked for, by every run into this manifest.
+    pub ranges: Vec<Range>,
+    /// Which of them this process runs.
+    pub shard: Shard,
+    /// Frames done, in the order done.
+    pub done: Vec<FrameRecord>,
+    /// Frames that failed, with the error.
+    pub failed: Vec<Failure>,
+}
+
+/// A finished frame and its files.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FrameRecord {
+    /// The frame.
+    pub frame: usize,
+    /// Its files, named relative to the output folder.
+    pub files: Vec<FileRecord>,
+    /// Wall time, seconds.
+    pub seconds: f64,
+}
+
+/// A frame that failed.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Failure {
+    /// The frame.
+    pub frame: usize,
+    /// The error.
+    pub error: String,
+}
+
+/// CRC-32 of `bytes`, 8 hex digits.
+pub fn hash(bytes: &[u8]) -> String {
+    let mut h = crc32fast::Hasher::new();
+    h.update(bytes);
+    format!("{:08x}", h.finalize())
+}
+
+/// The folder of frame `f`'s light volumes in `out`.
+pub fn frame_dir(out: &Path, f: usize) -> PathBuf {
+    out.join(format!("frame_{f:04}"))
+}
+
+/// `path` with `_NNNN` (frame `f`) before its extension: `image.png` ->
+/// `image_0007.png`.
+#[allow(dead_code)] // for render, run and export --frames
+pub fn numbered(path: &Path, f: usize) -> PathBuf {
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let name = match path.extension() {
+        Some(e) => format!("{stem}_{f:04}.{}", e.to_string_lossy()),
+        None => format!("{stem}_{f:04}"),
+    };
+    path.with_file_name(name)
+}
+
+/// The `; `-separated settings that differ between `was` and `now`, or
+/// their difference in words.
+fn differences(was: &str, now: &str) -> String {
+    let split = |s: &str| -> Vec<String> {
+        s.split("; ")
+            .flat_map(|part| {
+                let inner = part
+                    .find(" { ")
+                    .filter(|_| part.ends_with(" }"))
+                    .map(|i| &part[i + 3..part.len() - 2]);
+                match inner {
+                    Some(fields) => fields.split(", ").map(str::to_string).collect(),
+                    None => vec![part.to_string()],
+                }
+            })
+            .collect()
+    };
+    let (a, b) = (split(was), split(now));
+    let diff: Vec<String> = a
+        .iter()
+        .zip(&b)
+        .filter(|(x, y)| x != y)
+        .map(|(x, y)| format!("{x} there, {y} now"))
+        .collect();
+    if diff.is_empty() || a.len() != b.len() {
+        format!("there: {was}; now: {now}")
+    } else {
+        diff.join("; ")
+    }
+}
+
+/// Whether every file of `r` (relative to `out`) is there with its size
+/// and CRC-32.
+fn intact(out: &Path, r: &FrameRecord) -> bool {
+    r.files.iter().all(|f| {
+        let path = out.join(&f.name);
+        std::fs::metadata(&path).is_ok_and(|m| m.len() == f.bytes)
+            && FileRecord::of_file(&path).is_ok_and(|now| now.crc32 == f.crc32)
+    })
+}
+
+/// Every manifest in `out`, by file name.
+pub fn read_manifests(out: &Path) -> Result<Vec<(String, Manifest)>> {
+    let mut parts = Vec::new();
+    let Ok(entries) = std::fs::read_dir(out) else {
+        return Ok(parts);
+    };
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let ours = name == "manifest.json"
+            || (name.starts_with("manifest.") && name.ends_with(".json") && name.contains("-of-"));
+        if !ours {
+            continue;
+        }
+        let path = e.path();
+        let bytes =
+            std::fs::read(&path).with_context(|| format!("{}: cannot read", path.display()))?;
+        let m: Manifest = serde_json::from_slice(&bytes)
+            .with_context(|| format!("{}: not a frame manifest", path.display()))?;
+        if m.format != FORMAT || m.version != VERSION {
+            bail!(
+                "{}: format {} version {} (this eikon reads {FORMAT} version {VERSION})",
+                path.display(),
+                m.format,
+                m.version
+            );
+        }
+        parts.push((name, m));
+    }
+    parts.sort_by(|a, b| a.0.cmp(&b.0));
+    Ok(parts)
+}
+
+/// One frame's outputs, as the caller made them.
+pub struct Output {
+    /// The files written, relative to the output folder.
+    pub files: Vec<PathBuf>,
+    /// A line about the frame (what was reused, ...).
+    pub note: String,
+}
+
+/// A frame run over the frames of `range` this process's `shard` takes,
+/// writing under `out`.
+pub struct Job {
+    out: PathBuf,
+    manifest: Manifest,
+    range: Range,
+    /// Frames done before this run, found intact (by any shard).
+    before: Vec<FrameRecord>,
+    quiet: bool,
+}
+
+impl Job {
+    /// Open the run: refuse an output whose manifests record another scene
+    /// or other settings (unless `force`), and find the frames already
+    /// done there with their files intact.
+    #[allow(clippy::too_many_arguments)]
+    pub fn open(
+        out: &Path,
+        command: &str,
+        scene: &Path,
+        scene_text: &str,
+        settings: String,
+        range: Range,
+        shard: Shard,
+        force: bool,
+        quiet: bool,
+    ) -> Result<Job> {
+        if out.exists() && !out.is_dir() {
+            bail!("{}: exists and is not a directory", out.display());
+        }
+        std::fs::create_dir_all(out)
+            .with_context(|| format!("{}: cannot create the output directory", out.display()))?;
+        let scene_hash = hash(scene_text.as_bytes());
+        let own = shard.manifest_name();
+        let mut before = Vec::new();
+        let mut ranges = Vec::new();
+        let mut carried = Vec::new();
+        for (name, m) in read_manifests(out)? {
+            let changed = if m.command != command {
+                Some(format!(
+                    "was made by `eikon {}`, not `eikon {command}`",
+                    m.command
+                ))
+            } else if m.scene_hash != scene_hash {
+                Some(format!(
+                    "was made from another scene ({}, whose text differs from {})",
+                    m.scene,
+                    scene.display()
+                ))
+            } else if m.settings != settings {
+                Some(format!(
+                    "was made with other settings ({})",
+                    differences(&m.settings, &settings)
+                ))
+            } else {
+                None
+            };
+            if let Some(what) = changed {
+                if !force {
+                    bail!(
+                        "{}: {what}: give --force to redo its frames, or another -o",
+                        out.join(&name).display()
+                    );
+                }
+                if !quiet {
+                    eprintln!("note: --force: the frames of {name} are done again");
+                }
+                std::fs::remove_file(out.join(&name))
+                    .with_context(|| format!("{}: cannot remove", out.join(&name).display()))?;
+                continue;
+            }
+            let intact: Vec<FrameRecord> = m.done.into_iter().filter(|r| intact(out, r)).collect();
+            if name == own {
+                ranges = m.ranges;
+                // Frames this run does not take stay in its manifest.
+                carried = intact
+                    .iter()
+                    .filter(|r| {
+                        !(range.frames().contains(&r.frame) && shard.takes(&range, r.frame))
+                    })
+                    .cloned()
+                    .collect();
+            }
+            before.extend(intact);
+        }
+        if !ranges.contains(&range) {
+            ranges.push(range);
+        }
+        if !quiet {
+            eprintln!(
+                "frames {}..{}: shard {} of {} ({})",
+                range.first, range.last, shard.index, shard.count, shard.source
+            );
+        }
+        let manifest = Manifest {
+            format: FORMAT.into(),
+            version: VERSION,
+            command: command.into(),
+            scene: scene.display().to_string(),
+            scene_hash,
+            settings,
+            ranges,
+            shard,
+            done: carried,
+            failed: Vec::new(),
+        };
+        let range_now = range;
+        Ok(Job {
+            out: out.to_path_buf(),
+            manifest,
+            range: range_now,
+            before,
+            quiet,
+        })
+    }
+
+    /// The frames this process runs, in order.
+    pub fn frames(&self) -> Vec<usize> {
+        let r = self.range;
+        r.frames()
+            .filter(|&f| self.manifest.shard.takes(&r, f))
+            .collect()
+    }
+
+    /// Run `frame` for every frame of this process not already done, then
+    /// record it; a failed frame is recorded and the others still run.
+    /// Errors if any frame failed.
+    pub fn run(&mut self, mut frame: impl FnMut(usize) -> Result<Output>) -> Result<()> {
+        let frames = self.frames();
+        let started = std::time::Instant::now();
+        let (mut ran, mut skipped) = (0usize, 0usize);
+        for f in frames.iter().copied() {
+            if let Some(r) = self.before.iter().find(|r| r.frame == f) {
+                self.manifest.done.push(r.clone());
+                skipped += 1;
+                continue;
+            }
+            let t = std::time::Instant::now();
+            match frame(f) {
+                Ok(o) => {
+                    let files = o
+                        .files
+                        .iter()
+                        .map(|p| {
+                            let mut r = FileRecord::of_file(&self.out.join(p))?;
+                            r.name = p.to_string_lossy().replace('\\', "/");
+                            Ok(r)
+                        })
+                        .collect::<Result<Vec<_>, eikon_wavefront::staging::Error>>()?;
+                    let seconds = t.elapsed().as_secs_f64();
+                    self.manifest.done.push(FrameRecord {
+                        frame: f,
+                        files,
+                        seconds,
+                    });
+                    self.manifest.failed.retain(|x| x.frame != f);
+                    ran += 1;
+                    if !self.quiet {
+                        eprintln!("frame {f}: {seconds:.2} s{}", o.note);
+                    }
+                }
+                Err(e) => {
+                    let error = format!("{e:#}");
+                    if !self.quiet {
+                        eprintln!("frame {f}: failed: {error}");
+                    }
+                    self.manifest.failed.push(Failure { frame: f, error });
+                }
+            }
+            self.save()?;
+        }
+        self.save()?;
+        let wall = started.elapsed().as_secs_f64();
+        if !self.quiet {
+            eprintln!(
+                "{ran} frame(s) done in {wall:.1} s ({:.1} frames/min), {skipped} already done, {} failed; manifest {}",
+                if wall > 0.0 { 60.0 * ran as f64 / wall } else { 0.0 },
+                self.manifest.failed.len(),
+                self.out.join(self.manifest.shard.manifest_name()).display()
+            );
+        }
+        if let Some(f) = self.manifest.failed.first() {
+            bail!(
+                "{} frame(s) failed, the first frame {}: {}",
+                self.manifest.failed.len(),
+                f.frame,
+                f.error
+            );
+        }
+        Ok(())
+    }
+
+    fn save(&self) -> Result<()> {
+        let path = self.out.join(self.manifest.shard.manifest_name());
+        write_atomic(&path, |w| {
+            serde_json::to_writer_pretty(&mut *w, &self.manifest)
+                .with_context(|| format!("{}: write failed", path.display()))?;
+            writeln!(w).with_context(|| format!("{}: write failed", path.display()))
+        })
+    }
+}
+
+/// Arguments of `eikon status`.
+#[derive(clap::Args)]
+pub struct StatusArgs {
+    /// The output folder of a `--frames` run.
+    output: PathBuf,
+    /// Print JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Frames as ranges: `0-3, 7, 9-12`.
+fn ranges(frames: &[usize]) -> String {
+    let mut out: Vec<String> = Vec::new();
+    let mut i = 0;
+    while i < frames.len() {
+        let mut j = i;
+        while j + 1 < frames.len() && frames[j + 1] == frames[j] + 1 {
+            j += 1;
+        }
+        out.push(if i == j {
+            frames[i].to_string()
+        } else {
+            format!("{}-{}", frames[i], frames[j])
+        });
+        i = j + 1;
+    }
+    if out.is_empty() {
+        "none".into()
+    } else {
+        out.join(", ")
+    }
+}
+
+/// Run `eikon status`: the frames done (files intact), missing and failed,
+/// over every manifest in the folder. Exits non-zero unless every frame
+/// asked for is done.
+pub fn status(args: StatusArgs) -> Result<()> {
+    let parts = read_manifests(&args.output)?;
+    if parts.is_empty() {
+        bail!(
+            "{}: no frame manifest here (manifest.json or manifest.K-of-N.json): not the output of a --frames run",
+            args.output.display()
+        );
+    }
+    let first = &parts[0].1;
+    for (name, m) in &parts[1..] {
+        if m.scene_hash != first.scene_hash
+            || m.settings != first.settings
+            || m.command != first.command
+        {
+            bail!(
+                "{}: {name} records another scene, command or settings than {}",
+                args.output.display(),
+                parts[0].0
+            );
+        }
+    }
+    let mut asked: Vec<usize> = parts
+        .iter()
+        .flat_map(|(_, m)| m.ranges.iter().flat_map(|r| r.frames()))
+        .collect();
+    asked.sort_unstable();
+    asked.dedup();
+    let mut done = Vec::new();
+    let mut damaged = Vec::new();
+    let mut seconds = 0.0;
+    for (_, m) in &parts {
+        for r in &m.done {
+            if intact(&args.output, r) {
+                done.push(r.frame);
+                seconds += r.seconds;
+            } else {
+                damaged.push(r.frame);
+            }
+        }
+    }
+    done.sort_unstable();
+    done.dedup();
+    let mut failed: Vec<usize> = parts
+        .iter()
+        .flat_map(|(_, m)| m.failed.iter().map(|f| f.frame))
+        .filter(|f| !done.contains(f))
+        .collect();
+    failed.sort_unstable();
+    failed.dedup();
+    damaged.retain(|f| !done.contains(f));
+    let missing: Vec<usize> = asked
+        .iter()
+        .copied()
+        .filter(|f| !done.contains(f) && !failed.contains(f))
+        .collect();
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&serde_json::json!({
+                "command": first.command,
+                "scene": first.scene,
+                "manifests": parts.iter().map(|(n, _)| n).collect::<Vec<_>>(),
+                "asked": asked.len(),
+                "done": done,
+                "missing": missing,
+                "failed": failed,
+                "damaged": damaged,
+                "seconds": seconds,
+            }))?
+        );
+    } else {
+        println!(
+            "{} of {}: {} manifest(s)",
+            first.command,
+            first.scene,
+            parts.len()
+        );
+        println!(
+            "  done     {} of {}: {}",
+            done.len(),
+            asked.len(),
+            ranges(&done)
+        );
+        println!("  missing  {}", ranges(&missing));
+        println!("  failed   {}", ranges(&failed));
+        if !damaged.is_empty() {
+            println!(
+                "  damaged  {} (files changed since; run again to redo)",
+                ranges(&damaged)
+            );
+        }
+        for (_, m) in &parts {
+            for f in &m.failed {
+                if failed.contains(&f.frame) {
+                    println!("  frame {}: {}", f.frame, f.error);
+                }
+            }
+        }
+    }
+    if done.len() < asked.len() {
+        bail!(
+            "{}: {} of {} frames are not done",
+            args.output.display(),
+            asked.len() - done.len(),
+            asked.len()
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ranges_parse() {
+        assert_eq!(
+            Range::parse("0..9", 10).unwrap(),
+            Range { first: 0, last: 9 }
+        );
+        assert_eq!(
+            Range::parse("3..=5", 10).unwrap(),
+            Range { first: 3, last: 5 }
+        );
+        assert_eq!(Range::parse("4", 10).unwrap(), Range { first: 4, last: 4 });
+        assert_eq!(Range::parse("all", 3).unwrap(), Range { first: 0, last: 2 });
+        for bad in ["0..10", "5..2", "x", "1..y", "10"] {
+            assert!(Range::parse(bad, 10).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn shards_come_from_the_flag_slurm_or_kubernetes() {
+        let none = |_: &str| None;
+        assert_eq!(Shard::detect(None, &none).unwrap(), Shard::single());
+        let s = Shard::detect(Some("2/5"), &none).unwrap();
+        assert_eq!((s.index, s.count), (2, 5));
+        for bad in ["5/5", "1", "a/2", "0/0"] {
+            assert!(Shard::detect(Some(bad), &none).is_err(), "{bad}");
+        }
+        let slurm = |k: &str| match k {
+            "SLURM_ARRAY_TASK_ID" => Some("7".to_string()),
+            "SLURM_ARRAY_TASK_MIN" => Some("4".to_string()),
+            "SLURM_ARRAY_TASK_MAX" => Some("7".to_string()),
+            _ => None,
+        };
+        let s = Shard::detect(None, &slurm).unwrap();
+        assert_eq!((s.index, s.count), (3, 4));
+        assert!(s.source.contains("Slurm"));
+        let k8s = |k: &str| match k {
+            "JOB_COMPLETION_INDEX" => Some("1".to_string()),
+            "EIKON_SHARD_COUNT" => Some("3".to_string()),
+            _ => None,
+        };
+        let s = Shard::detect(None, &k8s).unwrap();
+        assert_eq!((s.index, s.count), (1, 3));
+        let half = |k: &str| (k == "JOB_COMPLETION_INDEX").then(|| "0".to_string());
+        let e = Shard::detect(None, &half).unwrap_err().to_string();
+        assert!(e.contains("EIKON_SHARD_COUNT"), "{e}");
+        // The flag wins over the environment.
+        assert_eq!(Shard::detect(Some("0/2"), &slurm).unwrap().count, 2);
+    }
+
+    #[test]
+    fn shards_partition_the_range() {
+        let r = Range { first: 3, last: 12 };
+        for n in 1..5 {
+            let mut all: Vec<usize> = (0..n)
+                .flat_map(|k| {
+                    let s = Shard {
+                        index: k,
+                        count: n,
+                        source: String::new(),
+                    };
+                    r.frames().filter(move |&f| s.takes(&r, f))
+                })
+                .collect();
+            all.sort_unstable();
+            assert_eq!(all, r.frames().collect::<Vec<_>>());
+        }
+    }
+
+    #[test]
+    fn names() {
+        assert_eq!(
+            numbered(Path::new("out/image.png"), 7),
+            Path::new("out/image_0007.png")
+        );
+        assert_eq!(numbered(Path::new("x"), 12345), Path::new("x_12345"));
+        assert_eq!(frame_dir(Path::new("o"), 3), Path::new("o/frame_0003"));
+        assert_eq!(ranges(&[0, 1, 2, 5, 7, 8]), "0-2, 5, 7-8");
+    }
+}
