@@ -2,8 +2,9 @@
 //! "Animation"), shared out over processes by `--shard K/N`, a Slurm array
 //! or a Kubernetes indexed job (docs/CLUSTER.md), and resumable.
 //!
-//! Every process keeps a manifest of the frames it finished (`manifest.json`,
-//! or `manifest.K-of-N.json` for shard K of N): the scene's hash, the
+//! Every process keeps a manifest of the frames it finished
+//! (`manifest-COMMAND.json`, or `manifest-COMMAND.K-of-N.json` for shard K
+//! of N, so that `simulate` and `render` can share a folder): the scene's hash, the
 //! settings, and per frame its files with their sizes and CRC-32. A frame
 //! counts as done only once it is in a manifest and its files still match
 //! it, so a run killed at any moment loses at most the frame in flight: its
@@ -173,12 +174,13 @@ impl Shard {
         (f - range.first) % self.count == self.index
     }
 
-    /// This shard's manifest file name.
-    pub fn manifest_name(&self) -> String {
+    /// This shard's manifest file name for `command`'s frames:
+    /// `manifest-simulate.json`, `manifest-simulate.1-of-4.json`.
+    pub fn manifest_name(&self, command: &str) -> String {
         if self.count == 1 {
-            "manifest.json".into()
+            format!("manifest-{command}.json")
         } else {
-            format!("manifest.{}-of-{}.json", self.index, self.count)
+            format!("manifest-{command}.{}-of-{}.json", self.index, self.count)
         }
     }
 }
@@ -309,9 +311,7 @@ pub fn read_manifests(out: &Path) -> Result<Vec<(String, Manifest)>> {
     };
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
-        let ours = name == "manifest.json"
-            || (name.starts_with("manifest.") && name.ends_with(".json") && name.contains("-of-"));
-        if !ours {
+        if !(name.starts_with("manifest-") && name.ends_with(".json")) {
             continue;
         }
         let path = e.path();
@@ -374,7 +374,7 @@ impl Job {
         std::fs::create_dir_all(out)
             .with_context(|| format!("{}: cannot create the output directory", out.display()))?;
         let scene_hash = hash(scene_text.as_bytes());
-        let own = shard.manifest_name();
+        let own = shard.manifest_name(command);
         let mut before = Vec::new();
         let mut ranges = Vec::new();
         let mut carried = Vec::new();
@@ -519,7 +519,9 @@ impl Job {
                 "{ran} frame(s) done in {wall:.1} s ({:.1} frames/min), {skipped} already done, {} failed; manifest {}",
                 if wall > 0.0 { 60.0 * ran as f64 / wall } else { 0.0 },
                 self.manifest.failed.len(),
-                self.out.join(self.manifest.shard.manifest_name()).display()
+                self.out
+                    .join(self.manifest.shard.manifest_name(&self.manifest.command))
+                    .display()
             );
         }
         if let Some(f) = self.manifest.failed.first() {
@@ -534,7 +536,9 @@ impl Job {
     }
 
     fn save(&self) -> Result<()> {
-        let path = self.out.join(self.manifest.shard.manifest_name());
+        let path = self
+            .out
+            .join(self.manifest.shard.manifest_name(&self.manifest.command));
         write_atomic(&path, |w| {
             serde_json::to_writer_pretty(&mut *w, &self.manifest)
                 .with_context(|| format!("{}: write failed", path.display()))?;
@@ -583,20 +587,78 @@ pub fn status(args: StatusArgs) -> Result<()> {
     let parts = read_manifests(&args.output)?;
     if parts.is_empty() {
         bail!(
-            "{}: no frame manifest here (manifest.json or manifest.K-of-N.json): not the output of a --frames run",
+            "{}: no frame manifest here (manifest-COMMAND.json): not the output of a --frames run",
             args.output.display()
         );
     }
-    let first = &parts[0].1;
+    let mut commands: Vec<&str> = parts.iter().map(|(_, m)| m.command.as_str()).collect();
+    commands.sort_unstable();
+    commands.dedup();
+    let mut reports = Vec::new();
+    let mut incomplete = 0;
+    for command in commands {
+        let group: Vec<&(String, Manifest)> =
+            parts.iter().filter(|(_, m)| m.command == command).collect();
+        let (r, left) = command_status(&args.output, &group)?;
+        incomplete += left;
+        reports.push(r);
+    }
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&reports)?);
+    } else {
+        for r in &reports {
+            let list = |k: &str| -> Vec<usize> {
+                serde_json::from_value(r[k].clone()).expect("frame numbers")
+            };
+            println!(
+                "{} of {}: {} manifest(s)",
+                r["command"].as_str().unwrap_or(""),
+                r["scene"].as_str().unwrap_or(""),
+                r["manifests"].as_array().map_or(0, Vec::len)
+            );
+            let done = list("done");
+            println!(
+                "  done     {} of {}: {}",
+                done.len(),
+                r["asked"],
+                ranges(&done)
+            );
+            println!("  missing  {}", ranges(&list("missing")));
+            println!("  failed   {}", ranges(&list("failed")));
+            let damaged = list("damaged");
+            if !damaged.is_empty() {
+                println!(
+                    "  damaged  {} (files changed since; run again to redo)",
+                    ranges(&damaged)
+                );
+            }
+            for e in r["errors"].as_array().into_iter().flatten() {
+                println!(
+                    "  frame {}: {}",
+                    e["frame"],
+                    e["error"].as_str().unwrap_or("")
+                );
+            }
+        }
+    }
+    if incomplete > 0 {
+        bail!(
+            "{}: {incomplete} frame(s) are not done",
+            args.output.display()
+        );
+    }
+    Ok(())
+}
+
+/// The status of one command's manifests: a JSON report and how many
+/// frames asked for are not done.
+fn command_status(out: &Path, parts: &[&(String, Manifest)]) -> Result<(serde_json::Value, usize)> {
+    let (first_name, first) = parts[0];
     for (name, m) in &parts[1..] {
-        if m.scene_hash != first.scene_hash
-            || m.settings != first.settings
-            || m.command != first.command
-        {
+        if m.scene_hash != first.scene_hash || m.settings != first.settings {
             bail!(
-                "{}: {name} records another scene, command or settings than {}",
-                args.output.display(),
-                parts[0].0
+                "{}: {name} records another scene or other settings than {first_name}",
+                out.display()
             );
         }
     }
@@ -609,9 +671,9 @@ pub fn status(args: StatusArgs) -> Result<()> {
     let mut done = Vec::new();
     let mut damaged = Vec::new();
     let mut seconds = 0.0;
-    for (_, m) in &parts {
+    for (_, m) in parts {
         for r in &m.done {
-            if intact(&args.output, r) {
+            if intact(out, r) {
                 done.push(r.frame);
                 seconds += r.seconds;
             } else {
@@ -621,11 +683,12 @@ pub fn status(args: StatusArgs) -> Result<()> {
     }
     done.sort_unstable();
     done.dedup();
-    let mut failed: Vec<usize> = parts
+    let errors: Vec<&Failure> = parts
         .iter()
-        .flat_map(|(_, m)| m.failed.iter().map(|f| f.frame))
-        .filter(|f| !done.contains(f))
+        .flat_map(|(_, m)| m.failed.iter())
+        .filter(|f| !done.contains(&f.frame))
         .collect();
+    let mut failed: Vec<usize> = errors.iter().map(|f| f.frame).collect();
     failed.sort_unstable();
     failed.dedup();
     damaged.retain(|f| !done.contains(f));
@@ -634,59 +697,22 @@ pub fn status(args: StatusArgs) -> Result<()> {
         .copied()
         .filter(|f| !done.contains(f) && !failed.contains(f))
         .collect();
-    if args.json {
-        println!(
-            "{}",
-            serde_json::to_string_pretty(&serde_json::json!({
-                "command": first.command,
-                "scene": first.scene,
-                "manifests": parts.iter().map(|(n, _)| n).collect::<Vec<_>>(),
-                "asked": asked.len(),
-                "done": done,
-                "missing": missing,
-                "failed": failed,
-                "damaged": damaged,
-                "seconds": seconds,
-            }))?
-        );
-    } else {
-        println!(
-            "{} of {}: {} manifest(s)",
-            first.command,
-            first.scene,
-            parts.len()
-        );
-        println!(
-            "  done     {} of {}: {}",
-            done.len(),
-            asked.len(),
-            ranges(&done)
-        );
-        println!("  missing  {}", ranges(&missing));
-        println!("  failed   {}", ranges(&failed));
-        if !damaged.is_empty() {
-            println!(
-                "  damaged  {} (files changed since; run again to redo)",
-                ranges(&damaged)
-            );
-        }
-        for (_, m) in &parts {
-            for f in &m.failed {
-                if failed.contains(&f.frame) {
-                    println!("  frame {}: {}", f.frame, f.error);
-                }
-            }
-        }
-    }
-    if done.len() < asked.len() {
-        bail!(
-            "{}: {} of {} frames are not done",
-            args.output.display(),
-            asked.len() - done.len(),
-            asked.len()
-        );
-    }
-    Ok(())
+    let left = asked.iter().filter(|f| !done.contains(f)).count();
+    Ok((
+        serde_json::json!({
+            "command": first.command,
+            "scene": first.scene,
+            "manifests": parts.iter().map(|(n, _)| n).collect::<Vec<_>>(),
+            "asked": asked.len(),
+            "done": done,
+            "missing": missing,
+            "failed": failed,
+            "damaged": damaged,
+            "errors": errors,
+            "seconds": seconds,
+        }),
+        left,
+    ))
 }
 
 #[cfg(test)]
