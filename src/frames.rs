@@ -373,6 +373,10 @@ impl Job {
         }
         std::fs::create_dir_all(out)
             .with_context(|| format!("{}: cannot create the output directory", out.display()))?;
+        // Manifests of runs killed mid-write left their temporaries.
+        eikon_wavefront::staging::remove_stale_temps(out, |f| {
+            f.starts_with("manifest-") && f.ends_with(".json")
+        });
         let scene_hash = hash(scene_text.as_bytes());
         let own = shard.manifest_name(command);
         let mut before = Vec::new();
