@@ -373,12 +373,11 @@ impl Job {
         }
         std::fs::create_dir_all(out)
             .with_context(|| format!("{}: cannot create the output directory", out.display()))?;
-        // Manifests of runs killed mid-write left their temporaries.
-        eikon_wavefront::staging::remove_stale_temps(out, |f| {
-            f.starts_with("manifest-") && f.ends_with(".json")
-        });
-        let scene_hash = hash(scene_text.as_bytes());
         let own = shard.manifest_name(command);
+        // This shard's manifest, written by a run killed mid-write, left
+        // its temporary (other shards' may be in use right now).
+        eikon_wavefront::staging::remove_stale_temps(out, |f| f == own);
+        let scene_hash = hash(scene_text.as_bytes());
         let mut before = Vec::new();
         let mut ranges = Vec::new();
         let mut carried = Vec::new();
