@@ -315,8 +315,12 @@ pub fn read_manifests(out: &Path) -> Result<Vec<(String, Manifest)>> {
             continue;
         }
         let path = e.path();
-        let bytes =
-            std::fs::read(&path).with_context(|| format!("{}: cannot read", path.display()))?;
+        let bytes = match std::fs::read(&path) {
+            Ok(b) => b,
+            // Removed since listed (another shard's --force).
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
+            Err(e) => return Err(e).with_context(|| format!("{}: cannot read", path.display())),
+        };
         let m: Manifest = serde_json::from_slice(&bytes)
             .with_context(|| format!("{}: not a frame manifest", path.display()))?;
         if m.format != FORMAT || m.version != VERSION {
@@ -411,8 +415,16 @@ impl Job {
                 if !quiet {
                     eprintln!("note: --force: the frames of {name} are done again");
                 }
-                std::fs::remove_file(out.join(&name))
-                    .with_context(|| format!("{}: cannot remove", out.join(&name).display()))?;
+                // Shards started together with --force all remove the old
+                // manifests: one may find another was quicker.
+                match std::fs::remove_file(out.join(&name)) {
+                    Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                        return Err(e).with_context(|| {
+                            format!("{}: cannot remove", out.join(&name).display())
+                        });
+                    }
+                    _ => {}
+                }
                 continue;
             }
             let intact: Vec<FrameRecord> = m.done.into_iter().filter(|r| intact(out, r)).collect();
