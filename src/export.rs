@@ -23,14 +23,20 @@ pub struct Args {
     /// Scene file (TOML).
     scene: PathBuf,
     /// Light volumes written by `eikon simulate` (needed for the
-    /// `fluence` and `flux` grids).
+    /// `fluence` and `flux` grids). With `--frames`, the output folder of
+    /// `eikon simulate --frames`: frame F's in `LIGHT/frame_FFFF/`.
     #[arg(long)]
     light: Option<PathBuf>,
-    /// OpenVDB file to write (several grids in one file).
+    /// OpenVDB file to write (several grids in one file). With `--frames`,
+    /// frame F goes to `NAME_FFFF.vdb`: a sequence Blender imports as one
+    /// animated volume; the frames' manifest (`manifest-export.json`) is
+    /// kept in its folder.
     #[arg(long)]
     vdb: Option<PathBuf>,
     /// Directory for one NumPy `.npy` file per grid and `volumes.json`
-    /// (created if missing).
+    /// (created if missing). With `--frames`, frame F's in
+    /// `DIR/frame_FFFF/`; the directory must lie in the `--vdb`'s folder
+    /// when both are given.
     #[arg(long)]
     npy: Option<PathBuf>,
     /// Grids to export, comma-separated, from n, grad_n, sigma_t,
@@ -44,11 +50,14 @@ pub struct Args {
     /// Do not zip-compress the VDB values (larger file, faster to write).
     #[arg(long)]
     uncompressed: bool,
-    /// Print what was written as JSON.
+    /// Print what was written as JSON (not with `--frames`: `eikon status
+    /// FOLDER --json` reports a frame run).
     #[arg(long)]
     json: bool,
     #[command(flatten)]
     grid: crate::grid::GridFlags,
+    #[command(flatten)]
+    frames: crate::frames::FrameFlags,
 }
 
 /// The largest finite half float.
@@ -270,13 +279,138 @@ pub fn run(args: Args) -> Result<()> {
             bail!("{}: --npy: exists and is not a directory", dir.display());
         }
     }
+    if args.frames.frames.is_some() {
+        return run_frames(&args, &keys);
+    }
     let scene = args.grid.load(&args.scene)?;
     let medium = build_medium(&scene)?;
     let lights = match &args.light {
         Some(dir) => load_light_volumes(dir, &scene, &medium)?,
         None => Vec::new(),
     };
-    let volumes = volumes(&scene, &medium, &lights, &keys);
+    let summary = export(
+        &args,
+        &scene,
+        &medium,
+        &lights,
+        &keys,
+        args.vdb.as_deref(),
+        args.npy.as_deref(),
+    )?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else {
+        print_summary(&summary, medium.geometry.voxel_count() as u64);
+    }
+    Ok(())
+}
+
+/// `eikon export --frames`: frame F's grids to `NAME_FFFF.vdb` and
+/// `DIR/frame_FFFF/`, from `LIGHT/frame_FFFF/`, the medium built once when
+/// no object moves.
+fn run_frames(args: &Args, keys: &[Key]) -> Result<()> {
+    use crate::frames::{
+        check_light_frames, folder_of, frame_dir, numbered, plan, relative_to, Job, Media, Output,
+    };
+    if args.json {
+        bail!("--json: not with --frames (`eikon status FOLDER --json` reports a frame run)");
+    }
+    let folder = match (&args.vdb, &args.npy) {
+        (Some(v), _) => folder_of(v),
+        (None, Some(d)) => d.clone(),
+        (None, None) => unreachable!("checked by run"),
+    };
+    let vdb_name: Option<PathBuf> = args
+        .vdb
+        .as_ref()
+        .map(|v| PathBuf::from(v.file_name().unwrap_or_default()));
+    let npy_dir: Option<PathBuf> = match &args.npy {
+        Some(d) => Some(relative_to(&folder, d).with_context(|| {
+            format!(
+                "{}: --npy: with --frames and --vdb, the arrays' folder must lie in the --vdb's folder ({}), where the frames' manifest is kept",
+                d.display(),
+                folder.display()
+            )
+        })?),
+        None => None,
+    };
+    let anim = args.grid.load_animation(&args.scene)?;
+    let (range, shard) = plan(&args.frames, &anim)?;
+    if let Some(light) = &args.light {
+        check_light_frames(light, range.frames().filter(|&f| shard.takes(&range, f)))?;
+    }
+    let settings = format!(
+        "grids {keys:?}; light {}; vdb {}; npy {}; half {}; zip {}; grid {:?}",
+        args.light
+            .as_ref()
+            .map_or("none".to_string(), |l| l.display().to_string()),
+        vdb_name
+            .as_ref()
+            .map_or("none".to_string(), |v| v.display().to_string()),
+        npy_dir
+            .as_ref()
+            .map_or("none".to_string(), |d| format!("{}/", d.display())),
+        args.half,
+        !args.uncompressed,
+        args.grid.grid_override()
+    );
+    let mut job = Job::open(
+        &folder,
+        "export",
+        &args.scene,
+        anim.text(),
+        settings,
+        range,
+        shard,
+        args.frames.force,
+        false,
+    )?;
+    let mut media = Media::new(&anim, false);
+    job.run(|f| {
+        let scene = anim.frame(f)?;
+        let (medium, note) = media.of(&scene)?;
+        let lights = match &args.light {
+            Some(l) => load_light_volumes(&frame_dir(l, f), &scene, &medium)?,
+            None => Vec::new(),
+        };
+        let vdb = vdb_name.as_ref().map(|v| numbered(v, f));
+        let npy = npy_dir.as_ref().map(|d| frame_dir(d, f));
+        let summary = export(
+            args,
+            &scene,
+            &medium,
+            &lights,
+            keys,
+            vdb.as_ref().map(|v| folder.join(v)).as_deref(),
+            npy.as_ref().map(|d| folder.join(d)).as_deref(),
+        )?;
+        let mut files: Vec<PathBuf> = vdb.into_iter().collect();
+        if let Some(d) = npy {
+            for name in summary["npy"]["files"].as_array().into_iter().flatten() {
+                files.push(d.join(name.as_str().expect("file names")));
+            }
+            files.push(d.join(NPY_SIDECAR));
+        }
+        Ok(Output {
+            files,
+            note: note.to_string(),
+        })
+    })
+}
+
+/// Export the `keys` volumes of `scene` (built as `medium`, lit by
+/// `lights`) to the OpenVDB file `vdb` and/or the folder `npy`: a summary
+/// of what was written.
+fn export(
+    args: &Args,
+    scene: &Scene,
+    medium: &Medium,
+    lights: &[LightVolume],
+    keys: &[Key],
+    vdb: Option<&Path>,
+    npy: Option<&Path>,
+) -> Result<Value> {
+    let volumes = volumes(scene, medium, lights, keys);
     let geometry = &medium.geometry;
     let transform = Transform::for_grid(geometry);
     let mut summary = json!({
@@ -288,7 +422,7 @@ pub fn run(args: Args) -> Result<()> {
         },
     });
 
-    if let Some(path) = &args.vdb {
+    if let Some(path) = vdb {
         if args.half {
             for v in &volumes {
                 let data = match &v.values {
@@ -352,7 +486,7 @@ pub fn run(args: Args) -> Result<()> {
         });
     }
 
-    if let Some(dir) = &args.npy {
+    if let Some(dir) = npy {
         write_npy_dir(dir, &args.scene, geometry, &transform, &volumes)?;
         summary["npy"] = json!({
             "dir": dir.display().to_string(),
@@ -360,12 +494,7 @@ pub fn run(args: Args) -> Result<()> {
         });
     }
 
-    if args.json {
-        println!("{}", serde_json::to_string_pretty(&summary)?);
-    } else {
-        print_summary(&summary, geometry.voxel_count() as u64);
-    }
-    Ok(())
+    Ok(summary)
 }
 
 /// The sidecar of an `--npy` folder.

@@ -249,7 +249,6 @@ pub fn frame_dir(out: &Path, f: usize) -> PathBuf {
 
 /// `path` with `_NNNN` (frame `f`) before its extension: `image.png` ->
 /// `image_0007.png`.
-#[allow(dead_code)] // for render, run and export --frames
 pub fn numbered(path: &Path, f: usize) -> PathBuf {
     let stem = path
         .file_stem()
@@ -260,6 +259,237 @@ pub fn numbered(path: &Path, f: usize) -> PathBuf {
         None => format!("{stem}_{f:04}"),
     };
     path.with_file_name(name)
+}
+
+/// The `--gif` flag of `render --frames` and `run --frames`.
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct GifFlag {
+    /// After the frames, an animated GIF of their PNG images (256 colours)
+    /// at the animation's fps. Written only once every frame of the range
+    /// is done (by whichever shard finishes last), from the PNGs on disk,
+    /// so a resumed run writes it too.
+    #[arg(long, requires = "frames", value_name = "FILE.gif")]
+    pub gif: Option<PathBuf>,
+}
+
+impl GifFlag {
+    /// Refuse a `--gif` that is not a `.gif` file name, before any work.
+    pub fn check(&self) -> Result<()> {
+        if let Some(g) = &self.gif {
+            let ext = g
+                .extension()
+                .map(|e| e.to_string_lossy().to_ascii_lowercase());
+            if ext.as_deref() != Some("gif") {
+                bail!("{}: --gif: give a .gif file name", g.display());
+            }
+            if g.is_dir() {
+                bail!("{}: --gif: is a directory", g.display());
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The range `flags` ask for in `anim` and this process's shard of it.
+pub fn plan(flags: &FrameFlags, anim: &eikon_grid::animation::Animation) -> Result<(Range, Shard)> {
+    let range = Range::parse(flags.frames.as_deref().unwrap_or("all"), anim.frames)?;
+    let shard = Shard::detect(flags.shard.as_deref(), &|k| std::env::var(k).ok())?;
+    Ok((range, shard))
+}
+
+/// Check that the light folder `lights` (of `eikon simulate --frames`)
+/// holds a `frame_NNNN/` for each of `frames`, naming the first missing.
+pub fn check_light_frames(lights: &Path, frames: impl IntoIterator<Item = usize>) -> Result<()> {
+    if !lights.is_dir() {
+        bail!(
+            "{}: --light: no such folder (with --frames, give the output folder of `eikon simulate SCENE --frames ... -o FOLDER`)",
+            lights.display()
+        );
+    }
+    let missing: Vec<usize> = frames
+        .into_iter()
+        .filter(|&f| !frame_dir(lights, f).is_dir())
+        .collect();
+    if let Some(&f) = missing.first() {
+        bail!(
+            "{}: --light: no light volumes for frame {f} ({} frame(s) of the range are missing there): simulate them first (`eikon simulate SCENE --frames ... -o {}`)",
+            frame_dir(lights, f).display(),
+            missing.len(),
+            lights.display()
+        );
+    }
+    Ok(())
+}
+
+/// The folder a file is written to: its parent, `.` for a bare name.
+pub fn folder_of(path: &Path) -> PathBuf {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
+/// `path` relative to the folder `base` (lexically), if it lies within
+/// (empty when it is `base`).
+pub fn relative_to(base: &Path, path: &Path) -> Option<PathBuf> {
+    let strip_dot = |p: &Path| -> PathBuf {
+        p.components()
+            .filter(|c| !matches!(c, std::path::Component::CurDir))
+            .collect()
+    };
+    let (base, path) = (strip_dot(base), strip_dot(path));
+    let rel = path.strip_prefix(&base).ok()?.to_path_buf();
+    let inside = rel
+        .components()
+        .all(|c| matches!(c, std::path::Component::Normal(_)));
+    inside.then_some(rel)
+}
+
+/// A scene's medium across frames: built once and shared when no object
+/// moves (only lights and the camera are animated), else built per frame.
+pub struct Media {
+    reuse: bool,
+    kept: Option<std::sync::Arc<eikon_grid::Medium>>,
+    quiet: bool,
+}
+
+impl Media {
+    /// For the frames of `anim`; `quiet` says nothing on stderr.
+    pub fn new(anim: &eikon_grid::animation::Animation, quiet: bool) -> Media {
+        Media {
+            reuse: !anim.moves_medium(),
+            kept: None,
+            quiet,
+        }
+    }
+
+    /// The medium of `scene` (a frame of the animation) and a note for the
+    /// frame's line (`, medium reused`).
+    pub fn of(
+        &mut self,
+        scene: &eikon_grid::Scene,
+    ) -> Result<(std::sync::Arc<eikon_grid::Medium>, &'static str)> {
+        if let Some(m) = &self.kept {
+            return Ok((m.clone(), ", medium reused"));
+        }
+        let t = std::time::Instant::now();
+        let built = std::sync::Arc::new(crate::output::build_medium(scene)?);
+        if self.reuse {
+            if !self.quiet {
+                eprintln!(
+                    "medium built in {:.2} s, reused for every frame (only lights and the camera move)",
+                    t.elapsed().as_secs_f64()
+                );
+            }
+            self.kept = Some(built.clone());
+        }
+        Ok((built, ""))
+    }
+}
+
+/// The frames of `command`'s manifests in `out` that are done, their files
+/// intact (by any shard and any run), in order.
+pub fn done_frames(out: &Path, command: &str) -> Result<Vec<usize>> {
+    let mut done: Vec<usize> = read_manifests(out)?
+        .into_iter()
+        .filter(|(_, m)| m.command == command)
+        .flat_map(|(_, m)| m.done)
+        .filter(|r| intact(out, r))
+        .map(|r| r.frame)
+        .collect();
+    done.sort_unstable();
+    done.dedup();
+    Ok(done)
+}
+
+/// The GIF frame delay for `fps`, in hundredths of a second (at least 1).
+pub fn gif_delay(fps: f64) -> u16 {
+    (100.0 / fps).round().clamp(1.0, u16::MAX as f64) as u16
+}
+
+/// Write an animated GIF of the PNG images `pngs` (all one size) at `fps`,
+/// looping, each frame quantized to its own 256-colour palette; atomically.
+pub fn write_gif(gif: &Path, pngs: &[PathBuf], fps: f64) -> Result<()> {
+    let Some(first) = pngs.first() else {
+        bail!("{}: no frames for the GIF", gif.display());
+    };
+    let (width, height, _) = crate::output::read_rgb8(first)?;
+    let side = |v: u32| -> Result<u16> {
+        u16::try_from(v).map_err(|_| {
+            anyhow::anyhow!(
+                "{}: a GIF is at most 65535 pixels a side; the frames are {width} x {height}",
+                gif.display()
+            )
+        })
+    };
+    let (w, h) = (side(width)?, side(height)?);
+    if let Some(dir) = gif.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create the folder", dir.display()))?;
+    }
+    let failed = |e: gif::EncodingError| {
+        anyhow::Error::new(e).context(format!("{}: writing the GIF", gif.display()))
+    };
+    write_atomic(gif, |out| {
+        let mut encoder = gif::Encoder::new(out, w, h, &[]).map_err(failed)?;
+        encoder.set_repeat(gif::Repeat::Infinite).map_err(failed)?;
+        for png in pngs {
+            let (pw, ph, rgb) = crate::output::read_rgb8(png)?;
+            if (pw, ph) != (width, height) {
+                bail!(
+                    "{}: {pw} x {ph}, but the first frame {} is {width} x {height}: a GIF's frames are one size",
+                    png.display(),
+                    first.display()
+                );
+            }
+            let mut frame = gif::Frame::from_rgb_speed(w, h, &rgb, 10);
+            frame.delay = gif_delay(fps);
+            encoder.write_frame(&frame).map_err(failed)?;
+        }
+        encoder
+            .into_inner()
+            .with_context(|| format!("{}: writing the GIF", gif.display()))?;
+        Ok(())
+    })
+}
+
+/// After a frame run of `command` into `out`: write `gif` from the PNGs
+/// `png(f)` of every frame of `range` if all are done, else say which are
+/// not (another shard's, or failed) and leave it to the run that finishes
+/// them.
+pub fn finish_gif(
+    gif: &Path,
+    out: &Path,
+    command: &str,
+    range: Range,
+    fps: f64,
+    png: impl Fn(usize) -> PathBuf,
+    quiet: bool,
+) -> Result<()> {
+    let done = done_frames(out, command)?;
+    let missing: Vec<usize> = range.frames().filter(|f| !done.contains(f)).collect();
+    if !missing.is_empty() {
+        if !quiet {
+            eprintln!(
+                "note: --gif: frames {} of {}..{} are not done yet (other shards'?): {} is written by the run that finishes them",
+                ranges(&missing),
+                range.first,
+                range.last,
+                gif.display()
+            );
+        }
+        return Ok(());
+    }
+    let pngs: Vec<PathBuf> = range.frames().map(png).collect();
+    write_gif(gif, &pngs, fps)?;
+    if !quiet {
+        eprintln!(
+            "wrote {}: {} frames at {fps} fps",
+            gif.display(),
+            pngs.len()
+        );
+    }
+    Ok(())
 }
 
 /// The `; `-separated settings that differ between `was` and `now`, or
@@ -386,12 +616,12 @@ impl Job {
         let mut ranges = Vec::new();
         let mut carried = Vec::new();
         for (name, m) in read_manifests(out)? {
-            let changed = if m.command != command {
-                Some(format!(
-                    "was made by `eikon {}`, not `eikon {command}`",
-                    m.command
-                ))
-            } else if m.scene_hash != scene_hash {
+            // Another command's frames (simulate's beside render's) are
+            // its own business.
+            if m.command != command {
+                continue;
+            }
+            let changed = if m.scene_hash != scene_hash {
                 Some(format!(
                     "was made from another scene ({}, whose text differs from {})",
                     m.scene,
@@ -811,5 +1041,23 @@ mod tests {
         assert_eq!(numbered(Path::new("x"), 12345), Path::new("x_12345"));
         assert_eq!(frame_dir(Path::new("o"), 3), Path::new("o/frame_0003"));
         assert_eq!(ranges(&[0, 1, 2, 5, 7, 8]), "0-2, 5, 7-8");
+        assert_eq!(folder_of(Path::new("image.png")), Path::new("."));
+        assert_eq!(folder_of(Path::new("out/image.png")), Path::new("out"));
+        let rel = |b: &str, p: &str| relative_to(Path::new(b), Path::new(p));
+        assert_eq!(rel(".", "image.png").unwrap(), Path::new("image.png"));
+        assert_eq!(rel("out", "./out/npy").unwrap(), Path::new("npy"));
+        assert_eq!(rel("out", "out").unwrap(), Path::new(""));
+        assert_eq!(rel("/a/b", "/a/b/c/d").unwrap(), Path::new("c/d"));
+        assert!(rel("out", "elsewhere/npy").is_none());
+        assert!(rel("out", "out/../x").is_none());
+    }
+
+    #[test]
+    fn gif_delays_follow_the_fps() {
+        assert_eq!(gif_delay(10.0), 10);
+        assert_eq!(gif_delay(12.0), 8);
+        assert_eq!(gif_delay(24.0), 4);
+        assert_eq!(gif_delay(1000.0), 1);
+        assert_eq!(gif_delay(0.001), u16::MAX);
     }
 }

@@ -10,6 +10,7 @@
 //! code has changed what the gallery shows, and the gallery must be made
 //! again.
 
+use crate::output::read_rgb8;
 use anyhow::{bail, Context, Result};
 use serde::Deserialize;
 use std::collections::BTreeMap;
@@ -83,37 +84,6 @@ fn fnv1a64(bytes: &[u8]) -> u64 {
         h = h.wrapping_mul(0x0000_0100_0000_01b3);
     }
     h
-}
-
-/// A PNG's size and RGB8 pixels (RGBA and grey are converted).
-fn read_rgb8(path: &Path) -> Result<(u32, u32, Vec<u8>)> {
-    let file =
-        std::fs::File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
-    let mut dec = png::Decoder::new(std::io::BufReader::new(file));
-    dec.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
-    let mut reader = dec
-        .read_info()
-        .with_context(|| format!("{}: not a PNG", path.display()))?;
-    let mut buf = vec![0; reader.output_buffer_size()];
-    let info = reader
-        .next_frame(&mut buf)
-        .with_context(|| format!("{}: corrupt PNG", path.display()))?;
-    buf.truncate(info.buffer_size());
-    let (w, h) = (info.width, info.height);
-    let rgb = match info.color_type {
-        png::ColorType::Rgb => buf,
-        png::ColorType::Rgba => buf
-            .chunks_exact(4)
-            .flat_map(|p| [p[0], p[1], p[2]])
-            .collect(),
-        png::ColorType::Grayscale => buf.iter().flat_map(|&g| [g, g, g]).collect(),
-        png::ColorType::GrayscaleAlpha => buf
-            .chunks_exact(2)
-            .flat_map(|p| [p[0], p[0], p[0]])
-            .collect(),
-        other => bail!("{}: unexpected PNG colour type {other:?}", path.display()),
-    };
-    Ok((w, h, rgb))
 }
 
 /// Run `eikon ARGS -o out` in `root`, showing what it prints when `show`;

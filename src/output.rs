@@ -1,6 +1,6 @@
 //! Shared CLI plumbing: argument parsing, atomic writes, colour maps.
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use eikon_wavefront::staging::Staging;
 use glam::DVec3;
 use std::io::Write;
@@ -119,6 +119,37 @@ pub fn build_medium(scene: &eikon_grid::Scene) -> Result<eikon_grid::Medium> {
     });
     bar.finish_and_clear();
     Ok(medium?)
+}
+
+/// A PNG's size and RGB8 pixels (RGBA and grey are converted).
+pub fn read_rgb8(path: &Path) -> Result<(u32, u32, Vec<u8>)> {
+    let file =
+        std::fs::File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
+    let mut dec = png::Decoder::new(std::io::BufReader::new(file));
+    dec.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
+    let mut reader = dec
+        .read_info()
+        .with_context(|| format!("{}: not a PNG", path.display()))?;
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader
+        .next_frame(&mut buf)
+        .with_context(|| format!("{}: corrupt PNG", path.display()))?;
+    buf.truncate(info.buffer_size());
+    let (w, h) = (info.width, info.height);
+    let rgb = match info.color_type {
+        png::ColorType::Rgb => buf,
+        png::ColorType::Rgba => buf
+            .chunks_exact(4)
+            .flat_map(|p| [p[0], p[1], p[2]])
+            .collect(),
+        png::ColorType::Grayscale => buf.iter().flat_map(|&g| [g, g, g]).collect(),
+        png::ColorType::GrayscaleAlpha => buf
+            .chunks_exact(2)
+            .flat_map(|p| [p[0], p[0], p[0]])
+            .collect(),
+        other => bail!("{}: unexpected PNG colour type {other:?}", path.display()),
+    };
+    Ok((w, h, rgb))
 }
 
 #[cfg(test)]

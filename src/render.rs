@@ -17,7 +17,7 @@ use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-#[derive(Clone, Copy, ValueEnum)]
+#[derive(Clone, Copy, Debug, ValueEnum)]
 enum Integrator {
     /// Forward Euler (eqs 11-12), the paper's choice.
     Euler,
@@ -111,11 +111,15 @@ pub struct Args {
     /// Scene file (TOML).
     scene: PathBuf,
     /// Light volumes written by `eikon simulate` (without them in-scatter
-    /// and the receiver are dark). Only for `--method eikonal`.
+    /// and the receiver are dark). Only for `--method eikonal`. With
+    /// `--frames`, the output folder of `eikon simulate --frames`: frame F
+    /// is lit by `LIGHT/frame_FFFF/`.
     #[arg(long)]
     light: Option<PathBuf>,
     /// Output image: `.exr` (linear HDR) or `.png` (tone-mapped); repeat
-    /// for both.
+    /// for both. With `--frames`, frame F goes to `NAME_FFFF.png` (and
+    /// `.exr`), every image in the first one's folder, beside the frames'
+    /// manifest (`manifest-render.json`).
     #[arg(short, long, required = true)]
     output: Vec<PathBuf>,
     /// How to form the image. The exact methods need a scene whose one
@@ -126,26 +130,28 @@ pub struct Args {
     exact: ExactOptions,
     #[command(flatten)]
     overrides: Overrides,
-    /// Print the render's statistics as JSON.
+    /// Print the render's statistics as JSON (not with `--frames`: `eikon
+    /// status FOLDER --json` reports a frame run).
     #[arg(long)]
     json: bool,
+    #[command(flatten)]
+    frames: crate::frames::FrameFlags,
+    #[command(flatten)]
+    gif: crate::frames::GifFlag,
 }
 
 /// Run `eikon render`.
 pub fn run(args: Args) -> Result<()> {
     check_outputs(&args.output)?;
+    if args.method != RenderMethod::Eikonal && args.light.is_some() {
+        bail!("--light: light volumes are for --method eikonal; the exact methods connect to the lights themselves");
+    }
+    if args.frames.frames.is_some() {
+        return run_frames(&args);
+    }
     let scene = args.overrides.grid.load(&args.scene)?;
     if args.method != RenderMethod::Eikonal {
-        if args.light.is_some() {
-            bail!("--light: light volumes are for --method eikonal; the exact methods connect to the lights themselves");
-        }
-        let camera = camera(&scene, &args.overrides)?;
-        let method = crate::exact::method(args.method.name(), args.exact.scatter_samples)?;
-        let seed = args.overrides.seed.unwrap_or(scene.render.seed);
-        let started = Instant::now();
-        let (image, stats) =
-            crate::exact::render(&scene, &camera, method, args.exact.guaranteed, seed)?;
-        let seconds = started.elapsed().as_secs_f64();
+        let (image, stats, seconds) = exact_image(&scene, &args)?;
         let tone = tone(&scene, &args.overrides);
         write_images(&args.output, &image, &tone)?;
         let names: Vec<String> = args
@@ -196,6 +202,152 @@ pub fn run(args: Args) -> Result<()> {
         &args.output,
         args.json,
     )
+}
+
+/// Render `scene` by an exact mesh method (`--method walter`, ...): the
+/// image, its statistics and the seconds it took.
+fn exact_image(scene: &Scene, args: &Args) -> Result<(Image, eikon_view::single::Stats, f64)> {
+    let camera = camera(scene, &args.overrides)?;
+    let method = crate::exact::method(args.method.name(), args.exact.scatter_samples)?;
+    let seed = args.overrides.seed.unwrap_or(scene.render.seed);
+    let started = Instant::now();
+    let (image, stats) = crate::exact::render(scene, &camera, method, args.exact.guaranteed, seed)?;
+    Ok((image, stats, started.elapsed().as_secs_f64()))
+}
+
+/// The settings of `overrides` that shape an image, as one line (for a
+/// frame run's manifest), rendering on `backend`.
+pub fn overrides_settings(o: &Overrides, backend: &Backend) -> String {
+    format!(
+        "width {:?}; height {:?}; samples {:?}; exposure {:?}; step {:?}; integrator {:?}; skip empty {}; seed {:?}; preview {}; grid {:?}; backend {}",
+        o.width,
+        o.height,
+        o.samples,
+        o.exposure,
+        o.step,
+        o.integrator,
+        !o.no_skip,
+        o.seed,
+        o.grid.preview,
+        o.grid.grid_override(),
+        backend.name()
+    )
+}
+
+/// The images of a frame run, all in the folder of the first: that folder
+/// and their file names (relative to it).
+fn frame_outputs(outputs: &[PathBuf]) -> Result<(PathBuf, Vec<PathBuf>)> {
+    use crate::frames::{folder_of, relative_to};
+    let folder = folder_of(&outputs[0]);
+    let mut names: Vec<PathBuf> = Vec::new();
+    for o in outputs {
+        let name = relative_to(&folder, o)
+            .filter(|n| n.components().count() == 1)
+            .with_context(|| {
+                format!(
+                    "{}: -o: with --frames every image goes to one folder, that of the first -o ({}), where the frames' manifest is kept",
+                    o.display(),
+                    folder.display()
+                )
+            })?;
+        if names.contains(&name) {
+            bail!("{}: -o: given twice", o.display());
+        }
+        names.push(name);
+    }
+    Ok((folder, names))
+}
+
+/// `eikon render --frames`: frame F's images to `NAME_FFFF.EXT` beside each
+/// `-o`, lit by `LIGHT/frame_FFFF/`; the medium built once when no object
+/// moves; then the `--gif`.
+fn run_frames(args: &Args) -> Result<()> {
+    use crate::frames::{
+        check_light_frames, finish_gif, frame_dir, numbered, plan, Job, Media, Output,
+    };
+    if args.json {
+        bail!("--json: not with --frames (`eikon status FOLDER --json` reports a frame run)");
+    }
+    args.gif.check()?;
+    let (folder, names) = frame_outputs(&args.output)?;
+    let png = names
+        .iter()
+        .find(|n| extension(n).as_deref() == Some("png"))
+        .cloned();
+    if args.gif.gif.is_some() && png.is_none() {
+        bail!("--gif: needs a .png -o output: the GIF is made of the frames' tone-mapped PNGs");
+    }
+    let anim = args.overrides.grid.load_animation(&args.scene)?;
+    let (range, shard) = plan(&args.frames, &anim)?;
+    if let Some(light) = &args.light {
+        check_light_frames(light, range.frames().filter(|&f| shard.takes(&range, f)))?;
+    }
+    let eikonal = args.method == RenderMethod::Eikonal;
+    let backend = if eikonal {
+        args.overrides.backend.select(false)?
+    } else {
+        Backend::Cpu
+    };
+    let settings = format!(
+        "method {}; light {}; images {}; scatter samples {:?}; guaranteed {}; {}",
+        args.method.name(),
+        args.light
+            .as_ref()
+            .map_or("none".to_string(), |l| l.display().to_string()),
+        names
+            .iter()
+            .map(|n| n.display().to_string())
+            .collect::<Vec<_>>()
+            .join(" "),
+        args.exact.scatter_samples,
+        args.exact.guaranteed,
+        overrides_settings(&args.overrides, &backend)
+    );
+    let mut job = Job::open(
+        &folder,
+        "render",
+        &args.scene,
+        anim.text(),
+        settings,
+        range,
+        shard,
+        args.frames.force,
+        false,
+    )?;
+    let mut media = Media::new(&anim, false);
+    job.run(|f| {
+        let scene = anim.frame(f)?;
+        let (image, note) = if eikonal {
+            let (medium, note) = media.of(&scene)?;
+            let volumes = match &args.light {
+                Some(l) => load_light_volumes(&frame_dir(l, f), &scene, &medium)?,
+                None => Vec::new(),
+            };
+            let (image, ..) = render_image(&scene, &medium, &volumes, &args.overrides, &backend)?;
+            (image, note)
+        } else {
+            (exact_image(&scene, args)?.0, "")
+        };
+        let files: Vec<PathBuf> = names.iter().map(|n| numbered(n, f)).collect();
+        let paths: Vec<PathBuf> = files.iter().map(|n| folder.join(n)).collect();
+        write_images(&paths, &image, &tone(&scene, &args.overrides))?;
+        Ok(Output {
+            files,
+            note: note.to_string(),
+        })
+    })?;
+    if let (Some(gif), Some(png)) = (&args.gif.gif, &png) {
+        finish_gif(
+            gif,
+            &folder,
+            "render",
+            range,
+            anim.fps,
+            |f| folder.join(numbered(png, f)),
+            false,
+        )?;
+    }
+    Ok(())
 }
 
 /// The camera of `scene` with the command line's overrides.
@@ -316,7 +468,12 @@ pub fn render_image(
     }
     let env = eikon_view::background::load_environment(&scene.background)
         .with_context(|| format!("{}: background.file", scene.origin))?;
-    if volumes.is_empty() && !scene.lights.is_empty() {
+    // Said once, not for every frame of a sequence.
+    static WARNED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    if volumes.is_empty()
+        && !scene.lights.is_empty()
+        && !WARNED.swap(true, std::sync::atomic::Ordering::Relaxed)
+    {
         eprintln!(
             "warning: no --light volumes given: in-scatter and the receiver are dark (run `eikon simulate` first, or `eikon run`)"
         );

@@ -14,10 +14,17 @@ pub struct Args {
     /// Scene file (TOML).
     scene: PathBuf,
     /// Output directory: the light volumes, `image.exr` and `image.png`.
+    /// With `--frames`, frame F's light volumes in `frame_FFFF/` and its
+    /// images `image_FFFF.exr` and `image_FFFF.png`, beside the frames'
+    /// manifest (`manifest-run.json`).
     #[arg(short, long)]
     output: PathBuf,
     #[command(flatten)]
     overrides: Overrides,
+    #[command(flatten)]
+    frames: crate::frames::FrameFlags,
+    #[command(flatten)]
+    gif: crate::frames::GifFlag,
 }
 
 /// Arguments of `eikon demo`.
@@ -53,9 +60,74 @@ fn simulate_and_render(
 
 /// Run `eikon run`.
 pub fn run(args: Args) -> Result<()> {
+    if args.frames.frames.is_some() {
+        return run_frames(&args);
+    }
     let scene = args.overrides.grid.load(&args.scene)?;
     let images = ["image.exr", "image.png"].map(|f| args.output.join(f));
     simulate_and_render(&args.scene, &scene, &args.output, &args.overrides, &images)
+}
+
+/// The images of frame `f` of `eikon run --frames`, relative to the
+/// output folder.
+fn frame_images(f: usize) -> [PathBuf; 2] {
+    ["image.exr", "image.png"].map(|n| crate::frames::numbered(Path::new(n), f))
+}
+
+/// `eikon run --frames`: per frame, simulate into `OUT/frame_FFFF/` and
+/// render `OUT/image_FFFF.exr` and `.png`, the medium built once when no
+/// object moves; then the `--gif`.
+fn run_frames(args: &Args) -> Result<()> {
+    use crate::frames::{finish_gif, frame_dir, plan, Job, Media, Output};
+    args.gif.check()?;
+    let anim = args.overrides.grid.load_animation(&args.scene)?;
+    let (range, shard) = plan(&args.frames, &anim)?;
+    let backend = args.overrides.backend.select(false)?;
+    let sim = simulate::Args::defaults(args.scene.clone(), args.output.clone());
+    let settings = format!(
+        "{}; render {}",
+        sim.settings(&backend)?,
+        crate::render::overrides_settings(&args.overrides, &backend)
+    );
+    let mut job = Job::open(
+        &args.output,
+        "run",
+        &args.scene,
+        anim.text(),
+        settings,
+        range,
+        shard,
+        args.frames.force,
+        false,
+    )?;
+    let mut media = Media::new(&anim, false);
+    job.run(|f| {
+        let scene = anim.frame(f)?;
+        let (medium, note) = media.of(&scene)?;
+        let dir = frame_dir(&args.output, f);
+        let sim = simulate::Args::defaults(args.scene.clone(), dir.clone());
+        let volumes = simulate::simulate_quiet(&sim, &scene, &medium, &backend)?;
+        let (image, ..) =
+            crate::render::render_image(&scene, &medium, &volumes, &args.overrides, &backend)?;
+        let images = frame_images(f);
+        let paths: Vec<PathBuf> = images.iter().map(|n| args.output.join(n)).collect();
+        crate::render::write_images(
+            &paths,
+            &image,
+            &crate::render::tone(&scene, &args.overrides),
+        )?;
+        let mut files = simulate::frame_files(&dir)?;
+        files.extend(images);
+        Ok(Output {
+            files,
+            note: note.to_string(),
+        })
+    })?;
+    if let Some(gif) = &args.gif.gif {
+        let png = |f: usize| args.output.join(&frame_images(f)[1]);
+        finish_gif(gif, &args.output, "run", range, anim.fps, png, false)?;
+    }
+    Ok(())
 }
 
 /// Run `eikon demo`.

@@ -101,9 +101,9 @@ pub struct Args {
     backend: BackendFlag,
     #[command(flatten)]
     grid: crate::grid::GridFlags,
-    /// Print nothing (for commands that simulate on the way to something else).
     #[command(flatten)]
     frames: crate::frames::FrameFlags,
+    /// Print nothing (for commands that simulate on the way to something else).
     #[arg(skip)]
     quiet: bool,
 }
@@ -267,7 +267,7 @@ impl Args {
 
     /// The settings that shape the volumes, as one line (a frame run's
     /// manifest records it; a resumed run must have the same).
-    fn settings(&self, backend: &Backend) -> Result<String> {
+    pub fn settings(&self, backend: &Backend) -> Result<String> {
         let method = self.method.to_possible_value().expect("no skipped values");
         Ok(format!(
             "method {}; {:?}; photons {}; seed {}; backend {}; grid {:?}",
@@ -285,10 +285,9 @@ impl Args {
 /// `OUT/frame_NNNN/`, the medium built once when only lights and the
 /// camera move (see [`crate::frames`]).
 fn run_frames(args: &Args) -> Result<()> {
-    use crate::frames::{frame_dir, Job, Output, Range, Shard};
+    use crate::frames::{frame_dir, plan, Job, Media, Output};
     let anim = args.grid.load_animation(&args.scene)?;
-    let range = Range::parse(args.frames.frames.as_deref().unwrap_or("all"), anim.frames)?;
-    let shard = Shard::detect(args.frames.shard.as_deref(), &|k| std::env::var(k).ok())?;
+    let (range, shard) = plan(&args.frames, &anim)?;
     let backend = args.select_backend()?;
     let mut job = Job::open(
         &args.output,
@@ -301,55 +300,32 @@ fn run_frames(args: &Args) -> Result<()> {
         args.frames.force,
         args.quiet,
     )?;
-    let reuse = !anim.moves_medium();
-    let mut kept: Option<Medium> = None;
+    let mut media = Media::new(&anim, args.quiet);
     job.run(|f| {
         let scene = anim.frame(f)?;
-        let note;
-        let built;
-        let medium = match &kept {
-            Some(m) => {
-                note = ", medium reused";
-                m
-            }
-            None => {
-                let t = Instant::now();
-                built = build_medium(&scene)?;
-                note = "";
-                if reuse {
-                    if !args.quiet {
-                        eprintln!(
-                            "medium built in {:.2} s, reused for every frame (only lights and the camera move)",
-                            t.elapsed().as_secs_f64()
-                        );
-                    }
-                    kept = Some(built);
-                    kept.as_ref().expect("just kept")
-                } else {
-                    &built
-                }
-            }
-        };
+        let (medium, note) = media.of(&scene)?;
         let dir = frame_dir(&args.output, f);
         let frame_args = Args {
             output: dir.clone(),
             quiet: true,
             ..args.clone()
         };
-        simulate(&frame_args, &scene, medium, &backend)?;
-        let sidecar = lightdir::LightDir::open(&dir)?.sidecar;
-        let name = dir.file_name().expect("a frame folder").to_owned();
-        let mut files: Vec<PathBuf> = sidecar
-            .files
-            .iter()
-            .map(|r| PathBuf::from(&name).join(&r.name))
-            .collect();
-        files.push(PathBuf::from(&name).join(lightdir::SIDECAR));
+        simulate(&frame_args, &scene, &medium, &backend)?;
         Ok(Output {
-            files,
+            files: frame_files(&dir)?,
             note: note.to_string(),
         })
     })
+}
+
+/// The files of the light folder `dir` (one frame's, `OUT/frame_NNNN/`)
+/// named relative to its parent: its volumes and the sidecar.
+pub fn frame_files(dir: &std::path::Path) -> Result<Vec<PathBuf>> {
+    let sidecar = lightdir::LightDir::open(dir)?.sidecar;
+    let name = PathBuf::from(dir.file_name().expect("a frame folder"));
+    let mut files: Vec<PathBuf> = sidecar.files.iter().map(|r| name.join(&r.name)).collect();
+    files.push(name.join(lightdir::SIDECAR));
+    Ok(files)
 }
 
 /// [`simulate`] without printing the summary.
