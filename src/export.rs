@@ -365,6 +365,10 @@ fn run_frames(args: &Args, keys: &[Key]) -> Result<()> {
         args.frames.force,
         false,
     )?;
+    if let Some(l) = &args.light {
+        let l = l.clone();
+        job.track_inputs(move |f| crate::frames::light_inputs(&l, f));
+    }
     let mut media = Media::new(&anim, false);
     job.run(|f| {
         let scene = anim.frame(f)?;

@@ -222,6 +222,11 @@ pub struct FrameRecord {
     pub frame: usize,
     /// Its files, named relative to the output folder.
     pub files: Vec<FileRecord>,
+    /// What it was made from, beside the scene and settings (the run ids of
+    /// the light volumes a render read): when these change the frame is
+    /// made again.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub inputs: Vec<String>,
     /// Wall time, seconds.
     pub seconds: f64,
 }
@@ -295,6 +300,20 @@ pub fn plan(flags: &FrameFlags, anim: &eikon_grid::animation::Animation) -> Resu
     let range = Range::parse(flags.frames.as_deref().unwrap_or("all"), anim.frames)?;
     let shard = Shard::detect(flags.shard.as_deref(), &|k| std::env::var(k).ok())?;
     Ok((range, shard))
+}
+
+/// The inputs of frame `f` lit by the light folder `lights` (of `eikon
+/// simulate --frames`): its `frame_NNNN/` sidecar's run id, so that a frame
+/// simulated again is rendered again (nothing when unreadable: the frame is
+/// then made again, and reading its volumes says what is wrong).
+pub fn light_inputs(lights: &Path, f: usize) -> Vec<String> {
+    let dir = frame_dir(lights, f);
+    let run = std::fs::read(dir.join(eikon_wavefront::lightdir::SIDECAR))
+        .ok()
+        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+        .and_then(|v| v["run_id"].as_str().map(str::to_string));
+    run.map(|r| vec![format!("{} run {r}", dir.display())])
+        .unwrap_or_default()
 }
 
 /// Check that the light folder `lights` (of `eikon simulate --frames`)
@@ -581,6 +600,8 @@ pub struct Job {
     out: PathBuf,
     manifest: Manifest,
     range: Range,
+    /// A frame's inputs now (see [`FrameRecord::inputs`]).
+    inputs: Option<Box<dyn Fn(usize) -> Vec<String>>>,
     /// Frames done before this run, found intact (by any shard).
     before: Vec<FrameRecord>,
     quiet: bool,
@@ -697,6 +718,7 @@ impl Job {
             out: out.to_path_buf(),
             manifest,
             range: range_now,
+            inputs: None,
             before,
             quiet,
         })
@@ -710,6 +732,12 @@ impl Job {
             .collect()
     }
 
+    /// Make each frame's record name its inputs as `inputs` gives them, and
+    /// count a frame done only while they are unchanged.
+    pub fn track_inputs(&mut self, inputs: impl Fn(usize) -> Vec<String> + 'static) {
+        self.inputs = Some(Box::new(inputs));
+    }
+
     /// Run `frame` for every frame of this process not already done, then
     /// record it; a failed frame is recorded and the others still run.
     /// Errors if any frame failed.
@@ -718,7 +746,12 @@ impl Job {
         let started = std::time::Instant::now();
         let (mut ran, mut skipped) = (0usize, 0usize);
         for f in frames.iter().copied() {
-            if let Some(r) = self.before.iter().find(|r| r.frame == f) {
+            let inputs = self.inputs.as_ref().map_or_else(Vec::new, |g| g(f));
+            if let Some(r) = self
+                .before
+                .iter()
+                .find(|r| r.frame == f && r.inputs == inputs)
+            {
                 self.manifest.done.push(r.clone());
                 skipped += 1;
                 continue;
@@ -736,9 +769,11 @@ impl Job {
                         })
                         .collect::<Result<Vec<_>, eikon_wavefront::staging::Error>>()?;
                     let seconds = t.elapsed().as_secs_f64();
+                    self.manifest.done.retain(|x| x.frame != f);
                     self.manifest.done.push(FrameRecord {
                         frame: f,
                         files,
+                        inputs,
                         seconds,
                     });
                     self.manifest.failed.retain(|x| x.frame != f);

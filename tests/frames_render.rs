@@ -278,6 +278,40 @@ fn render_frames_takes_light_per_frame_and_names_a_missing_one() {
     // Lit frames differ from one another (the light moves).
     assert!(bytes(&lights.join("view_0000.png")) != bytes(&lights.join("view_0004.png")));
 
+    // Frame 1's light simulated again (a new run id): rendering the range
+    // again renders that frame only.
+    std::fs::remove_dir_all(lights.join("frame_0001")).unwrap();
+    eikon_ok(
+        &[
+            &["simulate", &scene, "--frames", "1", "-o", s(&lights)][..],
+            &CPU,
+        ]
+        .concat(),
+    );
+    let again = eikon_ok(
+        &[
+            &[
+                "render",
+                &scene,
+                "--frames",
+                "0..4",
+                "--light",
+                s(&lights),
+                "-o",
+                s(&lights.join("view.png")),
+            ][..],
+            &CPU,
+        ]
+        .concat(),
+    );
+    let err = String::from_utf8_lossy(&again.stderr);
+    assert!(
+        err.contains("frame 1: ")
+            && err.contains("1 frame(s) done")
+            && err.contains("4 already done"),
+        "{err}"
+    );
+
     // A frame folder missing: named, and nothing is written.
     std::fs::remove_dir_all(lights.join("frame_0003")).unwrap();
     let r = dir.path().join("r");
