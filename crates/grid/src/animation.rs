@@ -228,10 +228,10 @@ impl Animation {
                         ),
                     ));
                 }
-            } else if lookup(doc.as_item(), &path[..path.len() - 1]).is_none() {
+            } else if !lookup(doc.as_item(), &path[..path.len() - 1]).is_some_and(is_table) {
                 return Err(c.err(
                     &tp("field"),
-                    format!("the scene has no `{}` to animate", parent(&raw.field)),
+                    format!("the scene has no `{}` table to animate", parent(&raw.field)),
                 ));
             }
             if raw.keys.is_empty() {
@@ -455,6 +455,15 @@ fn field_path(field: &str) -> std::result::Result<(Vec<Part>, Kind), String> {
             "`{field}` cannot animate: tracks take a light's position, direction, power, angle or falloff (light[i].position), the camera's position, target, up or fov (camera.fov), or an object's placement and size (object[i].shape.center, .rotation, .translate, .scale, .radius, .size, ...)"
         )),
     }
+}
+
+/// Whether `item` is a table (`[x]`, `[[x]]` entry or `{ ... }`): where
+/// a tracked field can be set.
+fn is_table(item: &toml_edit::Item) -> bool {
+    matches!(
+        item,
+        toml_edit::Item::Table(_) | toml_edit::Item::Value(toml_edit::Value::InlineTable(_))
+    )
 }
 
 fn lookup<'a>(item: &'a toml_edit::Item, path: &[Part]) -> Option<&'a toml_edit::Item> {
@@ -686,6 +695,16 @@ keys = [{ frame = 0, value = 0.5 }, { frame = 10, value = 0.7 }]
                 .to_string();
             assert!(e.contains(want) && e.starts_with("a.toml:"), "{to}: {e}");
         }
+        // Fuzz find: `light = [true]` made light[0] a boolean, whose field
+        // the track then set (a panic); now refused where the track is.
+        let (head, tail) = SCENE.split_at(SCENE.find("[[light]]").unwrap());
+        let text = format!(
+            "light = [true]\n{head}{}",
+            &tail[tail.find("[camera]").unwrap()..]
+        );
+        assert!(toml_edit::ImDocument::parse(text.as_str()).unwrap()["light"][0].is_bool());
+        let e = anim(&text).unwrap_err().to_string();
+        assert!(e.contains("no `light[0]` table"), "{e}");
         // A frame whose values the scene refuses names the frame.
         let text = SCENE.replace("value = 0.7 }", "value = -0.7 }");
         let a = anim(&text).unwrap();
