@@ -310,7 +310,7 @@ pub fn run(args: Args) -> Result<()> {
 /// no object moves.
 fn run_frames(args: &Args, keys: &[Key]) -> Result<()> {
     use crate::frames::{
-        check_light_frames, folder_of, frame_dir, numbered, plan, relative_to, Job, Media, Output,
+        check_light_frames, folder_of, frame_dir, numbered, relative_to, Job, Media, Output, Plan,
     };
     if args.json {
         bail!("--json: not with --frames (`eikon status FOLDER --json` reports a frame run)");
@@ -335,9 +335,9 @@ fn run_frames(args: &Args, keys: &[Key]) -> Result<()> {
         None => None,
     };
     let anim = args.grid.load_animation(&args.scene)?;
-    let (range, shard) = plan(&args.frames, &anim)?;
+    let plan = Plan::new(&args.frames, &args.scene, &anim)?;
     if let Some(light) = &args.light {
-        check_light_frames(light, range.frames().filter(|&f| shard.takes(&range, f)))?;
+        check_light_frames(light, plan.frames())?;
     }
     let settings = format!(
         "grids {keys:?}; light {}; vdb {}; npy {}; half {}; zip {}; grid {:?}",
@@ -354,21 +354,8 @@ fn run_frames(args: &Args, keys: &[Key]) -> Result<()> {
         !args.uncompressed,
         args.grid.grid_override()
     );
-    let mut job = Job::open(
-        &folder,
-        "export",
-        &args.scene,
-        anim.text(),
-        settings,
-        range,
-        shard,
-        args.frames.force,
-        false,
-    )?;
-    if let Some(l) = &args.light {
-        let l = l.clone();
-        job.track_inputs(move |f| crate::frames::light_inputs(&l, f));
-    }
+    let mut job = Job::open(&folder, "export", &plan, settings, false)?;
+    job.lit_by(args.light.as_deref());
     let mut media = Media::new(&anim, false);
     job.run(|f| {
         let scene = anim.frame(f)?;

@@ -295,11 +295,45 @@ impl GifFlag {
     }
 }
 
-/// The range `flags` ask for in `anim` and this process's shard of it.
-pub fn plan(flags: &FrameFlags, anim: &eikon_grid::animation::Animation) -> Result<(Range, Shard)> {
-    let range = Range::parse(flags.frames.as_deref().unwrap_or("all"), anim.frames)?;
-    let shard = Shard::detect(flags.shard.as_deref(), &|k| std::env::var(k).ok())?;
-    Ok((range, shard))
+/// What a frame run covers: the scene file, the range asked for, this
+/// process's shard of it, and whether `--force` was given.
+#[derive(Clone, Debug)]
+pub struct Plan {
+    /// The scene file.
+    pub scene: PathBuf,
+    /// Its text, as read (hashed into the manifest).
+    pub text: String,
+    /// The frames asked for.
+    pub range: Range,
+    /// This process's share.
+    pub shard: Shard,
+    /// `--force`.
+    pub force: bool,
+}
+
+impl Plan {
+    /// The range `flags` ask for in `anim` (read from `scene`) and this
+    /// process's shard of it.
+    pub fn new(
+        flags: &FrameFlags,
+        scene: &Path,
+        anim: &eikon_grid::animation::Animation,
+    ) -> Result<Plan> {
+        Ok(Plan {
+            scene: scene.to_path_buf(),
+            text: anim.text().to_string(),
+            range: Range::parse(flags.frames.as_deref().unwrap_or("all"), anim.frames)?,
+            shard: Shard::detect(flags.shard.as_deref(), &|k| std::env::var(k).ok())?,
+            force: flags.force,
+        })
+    }
+
+    /// The frames this process runs, in order.
+    pub fn frames(&self) -> impl Iterator<Item = usize> + '_ {
+        self.range
+            .frames()
+            .filter(|&f| self.shard.takes(&self.range, f))
+    }
 }
 
 /// The inputs of frame `f` lit by the light folder `lights` (of `eikon
@@ -611,18 +645,15 @@ impl Job {
     /// Open the run: refuse an output whose manifests record another scene
     /// or other settings (unless `force`), and find the frames already
     /// done there with their files intact.
-    #[allow(clippy::too_many_arguments)]
     pub fn open(
         out: &Path,
         command: &str,
-        scene: &Path,
-        scene_text: &str,
+        plan: &Plan,
         settings: String,
-        range: Range,
-        shard: Shard,
-        force: bool,
         quiet: bool,
     ) -> Result<Job> {
+        let (scene, range, force) = (&plan.scene, plan.range, plan.force);
+        let shard = plan.shard.clone();
         if out.exists() && !out.is_dir() {
             bail!("{}: exists and is not a directory", out.display());
         }
@@ -632,7 +663,7 @@ impl Job {
         // This shard's manifest, written by a run killed mid-write, left
         // its temporary (other shards' may be in use right now).
         eikon_wavefront::staging::remove_stale_temps(out, |f| f == own);
-        let scene_hash = hash(scene_text.as_bytes());
+        let scene_hash = hash(plan.text.as_bytes());
         let mut before = Vec::new();
         let mut ranges = Vec::new();
         let mut carried = Vec::new();
@@ -730,6 +761,15 @@ impl Job {
         r.frames()
             .filter(|&f| self.manifest.shard.takes(&r, f))
             .collect()
+    }
+
+    /// Track the light volumes of `lights` (`--light`, when given) as each
+    /// frame's inputs ([`light_inputs`]).
+    pub fn lit_by(&mut self, lights: Option<&Path>) {
+        if let Some(l) = lights {
+            let l = l.to_path_buf();
+            self.track_inputs(move |f| light_inputs(&l, f));
+        }
     }
 
     /// Make each frame's record name its inputs as `inputs` gives them, and

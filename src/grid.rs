@@ -138,18 +138,23 @@ impl GridFlags {
     }
 }
 
-/// Bytes the light volumes of `scene` take: per light an RGB fluence and
-/// one net-flux vector per channel traced (three with dispersion), f32,
-/// and while simulating the fixed-point counters (`deposit::Counters`:
-/// three u64 fluence and three i64 flux words per cell and channel group).
-pub fn light_volume_bytes(scene: &Scene) -> (u128, u128) {
-    let cells = scene
+/// Cells of `scene`'s grid.
+fn cells(scene: &Scene) -> u128 {
+    scene
         .grid
         .geometry
         .dims
         .iter()
         .map(|&d| d as u128)
-        .product::<u128>();
+        .product()
+}
+
+/// Bytes the light volumes of `scene` take: per light an RGB fluence and
+/// one net-flux vector per channel traced (three with dispersion), f32,
+/// and while simulating the fixed-point counters (`deposit::Counters`:
+/// three u64 fluence and three i64 flux words per cell and channel group).
+pub fn light_volume_bytes(scene: &Scene) -> (u128, u128) {
+    let cells = cells(scene);
     let flux_arrays = if scene.grid.dispersion { 3 } else { 1 };
     let per_light = cells * 4 * 3 * (1 + flux_arrays);
     let counters = cells * 8 * 3 * (1 + flux_arrays);
@@ -192,13 +197,7 @@ fn itemize(scene: &Scene, needs: &Needs) -> Vec<(&'static str, u128)> {
         let bytes = n as u128 * eikon_wavefront::Patches::BYTES_PER_PATCH as u128;
         items.push(("patch list at its cap", bytes));
     }
-    let cells = scene
-        .grid
-        .geometry
-        .dims
-        .iter()
-        .map(|&d| d as u128)
-        .product::<u128>();
+    let cells = cells(scene);
     let channels = scene.channels();
     if needs.interfaces {
         items.push((

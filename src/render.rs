@@ -263,7 +263,7 @@ fn frame_outputs(outputs: &[PathBuf]) -> Result<(PathBuf, Vec<PathBuf>)> {
 /// moves; then the `--gif`.
 fn run_frames(args: &Args) -> Result<()> {
     use crate::frames::{
-        check_light_frames, finish_gif, frame_dir, numbered, plan, Job, Media, Output,
+        check_light_frames, finish_gif, frame_dir, numbered, Job, Media, Output, Plan,
     };
     if args.json {
         bail!("--json: not with --frames (`eikon status FOLDER --json` reports a frame run)");
@@ -278,9 +278,9 @@ fn run_frames(args: &Args) -> Result<()> {
         bail!("--gif: needs a .png -o output: the GIF is made of the frames' tone-mapped PNGs");
     }
     let anim = args.overrides.grid.load_animation(&args.scene)?;
-    let (range, shard) = plan(&args.frames, &anim)?;
+    let plan = Plan::new(&args.frames, &args.scene, &anim)?;
     if let Some(light) = &args.light {
-        check_light_frames(light, range.frames().filter(|&f| shard.takes(&range, f)))?;
+        check_light_frames(light, plan.frames())?;
     }
     let eikonal = args.method == RenderMethod::Eikonal;
     let backend = if eikonal {
@@ -303,21 +303,8 @@ fn run_frames(args: &Args) -> Result<()> {
         args.exact.guaranteed,
         overrides_settings(&args.overrides, &backend)
     );
-    let mut job = Job::open(
-        &folder,
-        "render",
-        &args.scene,
-        anim.text(),
-        settings,
-        range,
-        shard,
-        args.frames.force,
-        false,
-    )?;
-    if let Some(l) = &args.light {
-        let l = l.clone();
-        job.track_inputs(move |f| crate::frames::light_inputs(&l, f));
-    }
+    let mut job = Job::open(&folder, "render", &plan, settings, false)?;
+    job.lit_by(args.light.as_deref());
     let mut media = Media::new(&anim, false);
     job.run(|f| {
         let scene = anim.frame(f)?;
@@ -345,7 +332,7 @@ fn run_frames(args: &Args) -> Result<()> {
             gif,
             &folder,
             "render",
-            range,
+            plan.range,
             anim.fps,
             |f| folder.join(numbered(png, f)),
             false,

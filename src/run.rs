@@ -78,10 +78,10 @@ fn frame_images(f: usize) -> [PathBuf; 2] {
 /// render `OUT/image_FFFF.exr` and `.png`, the medium built once when no
 /// object moves; then the `--gif`.
 fn run_frames(args: &Args) -> Result<()> {
-    use crate::frames::{finish_gif, frame_dir, plan, Job, Media, Output};
+    use crate::frames::{finish_gif, frame_dir, Job, Media, Output, Plan};
     args.gif.check()?;
     let anim = args.overrides.grid.load_animation(&args.scene)?;
-    let (range, shard) = plan(&args.frames, &anim)?;
+    let plan = Plan::new(&args.frames, &args.scene, &anim)?;
     let backend = args.overrides.backend.select(false)?;
     let sim = simulate::Args::defaults(args.scene.clone(), args.output.clone());
     let settings = format!(
@@ -89,17 +89,7 @@ fn run_frames(args: &Args) -> Result<()> {
         sim.settings(&backend)?,
         crate::render::overrides_settings(&args.overrides, &backend)
     );
-    let mut job = Job::open(
-        &args.output,
-        "run",
-        &args.scene,
-        anim.text(),
-        settings,
-        range,
-        shard,
-        args.frames.force,
-        false,
-    )?;
+    let mut job = Job::open(&args.output, "run", &plan, settings, false)?;
     let mut media = Media::new(&anim, false);
     job.run(|f| {
         let scene = anim.frame(f)?;
@@ -125,7 +115,7 @@ fn run_frames(args: &Args) -> Result<()> {
     })?;
     if let Some(gif) = &args.gif.gif {
         let png = |f: usize| args.output.join(&frame_images(f)[1]);
-        finish_gif(gif, &args.output, "run", range, anim.fps, png, false)?;
+        finish_gif(gif, &args.output, "run", plan.range, anim.fps, png, false)?;
     }
     Ok(())
 }

@@ -285,19 +285,15 @@ impl Args {
 /// `OUT/frame_NNNN/`, the medium built once when only lights and the
 /// camera move (see [`crate::frames`]).
 fn run_frames(args: &Args) -> Result<()> {
-    use crate::frames::{frame_dir, plan, Job, Media, Output};
+    use crate::frames::{frame_dir, Job, Media, Output, Plan};
     let anim = args.grid.load_animation(&args.scene)?;
-    let (range, shard) = plan(&args.frames, &anim)?;
+    let plan = Plan::new(&args.frames, &args.scene, &anim)?;
     let backend = args.select_backend()?;
     let mut job = Job::open(
         &args.output,
         "simulate",
-        &args.scene,
-        anim.text(),
+        &plan,
         args.settings(&backend)?,
-        range,
-        shard,
-        args.frames.force,
         args.quiet,
     )?;
     let mut media = Media::new(&anim, args.quiet);
