@@ -385,6 +385,7 @@ fn run_frames(args: &Args, keys: &[Key]) -> Result<()> {
         Ok(Output {
             files,
             note: note.to_string(),
+            pending: false,
         })
     })
 }

@@ -328,6 +328,24 @@ impl Plan {
         })
     }
 
+    /// This process's share of the work when a frame has `lights` lights:
+    /// per frame it visits, the lights it simulates. The units of work are
+    /// (frame, light) pairs, frame-major; shard K of N takes every N-th
+    /// unit from the K-th. With one light (or one shard) that is every
+    /// N-th frame, each whole.
+    pub fn units(&self, lights: usize) -> Vec<(usize, Vec<usize>)> {
+        let lights = lights.max(1);
+        let (k, n) = (self.shard.index, self.shard.count);
+        self.range
+            .frames()
+            .filter_map(|f| {
+                let base = (f - self.range.first) * lights;
+                let mine: Vec<usize> = (0..lights).filter(|l| (base + l) % n == k).collect();
+                (!mine.is_empty()).then_some((f, mine))
+            })
+            .collect()
+    }
+
     /// The frames this process runs, in order.
     pub fn frames(&self) -> impl Iterator<Item = usize> + '_ {
         self.range
@@ -626,6 +644,9 @@ pub struct Output {
     pub files: Vec<PathBuf>,
     /// A line about the frame (what was reused, ...).
     pub note: String,
+    /// This process did its share of the frame, which waits for other
+    /// shards' (its lights, `simulate`): nothing to record yet.
+    pub pending: bool,
 }
 
 /// A frame run over the frames of `range` this process's `shard` takes,
@@ -636,6 +657,8 @@ pub struct Job {
     range: Range,
     /// A frame's inputs now (see [`FrameRecord::inputs`]).
     inputs: Option<Box<dyn Fn(usize) -> Vec<String>>>,
+    /// The frames to visit, when not the shard's own (see [`Plan::units`]).
+    visit: Option<Vec<usize>>,
     /// Frames done before this run, found intact (by any shard).
     before: Vec<FrameRecord>,
     quiet: bool,
@@ -750,13 +773,23 @@ impl Job {
             manifest,
             range: range_now,
             inputs: None,
+            visit: None,
             before,
             quiet,
         })
     }
 
+    /// Visit `frames` instead of the shard's own (a shard of lights visits
+    /// every frame holding one of its lights).
+    pub fn visit(&mut self, frames: Vec<usize>) {
+        self.visit = Some(frames);
+    }
+
     /// The frames this process runs, in order.
     pub fn frames(&self) -> Vec<usize> {
+        if let Some(v) = &self.visit {
+            return v.clone();
+        }
         let r = self.range;
         r.frames()
             .filter(|&f| self.manifest.shard.takes(&r, f))
@@ -784,7 +817,7 @@ impl Job {
     pub fn run(&mut self, mut frame: impl FnMut(usize) -> Result<Output>) -> Result<()> {
         let frames = self.frames();
         let started = std::time::Instant::now();
-        let (mut ran, mut skipped) = (0usize, 0usize);
+        let (mut ran, mut skipped, mut shared) = (0usize, 0usize, 0usize);
         for f in frames.iter().copied() {
             let inputs = self.inputs.as_ref().map_or_else(Vec::new, |g| g(f));
             if let Some(r) = self
@@ -792,12 +825,20 @@ impl Job {
                 .iter()
                 .find(|r| r.frame == f && r.inputs == inputs)
             {
-                self.manifest.done.push(r.clone());
+                if !self.manifest.done.iter().any(|x| x.frame == f) {
+                    self.manifest.done.push(r.clone());
+                }
                 skipped += 1;
                 continue;
             }
             let t = std::time::Instant::now();
             match frame(f) {
+                Ok(o) if o.pending => {
+                    shared += 1;
+                    if !self.quiet {
+                        eprintln!("frame {f}: {}", o.note);
+                    }
+                }
                 Ok(o) => {
                     let files = o
                         .files
@@ -836,8 +877,13 @@ impl Job {
         let wall = started.elapsed().as_secs_f64();
         if !self.quiet {
             eprintln!(
-                "{ran} frame(s) done in {wall:.1} s ({:.1} frames/min), {skipped} already done, {} failed; manifest {}",
+                "{ran} frame(s) done in {wall:.1} s ({:.1} frames/min), {skipped} already done, {}{} failed; manifest {}",
                 if wall > 0.0 { 60.0 * ran as f64 / wall } else { 0.0 },
+                if shared > 0 {
+                    format!("{shared} waiting for other shards' lights, ")
+                } else {
+                    String::new()
+                },
                 self.manifest.failed.len(),
                 self.out
                     .join(self.manifest.shard.manifest_name(&self.manifest.command))
@@ -1104,6 +1150,47 @@ mod tests {
                 .collect();
             all.sort_unstable();
             assert_eq!(all, r.frames().collect::<Vec<_>>());
+        }
+    }
+
+    #[test]
+    fn units_partition_frames_and_lights() {
+        let range = Range { first: 2, last: 6 };
+        for lights in 1..4 {
+            for n in 1..5 {
+                let mut all: Vec<(usize, usize)> = (0..n)
+                    .flat_map(|k| {
+                        let plan = Plan {
+                            scene: PathBuf::new(),
+                            text: String::new(),
+                            range,
+                            shard: Shard {
+                                index: k,
+                                count: n,
+                                source: String::new(),
+                            },
+                            force: false,
+                        };
+                        if lights == 1 {
+                            // One light: the shard's own frames, whole.
+                            let frames: Vec<usize> = plan.frames().collect();
+                            let visited: Vec<usize> =
+                                plan.units(1).into_iter().map(|(f, _)| f).collect();
+                            assert_eq!(frames, visited);
+                        }
+                        plan.units(lights)
+                            .into_iter()
+                            .flat_map(|(f, ls)| ls.into_iter().map(move |l| (f, l)))
+                            .collect::<Vec<_>>()
+                    })
+                    .collect();
+                all.sort_unstable();
+                let want: Vec<(usize, usize)> = range
+                    .frames()
+                    .flat_map(|f| (0..lights).map(move |l| (f, l)))
+                    .collect();
+                assert_eq!(all, want, "{lights} lights, {n} shards");
+            }
         }
     }
 

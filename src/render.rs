@@ -325,6 +325,7 @@ fn run_frames(args: &Args) -> Result<()> {
         Ok(Output {
             files,
             note: note.to_string(),
+            pending: false,
         })
     })?;
     if let (Some(gif), Some(png)) = (&args.gif.gif, &png) {

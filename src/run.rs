@@ -111,6 +111,7 @@ fn run_frames(args: &Args) -> Result<()> {
         Ok(Output {
             files,
             note: note.to_string(),
+            pending: false,
         })
     })?;
     if let Some(gif) = &args.gif.gif {

@@ -283,7 +283,10 @@ impl Args {
 
 /// `eikon simulate --frames`: each frame's light volumes in
 /// `OUT/frame_NNNN/`, the medium built once when only lights and the
-/// camera move (see [`crate::frames`]).
+/// camera move (see [`crate::frames`]). Shards share out (frame, light)
+/// units ([`crate::frames::Plan::units`]): a shard holding only some
+/// lights of a frame writes them to `OUT/parts/frame_NNNN/light_L/`, and
+/// whichever shard completes a frame's last light puts the frame together.
 fn run_frames(args: &Args) -> Result<()> {
     use crate::frames::{frame_dir, Job, Media, Output, Plan};
     let anim = args.grid.load_animation(&args.scene)?;
@@ -296,22 +299,113 @@ fn run_frames(args: &Args) -> Result<()> {
         args.settings(&backend)?,
         args.quiet,
     )?;
+    let lights = anim.frame(plan.range.first)?.lights.len();
+    let units = plan.units(lights);
+    job.visit(units.iter().map(|(f, _)| *f).collect());
     let mut media = Media::new(&anim, args.quiet);
     job.run(|f| {
         let scene = anim.frame(f)?;
         let (medium, note) = media.of(&scene)?;
         let dir = frame_dir(&args.output, f);
-        let frame_args = Args {
-            output: dir.clone(),
+        let into = |output: PathBuf| Args {
+            output,
             quiet: true,
             ..args.clone()
         };
-        simulate(&frame_args, &scene, &medium, &backend)?;
-        Ok(Output {
-            files: frame_files(&dir)?,
-            note: note.to_string(),
+        let mine = units
+            .iter()
+            .find(|(g, _)| *g == f)
+            .map_or(&[][..], |(_, l)| l.as_slice());
+        if mine.len() == scene.lights.len() {
+            simulate(&into(dir.clone()), &scene, &medium, &backend)?;
+            return Ok(Output {
+                files: frame_files(&dir)?,
+                note: note.to_string(),
+                pending: false,
+            });
+        }
+        let parts = parts_dir(&args.output, f);
+        for &l in mine {
+            let part = parts.join(format!("light_{l}"));
+            if lightdir::LightDir::open(&part).is_ok() {
+                continue; // written by an earlier run of this shard
+            }
+            let mut one = scene.clone();
+            one.lights = vec![scene.lights[l].clone()];
+            simulate(&into(part), &one, &medium, &backend)?;
+        }
+        Ok(match assemble(&args.output, f, &scene)? {
+            Some(files) => Output {
+                files,
+                note: format!("{note}, lights {mine:?} here, the others from other shards"),
+                pending: false,
+            },
+            None => Output {
+                files: Vec::new(),
+                note: format!("lights {mine:?} written; the frame waits for other shards' lights"),
+                pending: true,
+            },
         })
     })
+}
+
+/// Where the lights of frame `f` simulated by separate shards wait to be
+/// put together.
+fn parts_dir(out: &std::path::Path, f: usize) -> PathBuf {
+    out.join("parts").join(format!("frame_{f:04}"))
+}
+
+/// Put frame `f` together from its lights' parts once every one is there
+/// (its files, relative to `out`), or `None` while some are missing. Two
+/// shards finishing a frame's last lights at once may both do it: they
+/// write the same arrays, and the one that finds the parts already gone
+/// takes the other's frame.
+fn assemble(out: &std::path::Path, f: usize, scene: &Scene) -> Result<Option<Vec<PathBuf>>> {
+    let parts = parts_dir(out, f);
+    let dir = crate::frames::frame_dir(out, f);
+    let mut found = Vec::with_capacity(scene.lights.len());
+    for l in 0..scene.lights.len() {
+        match lightdir::LightDir::open(&parts.join(format!("light_{l}"))) {
+            Ok(d) => found.push(d),
+            Err(_) => return Ok(None),
+        }
+    }
+    let put = || -> Result<Vec<PathBuf>> {
+        let volumes = found
+            .iter()
+            .map(|d| Ok(d.volumes()?.remove(0)))
+            .collect::<Result<Vec<LightVolume>>>()?;
+        let first = &found[0].sidecar;
+        let run = Run {
+            scene: first.scene.clone(),
+            method: first.method.clone(),
+            options: first.options.clone(),
+            backend: first.backend.clone(),
+            seconds: found.iter().map(|d| d.sidecar.seconds).sum(),
+            lights: scene
+                .lights
+                .iter()
+                .zip(&volumes)
+                .zip(&found)
+                .map(|((light, v), d)| (light, v, d.sidecar.lights[0].summary.clone()))
+                .collect(),
+        };
+        lightdir::write(&dir, &first.geometry(), &run)?;
+        frame_files(&dir)
+    };
+    match put() {
+        Ok(files) => {
+            let _ = std::fs::remove_dir_all(&parts);
+            // The parts folder goes with its last frame (not while another
+            // frame's parts are in it).
+            let _ = std::fs::remove_dir(out.join("parts"));
+            Ok(Some(files))
+        }
+        Err(e) => match lightdir::LightDir::open(&dir) {
+            Ok(d) if d.sidecar.lights.len() == scene.lights.len() => Ok(Some(frame_files(&dir)?)),
+            _ => Err(e),
+        },
+    }
 }
 
 /// The files of the light folder `dir` (one frame's, `OUT/frame_NNNN/`)

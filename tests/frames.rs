@@ -341,3 +341,76 @@ fn changed_scenes_and_settings_are_refused_unless_forced() {
         "{text}"
     );
 }
+
+/// Shards share out (frame, light) units: with two lights and three shards
+/// each frame's lights are simulated by different processes and put
+/// together by whichever finishes its last light. Run one after another
+/// and all at once, the frames equal one process's, bitwise, and the
+/// parts are gone.
+#[test]
+fn lights_are_shared_out_over_shards() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write(dir.path(), "anim.toml", SCENE);
+    let one = dir.path().join("one");
+    eikon_ok(&["simulate", s(&scene), "--frames", "0..3", "-o", s(&one)]);
+    let want = arrays(&one);
+    assert_eq!(want.len(), 4 * 4);
+    let args = |out: &Path, k: usize| -> Vec<String> {
+        let shard = format!("{k}/3");
+        [
+            "simulate",
+            s(&scene),
+            "--frames",
+            "0..3",
+            "--shard",
+            &shard,
+            "-o",
+            s(out),
+        ]
+        .iter()
+        .map(|a| a.to_string())
+        .collect()
+    };
+    // One after another: shard 0 holds no whole frame (units 0, 3, 6: light
+    // 0 of frames 0 and 3, light 1 of frame 1), so it only writes parts.
+    let seq = dir.path().join("seq");
+    let mut waited = 0;
+    for k in 0..3 {
+        let a = args(&seq, k);
+        let o = eikon_ok(&a.iter().map(String::as_str).collect::<Vec<_>>());
+        let err = String::from_utf8_lossy(&o.stderr);
+        waited += err.matches("waits for other shards").count();
+        if k == 0 {
+            assert!(err.contains("0 frame(s) done"), "{err}");
+        }
+    }
+    assert!(waited >= 3, "{waited}");
+    assert!(
+        arrays(&seq) == want,
+        "sequential shards differ from one process"
+    );
+    assert!(!seq.join("parts").exists());
+    eikon_ok(&["status", s(&seq)]);
+    // All at once.
+    let par = dir.path().join("par");
+    let children: Vec<_> = (0..3)
+        .map(|k| {
+            Command::new(env!("CARGO_BIN_EXE_eikon"))
+                .args(args(&par, k))
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap()
+        })
+        .collect();
+    for c in children {
+        let o = c.wait_with_output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    assert!(
+        arrays(&par) == want,
+        "concurrent shards differ from one process"
+    );
+    assert!(!par.join("parts").exists());
+    eikon_ok(&["status", s(&par)]);
+}
