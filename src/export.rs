@@ -9,7 +9,7 @@ use crate::render::load_light_volumes;
 use anyhow::{bail, Context, Result};
 use eikon_grid::vdb::{self, Grid, GridClass, GridData, Transform, Tree, VectorType};
 use eikon_grid::{GridGeometry, Medium, Scene};
-use eikon_wavefront::staging::{new_run_id, plain_name, remove_stale_temps, Staging};
+use eikon_wavefront::staging::{new_run_id, tidy, Staging};
 use eikon_wavefront::LightVolume;
 use ndarray::{s, Array3, Array4, Axis};
 use ndarray_npy::WriteNpyExt;
@@ -574,13 +574,12 @@ fn write_npy_dir(
         w.write_all(b"\n").map_err(serde_json::Error::io)
     })?;
     staging.commit()?;
-    let written: Vec<String> = volumes.iter().map(|v| format!("{}.npy", v.name)).collect();
-    for old in before {
-        if plain_name(&old) && !written.contains(&old) && old.ends_with(".npy") {
-            let _ = std::fs::remove_file(dir.join(old));
-        }
-    }
-    remove_stale_temps(dir, |f| f == NPY_SIDECAR || f.ends_with(".npy"));
+    tidy(
+        dir,
+        &before,
+        |f| volumes.iter().any(|v| f == format!("{}.npy", v.name)),
+        |f| f == NPY_SIDECAR || f.ends_with(".npy"),
+    );
     Ok(())
 }
 

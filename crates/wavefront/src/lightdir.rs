@@ -28,7 +28,7 @@
 //! next complete run into the folder removes them. Files that are not ours
 //! (images of `eikon run`, the user's) are left alone.
 
-use crate::staging::{err, new_run_id, plain_name, remove_stale_temps, Staging};
+use crate::staging::{err, new_run_id, plain_name, tidy, Staging};
 pub use crate::staging::{Error, FileRecord, RENAME_PAUSE_ENV};
 use crate::{LightVolume, Summary};
 use eikon_grid::{GridGeometry, Light};
@@ -468,21 +468,20 @@ pub fn write(dir: &Path, grid: &GridGeometry, run: &Run<'_>) -> Result<Sidecar, 
         w.write_all(b"\n").map_err(serde_json::Error::io)
     })?;
     staging.commit()?;
-    for old in before {
-        if plain_name(&old) && sidecar.file(&old).is_none() && old != SIDECAR {
-            let _ = std::fs::remove_file(dir.join(old));
-        }
-    }
-    remove_stale_temps(dir, |file| {
-        file == SIDECAR
-            || file
-                .strip_prefix("light")
-                .and_then(|r| {
-                    r.strip_suffix("_fluence.npy")
-                        .or_else(|| r.strip_suffix("_flux.npy"))
-                })
-                .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
-    });
+    tidy(
+        dir,
+        &before,
+        |f| f == SIDECAR || sidecar.file(f).is_some(),
+        |f| {
+            f == SIDECAR
+                || f.strip_prefix("light")
+                    .and_then(|r| {
+                        r.strip_suffix("_fluence.npy")
+                            .or_else(|| r.strip_suffix("_flux.npy"))
+                    })
+                    .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+        },
+    );
     Ok(sidecar)
 }
 

@@ -201,9 +201,10 @@ pub fn simulate_photons(
 
 const GOLDEN: u64 = 0x9E37_79B9_7F4A_7C15;
 
-/// The SplitMix64 output function (Steele, Lea and Flood 2014).
+/// The SplitMix64 output function (Steele, Lea and Flood 2014); also what
+/// makes run ids ([`crate::staging::new_run_id`]).
 #[inline]
-fn mix(mut z: u64) -> u64 {
+pub(crate) fn mix(mut z: u64) -> u64 {
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^ (z >> 31)

@@ -90,15 +90,12 @@ pub fn new_run_id() -> String {
     let nanos = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_nanos() as u64);
-    let mut x = nanos
+    let x = nanos
         ^ (u64::from(std::process::id()) << 40)
         ^ COUNTER
             .fetch_add(1, Ordering::Relaxed)
             .wrapping_mul(0x9e37_79b9_7f4a_7c15);
-    // splitmix64's finalizer.
-    x = (x ^ (x >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    x = (x ^ (x >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    format!("{:016x}", x ^ (x >> 31))
+    format!("{:016x}", crate::photons::mix(x))
 }
 
 /// A writer that counts and checksums what passes through it.
@@ -240,6 +237,25 @@ impl Drop for Staging {
             let _ = std::fs::remove_file(t);
         }
     }
+}
+
+/// After a run is committed into `dir`: remove the files of the run it
+/// replaced (`before`, as that run's sidecar named them) that this one
+/// did not write again (`kept` says which it did), and the temporaries of
+/// runs killed before their renames. Only names `ours` accepts are
+/// touched: a user's files stay.
+pub fn tidy(
+    dir: &Path,
+    before: &[String],
+    kept: impl Fn(&str) -> bool,
+    ours: impl Fn(&str) -> bool,
+) {
+    for old in before {
+        if plain_name(old) && ours(old) && !kept(old) {
+            let _ = std::fs::remove_file(dir.join(old));
+        }
+    }
+    remove_stale_temps(dir, ours);
 }
 
 /// Remove the temporaries of runs killed before their renames
