@@ -7,7 +7,16 @@
 //! interface normal. Both indices are expected to be finite and positive;
 //! otherwise the functions return NaN rather than a plausible-looking number.
 
+use eikon_shader::{nothing, Module};
 use glam::DVec3;
+
+/// The WGSL of [`reflectance`].
+pub static WGSL: Module = Module {
+    name: "fresnel",
+    requires: &[],
+    declarations: nothing,
+    text: include_str!("fresnel.wgsl"),
+};
 
 /// Reflectances `(R_s, R_p)` for light polarized perpendicular (s) and
 /// parallel (p) to the plane of incidence, from the exact Fresnel

@@ -27,8 +27,18 @@ use crate::field::Medium;
 use crate::fresnel;
 use crate::geometry::Trilinear;
 use crate::ray::IndexField;
+use eikon_shader::{nothing, Module};
 use glam::DVec3;
 use rayon::prelude::*;
+
+/// The WGSL of [`crossing_transmittance`] and of
+/// [`Interfaces::transmittance`] after its samples.
+pub static WGSL: Module = Module {
+    name: "interface",
+    requires: &[&crate::fresnel::WGSL],
+    declarations: nothing,
+    text: include_str!("interface.wgsl"),
+};
 
 /// The two sides of an interface at a point, for Fresnel.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

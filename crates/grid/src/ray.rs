@@ -19,6 +19,7 @@
 //! interface because `v` keeps integrating `grad n`.
 
 use crate::geometry::GridGeometry;
+use eikon_shader::{Consts, Module};
 use glam::DVec3;
 
 /// A refractive-index field that can be sampled anywhere.
@@ -47,6 +48,27 @@ pub enum Method {
     /// the largest step it may take.
     DormandPrince,
 }
+
+fn ray_declarations() -> String {
+    Consts::new()
+        .u32("FORM_EQUAL_DISTANCE", Form::EqualDistance as u32)
+        .u32("FORM_EQUAL_TIME", Form::EqualTime as u32)
+        .u32("INTEGRATOR_EULER", Method::Euler as u32)
+        .u32("INTEGRATOR_RK4", Method::Rk4 as u32)
+        .wgsl()
+        .to_string()
+}
+
+/// The WGSL of the ray equation: its right-hand side in both forms, the
+/// Euler and RK4 increments and the step on the eikonal shell, over the
+/// index field a kernel provides (the hook `index_field`). Dormand-Prince
+/// has no GPU form: kernels take RK4 for it.
+pub static WGSL: Module = Module {
+    name: "ray",
+    requires: &[],
+    declarations: ray_declarations,
+    text: include_str!("ray.wgsl"),
+};
 
 /// Position, eikonal gradient `v` (|v| = n) and optical path so far.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -59,6 +59,8 @@ fn tangent(n: DVec3) -> DVec3 {
 /// that leaves the grid exactly on a plane lying on the grid's face must
 /// still meet it.
 const PLANE_EPS: f64 = 1e-9;
+/// [`PLANE_EPS`] for the GPU renderer: f32's rounding needs more.
+pub(crate) const PLANE_EPS_F32: f32 = 2e-6;
 
 /// Distance along the unit `d` from `o` to the plane `(p, n)`, if ahead
 /// (or within rounding of `o`, then 0).

@@ -19,8 +19,21 @@
 //! `∫ p dω = 1`, so its unit is 1/sr; eq. 6 then multiplies it by the
 //! differential irradiance `ΔE` to give radiance.
 
+use eikon_shader::{Consts, Module};
 use glam::DVec3;
 use std::f64::consts::PI;
+
+fn phase_declarations() -> String {
+    Consts::new().f32("G_MAX", G_MAX as f32).wgsl().to_string()
+}
+
+/// The WGSL of [`hg`].
+pub static WGSL: Module = Module {
+    name: "phase",
+    requires: &[&eikon_shader::VECTOR],
+    declarations: phase_declarations,
+    text: include_str!("phase.wgsl"),
+};
 
 /// Largest `|g|` accepted by [`hg`]; larger values are clamped to this.
 ///

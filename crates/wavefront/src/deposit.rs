@@ -21,6 +21,7 @@
 //! half a unit.
 
 use crate::patch::span;
+use eikon_shader::{Consts, Module};
 use crate::volume::LightVolume;
 use eikon_grid::GridGeometry;
 use glam::DVec3;
@@ -282,6 +283,25 @@ impl Counters {
     }
 }
 
+fn deposit_declarations() -> String {
+    Consts::new()
+        .u32("MAX_SUBPATCHES", MAX_SUBPATCHES as u32)
+        .f32("SUBPATCH_SIZE", SUBPATCH_SIZE as f32)
+        .u32("MAX_PARTS", MAX_PARTS as u32)
+        .wgsl()
+        .to_string()
+}
+
+/// The WGSL of the deposit geometry: [`tube`] (sub-patches, box
+/// footprints) and [`Counters::chord`] (the DDA and each piece's amounts),
+/// handing the pieces to the kernel's hook `deposit_put`.
+pub static WGSL: Module = Module {
+    name: "deposit",
+    requires: &[&eikon_grid::geometry::WGSL, &crate::patch::WGSL],
+    declarations: deposit_declarations,
+    text: include_str!("deposit.wgsl"),
+};
+
 /// Most sub-patches along one side of a patch (see [`tube`]).
 pub const MAX_SUBPATCHES: usize = 8;
 /// Sub-patch size, voxels: a patch is cut into sub-patches no larger than
@@ -437,7 +457,7 @@ pub const MAX_PARTS: usize = 4;
 /// fraction 0. A footprint wider than [`MAX_PARTS`] cells - 1 is narrowed
 /// to that (the caller keeps footprints near a cell).
 #[inline]
-fn box_parts(centre: f64, width: f64) -> [(f64, f64); MAX_PARTS] {
+pub fn box_parts(centre: f64, width: f64) -> [(f64, f64); MAX_PARTS] {
     let mut out = [(0.0, 0.0); MAX_PARTS];
     let w = width.min((MAX_PARTS - 1) as f64);
     if w.is_nan() || w <= 1e-9 || !centre.is_finite() {

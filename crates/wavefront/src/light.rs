@@ -17,8 +17,17 @@
 
 use crate::patch::Patches;
 use eikon_grid::{GridGeometry, IndexField, Light, RayState};
+use eikon_shader::{nothing, Module};
 use glam::DVec3;
 use std::f64::consts::PI;
+
+/// The WGSL of [`cone_weight`] (a spot light's cone, given).
+pub static SPOT_WGSL: Module = Module {
+    name: "spot",
+    requires: &[],
+    declarations: nothing,
+    text: include_str!("spot.wgsl"),
+};
 
 /// Distance a patch starts before the bounds, in voxels.
 pub(crate) const MARGIN_VOXELS: f64 = 0.5;

@@ -8,7 +8,26 @@
 //! (the intensity law, eqs 16-17).
 
 use eikon_grid::RayState;
+use eikon_shader::{Consts, Module};
 use glam::DVec3;
+
+fn patch_declarations() -> String {
+    Consts::new()
+        .u32("SPLIT_QUARTERS", Split::Quarters as u32)
+        .u32("SPLIT_STRIPS_S", Split::StripsS as u32)
+        .u32("SPLIT_STRIPS_T", Split::StripsT as u32)
+        .wgsl()
+        .to_string()
+}
+
+/// The WGSL of the patch geometry: [`normal`], [`area`], [`span`], the
+/// bilinear map and [`Split`].
+pub static WGSL: Module = Module {
+    name: "patch",
+    requires: &[],
+    declarations: patch_declarations,
+    text: include_str!("patch.wgsl"),
+};
 
 /// All live patches of one wavefront, one array per attribute.
 #[derive(Clone, Debug, Default)]

@@ -22,8 +22,17 @@ use crate::patch::{area, Patches};
 use eikon_grid::interface::Interfaces;
 use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
 use eikon_grid::{EmptySpace, Form, GridGeometry, IndexField, Medium, Method, VoxelField};
+use eikon_shader::{nothing, Module};
 use glam::DVec3;
 use rayon::prelude::*;
+
+/// The WGSL of [`step_depth`].
+pub static WGSL: Module = Module {
+    name: "propagate",
+    requires: &[&eikon_grid::geometry::WGSL],
+    declarations: nothing,
+    text: include_str!("propagate.wgsl"),
+};
 
 /// The index field as light sees it: the voxel field inside the bounds,
 /// and straight travel (no gradient) outside them.
@@ -71,7 +80,7 @@ fn extinction_per_index(medium: &Medium, field: &Bounded, empty: &EmptySpace, p:
 /// charged only for its part inside, at the inside end's value. (The
 /// trapezoid would charge half the step whatever its part inside: up to
 /// `sigma_t h / 4` too much or too little for light entering obliquely.)
-pub(crate) fn step_depth(
+pub fn step_depth(
     grid: &GridGeometry,
     x0: DVec3,
     x1: DVec3,

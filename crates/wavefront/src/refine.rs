@@ -43,9 +43,10 @@ pub struct Ended {
     pub faint_flux: [f64; 3],
 }
 
-/// Fate of one patch.
+/// Fate of one patch (the GPU's `FATE_*` are these values).
 #[derive(Clone, Copy, PartialEq, Eq)]
-enum Fate {
+#[repr(u32)]
+pub(crate) enum Fate {
     Exit,
     Absorbed,
     Faint,
