@@ -31,8 +31,7 @@ use eikon_shader::{nothing, Module};
 use glam::DVec3;
 use rayon::prelude::*;
 
-/// The WGSL of [`crossing_transmittance`] and of
-/// [`Interfaces::transmittance`] after its samples.
+/// The WGSL of [`crossing_transmittance`] and [`band_transmittance`].
 pub static WGSL: Module = Module {
     name: "interface",
     requires: &[&crate::fresnel::WGSL],
@@ -164,19 +163,28 @@ impl Interfaces {
         if delta <= 0.0 {
             return 1.0;
         }
-        let grad = field.sample(p).1;
-        let len = grad.length();
-        if len == 0.0 || !len.is_finite() {
-            return 1.0;
-        }
-        let normal = grad / len;
-        let part = (delta * dx.dot(normal).abs()).min(1.0);
-        if part <= 0.0 {
-            return 1.0;
-        }
-        let sides = self.sides_at(&t, ch);
-        crossing_transmittance(sides, v, normal).powf(part)
+        band_transmittance(self.sides_at(&t, ch), delta, field.sample(p).1, v, dx)
     }
+}
+
+/// [`Interfaces::transmittance`] from its samples at the point: the
+/// `sides`, the boundary indicator `delta` and the index gradient `grad`
+/// (whose direction is the interface's normal).
+#[inline]
+pub fn band_transmittance(sides: Sides, delta: f64, grad: DVec3, v: DVec3, dx: DVec3) -> f64 {
+    if delta <= 0.0 {
+        return 1.0;
+    }
+    let len = grad.length();
+    if len == 0.0 || !len.is_finite() {
+        return 1.0;
+    }
+    let normal = grad / len;
+    let part = (delta * dx.dot(normal).abs()).min(1.0);
+    if part <= 0.0 {
+        return 1.0;
+    }
+    crossing_transmittance(sides, v, normal).powf(part)
 }
 
 /// `1 - R` for light with eikonal gradient `v` crossing the interface with

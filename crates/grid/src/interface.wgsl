@@ -20,7 +20,7 @@ fn interface_crossing_transmittance(lo: f32, hi: f32, v: vec3<f32>, normal: vec3
     return 1.0 - fresnel_reflectance(cos_lo, lo, hi);
 }
 
-// `Interfaces::transmittance` after its samples: the power fraction kept
+// `interface::band_transmittance`: the power fraction kept
 // over the displacement dx, (1 - R)^(delta |dx . normal|), where the
 // boundary indicator is `delta`, the sides `lo`, `hi`, and `grad` the index
 // gradient (the normal's direction).
