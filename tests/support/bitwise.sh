@@ -23,6 +23,13 @@ res=14
 size=(--width 40 --height 30 --samples 2)
 sums="$out/sums.txt"
 : >"$sums"
+run() { # command...: quiet, but say what failed
+  if ! "$@" >"$out/last.log" 2>&1; then
+    echo "failed: $*" >&2
+    cat "$out/last.log" >&2
+    exit 1
+  fi
+}
 hash() { # label files...
   local label=$1
   shift
@@ -35,22 +42,22 @@ for cfg in configs/*.toml; do
   [ "$name" = orbit ] && continue # animated: covered by the frame tests
   d="$out/$name"
   mkdir -p "$d"
-  "$eikon" simulate "$cfg" --resolution $res --backend cpu -o "$d/light" >/dev/null 2>&1
+  run "$eikon" simulate "$cfg" --resolution $res --backend cpu -o "$d/light"
   hash "$name/simulate" "$d"/light/*.npy
-  "$eikon" render "$cfg" --resolution $res --backend cpu --light "$d/light" "${size[@]}" \
-    -o "$d/eikonal.exr" -o "$d/eikonal.png" >/dev/null 2>&1
+  run "$eikon" render "$cfg" --resolution $res --backend cpu --light "$d/light" "${size[@]}" \
+    -o "$d/eikonal.exr" -o "$d/eikonal.png"
   hash "$name/render" "$d/eikonal.exr" "$d/eikonal.png"
-  "$eikon" render "$cfg" --resolution $res --backend cpu --light "$d/light" "${size[@]}" \
-    --integrator rk4 --no-skip -o "$d/rk4.exr" >/dev/null 2>&1
+  run "$eikon" render "$cfg" --resolution $res --backend cpu --light "$d/light" "${size[@]}" \
+    --integrator rk4 --no-skip -o "$d/rk4.exr"
   hash "$name/render-rk4" "$d/rk4.exr"
-  "$eikon" slice "$cfg" --resolution $res --axis y --at 0.5 -o "$d/slice.png" >/dev/null 2>&1
+  run "$eikon" slice "$cfg" --axis y --at 0.5 -o "$d/slice.png"
   hash "$name/slice" "$d/slice.png"
-  "$eikon" export "$cfg" --resolution $res --light "$d/light" --npy "$d/npy" >/dev/null 2>&1
-  hash "$name/export" "$d"/npy/*.npy
+  run "$eikon" export "$cfg" --resolution $res --light "$d/light" --npy "$d/npy" --vdb "$d/volumes.vdb"
+  hash "$name/export" "$d"/npy/*.npy "$d/volumes.vdb"
   if grep -q 'type *= *"\(mesh\|bumpy_sphere\|cuboctahedron\)"' "$cfg"; then
     for m in walter holzschuch straight; do
-      "$eikon" render "$cfg" --method $m --width 24 --height 18 --samples 1 \
-        -o "$d/$m.exr" >/dev/null 2>&1
+      run "$eikon" render "$cfg" --method $m --width 24 --height 18 --samples 1 \
+        -o "$d/$m.exr"
       hash "$name/$m" "$d/$m.exr"
     done
   fi
@@ -59,11 +66,11 @@ done
 cfg=configs/glass-sphere.toml
 d="$out/glass-sphere-variants"
 mkdir -p "$d"
-"$eikon" simulate $cfg --resolution 20 --backend cpu --deposit paper --no-fresnel -o "$d/paper" >/dev/null 2>&1
+run "$eikon" simulate $cfg --resolution 20 --backend cpu --deposit paper --no-fresnel -o "$d/paper"
 hash variants/paper "$d"/paper/*.npy
-"$eikon" simulate $cfg --resolution 20 --backend cpu --method photons --count 20000 -o "$d/photons" >/dev/null 2>&1
+run "$eikon" simulate $cfg --resolution 20 --backend cpu --method photons --count 20000 -o "$d/photons"
 hash variants/photons "$d"/photons/*.npy
-"$eikon" simulate $cfg --resolution 20 --backend cpu --integrator rk4 -o "$d/rk4" >/dev/null 2>&1
+run "$eikon" simulate $cfg --resolution 20 --backend cpu --integrator rk4 -o "$d/rk4"
 hash variants/rk4 "$d"/rk4/*.npy
 # One traced ray per integrator and form, printed in full.
 for integ in euler rk4 dopri5; do
