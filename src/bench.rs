@@ -10,7 +10,7 @@
 use crate::backend::{is_software, Backend, BackendArg, BackendFlag};
 use anyhow::{bail, Context, Result};
 use eikon_grid::{Medium, Scene};
-use eikon_view::{Camera, Options, Renderer, Surroundings};
+use eikon_view::{Options, Renderer, Surroundings};
 use serde_json::{json, Value};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -121,7 +121,7 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
     let mut cs = eikon_view::render::camera_settings(&scene);
     cs.resolution = [args.width, args.height];
     cs.samples = 1;
-    let camera = Camera::from_settings(&cs)?;
+    let camera = eikon_view::render::camera(&cs)?;
     let env = eikon_view::background::load_environment(&scene.background)?;
     let surroundings = Surroundings::new(&scene, env, &volumes, &medium.geometry);
     let ropts = Options::default();

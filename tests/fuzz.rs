@@ -1772,14 +1772,14 @@ fn exr_seeds() -> Vec<Seed> {
         let (x, y) = (p.x() as f32, p.y() as f32);
         (0.1 + x / 16.0, 0.2 + y / 8.0, 0.3 * (x - y).abs(), 1.0)
     };
-    let mut image = eikon_view::Image::new(w as u32, h as u32);
+    let mut image = eikon_optics::Image::new(w as u32, h as u32);
     for (i, px) in image.data.iter_mut().enumerate() {
         let c = colour(Vec2(i % w, i / w));
         *px = [c.0, c.1, c.2];
     }
     let mut out = vec![seed(
         "encoder.exr",
-        eikon_view::encode_exr(&image).expect("encode EXR"),
+        eikon_optics::encode_exr(&image).expect("encode EXR"),
     )];
     let tiles = Blocks::Tiles(Vec2(8, 4));
     let kinds = [
@@ -2152,7 +2152,7 @@ fn fuzz_vdb() {
 
 #[test]
 fn fuzz_exr() {
-    use eikon_view::{Environment, LatLongMap};
+    use eikon_optics::{Environment, LatLongMap};
     let dir = Scratch::new("exr");
     let stats = fuzz(
         "exr",

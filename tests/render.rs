@@ -5,9 +5,10 @@
 
 use eikon_grid::ray::{trace, TraceOptions};
 use eikon_grid::{AnalyticField, Form, Medium, Method, Scene};
+use eikon_optics::{hg, Camera, Image};
 use eikon_view::background::load_environment;
 use eikon_view::render::camera_settings;
-use eikon_view::{hg, Camera, Image, Options, Renderer, Surroundings};
+use eikon_view::{Options, Renderer, Surroundings};
 use eikon_wavefront::{simulate_light, LightVolume};
 use glam::DVec3;
 
@@ -28,7 +29,7 @@ fn setup(text: &str) -> (Scene, Medium, Vec<LightVolume>) {
 }
 
 fn camera(scene: &Scene) -> Camera {
-    Camera::from_settings(&camera_settings(scene)).unwrap()
+    eikon_view::render::camera(&camera_settings(scene)).unwrap()
 }
 
 /// Render with `opts`; also returns the camera.
@@ -209,7 +210,7 @@ colors = [[1, 1, 1], [1, 1, 1]]
 "#;
     let (scene, medium, volumes) = setup(text);
     let (img, _) = render(&scene, &medium, &volumes, Options::default());
-    let want = eikon_view::fresnel::reflectance(45f64.to_radians().cos(), 1.0, 1.5);
+    let want = eikon_optics::fresnel::reflectance(45f64.to_radians().cos(), 1.0, 1.5);
     let got = img.pixel(2, 2).unwrap()[1] as f64;
     println!("reflection at 45 degrees: {got:.5}, Fresnel R = {want:.5}");
     assert!((got / want - 1.0).abs() < 0.01, "{got} vs {want}");

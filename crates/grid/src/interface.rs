@@ -24,9 +24,9 @@
 //! keeps all its power (`R` is not applied).
 
 use crate::field::Medium;
-use crate::fresnel;
 use crate::geometry::Trilinear;
 use crate::ray::IndexField;
+use eikon_optics::fresnel;
 use glam::DVec3;
 use rayon::prelude::*;
 

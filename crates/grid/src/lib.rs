@@ -15,7 +15,6 @@
 pub mod animation;
 pub mod error;
 pub mod field;
-pub mod fresnel;
 pub mod geometry;
 pub mod interface;
 pub mod mesh;

@@ -11,8 +11,8 @@
 //! lights directly: a directional light's irradiance, or a point or spot
 //! light's `P / (4 pi r^2)` (times the cone weight for a spot).
 
-use crate::environment::{Environment, EnvironmentError, LatLongMap};
 use eikon_grid::{Background, GridGeometry, Light, Receiver, Scene, Trilinear};
+use eikon_optics::environment::{Environment, EnvironmentError, LatLongMap};
 use eikon_wavefront::volume::mean_cosine;
 use eikon_wavefront::LightVolume;
 use glam::DVec3;
@@ -220,7 +220,7 @@ fn direct(light: &Light, x: DVec3, n: DVec3) -> DVec3 {
             power,
         } => {
             let to = (x - *position).normalize_or_zero();
-            let w = eikon_wavefront::light::cone_weight(to, Some((*direction, *angle, *falloff)));
+            let w = eikon_optics::spot::cone_weight(to, Some((*direction, *angle, *falloff)));
             point_irradiance(*position, *power, x, n, w)
         }
     }

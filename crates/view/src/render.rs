@@ -38,14 +38,12 @@
 //! is known to extend around it.
 
 use crate::background::{LightSample, Surroundings};
-use crate::camera::Camera;
-use crate::fresnel;
-use crate::image::Image;
 use crate::macrocell::MacroCells;
-use crate::phase::hg;
 use crate::properties::Properties;
 use eikon_grid::ray::step_rk4;
 use eikon_grid::{CameraSettings, Form, IndexField, Medium, Method, RayState, Scene};
+use eikon_optics::phase::hg;
+use eikon_optics::{fresnel, Camera, CameraError, Image};
 use eikon_wavefront::LightVolume;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -99,6 +97,25 @@ pub fn camera_settings(scene: &Scene) -> CameraSettings {
         resolution: [800, 600],
         samples: 1,
     }
+}
+
+/// The camera that `settings` describe: a scene's `[camera]` or the
+/// default of [`camera_settings`], with whatever the caller changed.
+///
+/// # Errors
+///
+/// As [`Camera::new`].
+pub fn camera(settings: &CameraSettings) -> Result<Camera, CameraError> {
+    let c = settings;
+    Camera::new(
+        c.position,
+        c.target,
+        c.up,
+        c.fov,
+        c.resolution[0],
+        c.resolution[1],
+        c.samples,
+    )
 }
 
 /// Render progress: `(tiles done, tiles in all)`.

@@ -66,12 +66,13 @@
 //! summary are therefore bitwise the same for any thread count.
 
 use crate::deposit::Counters;
-use crate::light::{self, cone_weight, PlaneFrame};
+use crate::light::{self, PlaneFrame};
 use crate::propagate::{step_depth, Bounded};
 use crate::{Error, LightVolume, Options, Summary};
 use eikon_grid::interface::{probe_length, Interfaces};
 use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
 use eikon_grid::{EmptySpace, Form, GridGeometry, IndexField, Light, Medium, Method, RayState};
+use eikon_optics::spot::cone_weight;
 use glam::DVec3;
 use rayon::prelude::*;
 use std::f64::consts::PI;

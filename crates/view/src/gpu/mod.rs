@@ -37,15 +37,13 @@
 //! ([`GpuRenderer::render_with_stats`]) within 0.4% of the CPU's.
 
 use crate::background::Surroundings;
-use crate::camera::Camera;
-use crate::environment::Environment;
-use crate::image::Image;
 use crate::macrocell::{MacroCells, BLOCK};
-use crate::phase::G_MAX;
 use crate::properties::Properties;
 use crate::render::{probe_length, Options, Stats, MIRROR_COS};
 use eikon_gpu::{texture_bytes, Buffer, Gpu, GpuError, Texture, MIN_BUFFER_BYTES};
 use eikon_grid::{Light, Medium, Method};
+use eikon_optics::phase::G_MAX;
+use eikon_optics::{Camera, Environment, Image};
 use eikon_wavefront::LightVolume;
 use std::time::Instant;
 

@@ -388,7 +388,7 @@ fn receiver_hit(o: vec3<f32>, d: vec3<f32>, max_t: f32) -> f32 {
     return -1.0;
 }
 
-// wavefront light.rs `cone_weight`.
+// `eikon_optics::spot::cone_weight`.
 fn cone_weight(dir: vec3<f32>, axis: vec3<f32>, angle: f32, falloff: f32) -> f32 {
     let theta = degrees(acos(clamp(dot(dir, axis), -1.0, 1.0)));
     if theta >= angle {

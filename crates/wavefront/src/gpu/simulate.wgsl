@@ -1020,7 +1020,7 @@ fn gone(x: vec3<f32>, d: vec3<f32>) -> bool {
     return !contains(x) && (!clip.hit || clip.t1 <= 0.0);
 }
 
-// A spot light's weight of unit direction `dir` (`light::cone_weight`).
+// A spot light's weight of unit direction `dir` (`eikon_optics::spot::cone_weight`).
 fn cone_weight(dir: vec3<f32>) -> f32 {
     if (P.inc_kind != 2u) {
         return 1.0;

@@ -95,24 +95,6 @@ pub struct Camera {
 }
 
 impl Camera {
-    /// The camera a scene's `[camera]` settings describe (see
-    /// [`crate::render::camera_settings`] for the defaults).
-    ///
-    /// # Errors
-    ///
-    /// As [`Camera::new`].
-    pub fn from_settings(c: &eikon_grid::CameraSettings) -> Result<Camera, CameraError> {
-        Camera::new(
-            c.position,
-            c.target,
-            c.up,
-            c.fov,
-            c.resolution[0],
-            c.resolution[1],
-            c.samples,
-        )
-    }
-
     /// Builds a camera at `position` looking at `target`, with `up` fixing the
     /// roll (it need not be orthogonal to the view direction, nor unit length).
     ///

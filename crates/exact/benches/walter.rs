@@ -10,10 +10,10 @@
 //!   K = 16 reference (the sweep is printed before the timings).
 
 use criterion::{criterion_group, criterion_main, Criterion};
+use eikon_exact::single::{self, MeshLight, MeshMedium, Method};
+use eikon_exact::walter::{self, Mode, Options, PnTree};
 use eikon_mesh::{icosphere, BumpySphere};
-use eikon_view::single::{self, MeshLight, MeshMedium, Method};
-use eikon_view::walter::{self, Mode, Options, PnTree};
-use eikon_view::{Camera, Image};
+use eikon_optics::{Camera, Image};
 use glam::DVec3;
 use std::hint::black_box;
 use std::time::Instant;

@@ -2,11 +2,11 @@
 //! 2009, Holzschuch 2015) and nested dielectrics in the Snell tracer
 //! (Schmidt & Budge 2002). Run with `--nocapture` for the measured numbers.
 
+use eikon_exact::single::{self, MediumError, MeshLight, MeshMedium, Method, Settings};
+use eikon_exact::snell::{self, Body, Scene};
+use eikon_exact::walter::{self, Mode, Options, PnTree};
 use eikon_mesh::{cuboid, icosphere, BumpySphere, Bvh, Mesh, MeshError, Ray};
-use eikon_view::single::{self, MediumError, MeshLight, MeshMedium, Method, Settings};
-use eikon_view::snell::{self, Body, Scene};
-use eikon_view::walter::{self, Mode, Options, PnTree};
-use eikon_view::{Camera, Image};
+use eikon_optics::{Camera, Image};
 use glam::{DAffine3, DVec3};
 use std::collections::BTreeSet;
 
@@ -269,7 +269,7 @@ fn brute_pixel(
     };
     let ng = hit.geometric_normal;
     let eta = medium.index;
-    let iface = eikon_view::fresnel::interface(d, ng, 1.0, eta);
+    let iface = eikon_optics::fresnel::interface(d, ng, 1.0, eta);
     let din = iface.refracted.unwrap();
     let exit = bvh
         .closest_hit(&Ray::segment(hit.point, din, 1e-9, f64::INFINITY))

@@ -4,7 +4,7 @@
 use super::func::Problem;
 use super::newton::newton2;
 use super::*;
-use crate::fresnel;
+use eikon_optics::fresnel;
 use std::time::Instant;
 
 /// SplitMix64: seeded, reproducible.
@@ -719,7 +719,7 @@ fn contribution_is_eq17() {
     // Eye looking back along the light's direction of travel: forward
     // scattering, the phase function's peak.
     let c = contribution(&tri, &s, &medium, 3.0, s.omega_v * 2.0);
-    assert!((c.phase - crate::phase::hg(1.0, 0.6)).abs() < 1e-12);
+    assert!((c.phase - eikon_optics::phase::hg(1.0, 0.6)).abs() < 1e-12);
     let cos_i = s.omega_l.z;
     assert!((c.transmittance - fresnel::transmittance(cos_i, 1.0, 1.5)).abs() < 1e-15);
     assert!((c.attenuation - (-0.8 * (v - s.point).length()).exp()).abs() < 1e-15);
