@@ -468,13 +468,7 @@ pub fn render_image(
             "warning: no --light volumes given: in-scatter and the receiver are dark (run `eikon simulate` first, or `eikon run`)"
         );
     }
-    let gpu = match backend {
-        Backend::Gpu(g) => {
-            let size = eikon_view::gpu::DeviceSize::of(medium, volumes, &env, &camera, &opts);
-            crate::grid::gpu_host_bytes(g, eikon_view::gpu::GpuRenderer::device_bytes(&size))
-        }
-        Backend::Cpu => None,
-    };
+    let gpu = backend.renderer_host_bytes(medium, volumes, &env, &camera, &opts);
     crate::grid::check_memory(
         scene,
         &crate::grid::Needs {
@@ -487,6 +481,7 @@ pub fn render_image(
     )?;
     let surroundings = Surroundings::new(scene, env, volumes, &medium.geometry);
     crate::backend::announce();
+    #[cfg(feature = "gpu")]
     if let Backend::Gpu(gpu) = backend {
         let started = Instant::now();
         let renderer =

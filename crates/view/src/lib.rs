@@ -2,6 +2,7 @@
 //! rays through the voxelized medium, lit by the light volumes.
 
 pub mod background;
+#[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod macrocell;
 pub mod properties;

@@ -7,6 +7,7 @@
 //! ([`psnr`]). `cargo test --release -p eikon-view --test gpu --
 //! --nocapture` prints the measured numbers; those quoted in the doc
 //! comments were measured on lavapipe (llvmpipe, Vulkan).
+#![cfg(feature = "gpu")]
 
 use eikon_gpu::Gpu;
 use eikon_grid::{Medium, Method, Scene};

@@ -24,6 +24,7 @@
 //! whatever the number of threads.
 
 pub mod deposit;
+#[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod histopyramid;
 pub mod light;
@@ -173,6 +174,7 @@ pub enum Error {
     #[error(transparent)]
     Scene(#[from] eikon_grid::Error),
     /// The GPU backend failed (no adapter, a limit, a validation error).
+    #[cfg(feature = "gpu")]
     #[error(transparent)]
     Gpu(#[from] eikon_gpu::GpuError),
     /// A value of the light volume or of the energy account is not finite

@@ -2,6 +2,7 @@
 //! or DX12 adapter: CI installs Mesa's lavapipe and sets `CI` and
 //! `WGPU_BACKEND=vulkan`, and there a missing adapter fails the test
 //! instead of skipping it.
+#![cfg(feature = "gpu")]
 
 use eikon_gpu::Gpu;
 use eikon_wavefront::gpu::GpuHistoPyramid;
