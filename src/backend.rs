@@ -14,9 +14,9 @@ use anyhow::Result;
 use clap::ValueEnum;
 #[cfg(feature = "gpu")]
 use eikon_gpu::{Gpu, GpuError};
-use eikon_grid::{Light, Medium};
+use eikon_grid::{Light, Medium, Progress};
 use eikon_optics::{Camera, Environment};
-use eikon_wavefront::{LightVolume, Progress, Summary};
+use eikon_wavefront::{LightVolume, Summary};
 use std::sync::Mutex;
 
 /// The `--backend` values.

@@ -5,7 +5,7 @@ use crate::backend::Backend;
 use crate::output::{build_medium, write_all_atomic};
 use anyhow::{bail, Context, Result};
 use clap::ValueEnum;
-use eikon_grid::{Medium, Method, Scene};
+use eikon_grid::{ray, Medium, Scene};
 use eikon_optics::{encode_exr, encode_png, Camera, Exposure, Image, ToneMap};
 use eikon_view::{Options, Renderer, Stats, Surroundings};
 use eikon_wavefront::lightdir::{LightDir, SIDECAR};
@@ -444,9 +444,9 @@ pub fn render_image(
     let r = &scene.render;
     let opts = Options {
         step: overrides.step.unwrap_or(r.step),
-        method: match overrides.integrator {
-            Some(Integrator::Euler) => Method::Euler,
-            Some(Integrator::Rk4) => Method::Rk4,
+        integrator: match overrides.integrator {
+            Some(Integrator::Euler) => ray::Integrator::Euler,
+            Some(Integrator::Rk4) => ray::Integrator::Rk4,
             None => r.integrator,
         },
         skip_empty: !overrides.no_skip,

@@ -4,7 +4,7 @@ use crate::backend::{Backend, BackendFlag};
 use crate::output::build_medium;
 use anyhow::{bail, Result};
 use clap::ValueEnum;
-use eikon_grid::{Medium, Method, Scene};
+use eikon_grid::{ray, Medium, Scene};
 use eikon_wavefront::lightdir::{self, LightSummary, Run, RunOptions};
 use eikon_wavefront::photons::simulate_photons;
 use eikon_wavefront::{check_scene, DepositRule, LightVolume, Options, Summary};
@@ -209,9 +209,9 @@ impl Args {
     fn options(&self) -> Result<Options> {
         let opts = Options {
             step: self.step,
-            method: match self.integrator {
-                Integrator::Euler => Method::Euler,
-                Integrator::Rk4 => Method::Rk4,
+            integrator: match self.integrator {
+                Integrator::Euler => ray::Integrator::Euler,
+                Integrator::Rk4 => ray::Integrator::Rk4,
             },
             patch_size: self.patch_size,
             split: self.split,
@@ -532,7 +532,7 @@ pub fn simulate(
         .into(),
         options: RunOptions {
             step_voxels: opts.step,
-            integrator: format!("{:?}", opts.method),
+            integrator: format!("{:?}", opts.integrator),
             patch_size_voxels: opts.patch_size,
             split_voxels: opts.split,
             threshold: opts.threshold,

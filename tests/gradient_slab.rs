@@ -24,7 +24,7 @@
 //! measured values.
 
 use eikon_grid::ray::{trace, Status, TraceOptions};
-use eikon_grid::{Form, Medium, Method, Scene};
+use eikon_grid::{Form, Integrator, Medium, Scene};
 use eikon_view::background::load_environment;
 use eikon_view::render::{camera, camera_settings};
 use eikon_view::{Options, Renderer, Surroundings};
@@ -171,7 +171,7 @@ fn eye_rays_follow_the_catenary() {
     let h = geom.voxel_size();
     let field = medium.field(0);
     let cam = camera(&camera_settings(&scene)).unwrap();
-    let mut opts = TraceOptions::in_voxels(geom, Form::EqualDistance, Method::Rk4, 0.25);
+    let mut opts = TraceOptions::in_voxels(geom, Form::EqualDistance, Integrator::Rk4, 0.25);
     opts.record_path = true;
     // Centre column from 2 to 13 degrees down, and three off-centre rays.
     for &(px, py) in &[
@@ -279,7 +279,7 @@ fn the_image_shows_the_sky_upside_down_below_the_horizon() {
     let s = Surroundings::new(&scene, env, &[], &medium.geometry);
     let opts = Options {
         step: scene.render.step,
-        method: scene.render.integrator,
+        integrator: scene.render.integrator,
         seed: scene.render.seed,
         ..Options::default()
     };

@@ -4,7 +4,7 @@
 //! errors.
 
 use eikon_grid::ray::{trace, TraceOptions};
-use eikon_grid::{AnalyticField, Form, Medium, Method, Scene};
+use eikon_grid::{AnalyticField, Form, Integrator, Medium, Scene};
 use eikon_optics::{hg, Camera, Image};
 use eikon_view::background::load_environment;
 use eikon_view::render::camera_settings;
@@ -378,7 +378,8 @@ fn a_luneburg_lens_images_the_checkerboard_as_the_ray_map_predicts() {
     let (scene, medium, volumes) = setup(LUNEBURG);
     let (img, cam) = render(&scene, &medium, &volumes, Options::default());
     let field = AnalyticField::new(&scene, 0);
-    let opts = TraceOptions::in_voxels(&medium.geometry, Form::EqualDistance, Method::Rk4, 0.05);
+    let opts =
+        TraceOptions::in_voxels(&medium.geometry, Form::EqualDistance, Integrator::Rk4, 0.05);
     let (square, board_z) = (0.4, -1.2);
     let (mut judged, mut agree, mut through_lens) = (0, 0, 0);
     for y in 0..cam.height() {
@@ -453,12 +454,12 @@ colors = [[1, 1, 1], [0, 0, 0]]
     let (scene, medium, volumes) = setup(text);
     // RK4, so that what is compared is dispersion, not Euler's error.
     let opts = Options {
-        method: Method::Rk4,
+        integrator: Integrator::Rk4,
         step: 0.25,
         ..Options::default()
     };
     let (img, cam) = render(&scene, &medium, &volumes, opts);
-    let opts = TraceOptions::in_voxels(&medium.geometry, Form::EqualDistance, Method::Rk4, 0.1);
+    let opts = TraceOptions::in_voxels(&medium.geometry, Form::EqualDistance, Integrator::Rk4, 0.1);
     let mut seen = [0.0; 3];
     let mut predicted = [0.0; 3];
     for c in 0..3 {

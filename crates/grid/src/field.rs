@@ -61,8 +61,9 @@ pub struct Medium {
 }
 
 /// Progress callback of [`Medium::build_with_progress`]: `(stage, done,
-/// total)` units of work; called from worker threads.
-pub type Progress<'a> = &'a (dyn Fn(&'static str, u64, u64) + Sync);
+/// total)` units of work; called from worker threads. Building has named
+/// stages (rasterize, smooth, ...), so it says which one is running.
+pub type BuildProgress<'a> = &'a (dyn Fn(&'static str, u64, u64) + Sync);
 
 /// Memory needed for a medium, in bytes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -128,13 +129,13 @@ impl Medium {
     }
 
     /// [`Medium::build`], reporting `(stage, done, total)` as it goes.
-    pub fn build_with_progress(scene: &Scene, progress: Progress) -> Result<Medium> {
+    pub fn build_with_progress(scene: &Scene, progress: BuildProgress) -> Result<Medium> {
         Self::build_within(scene, available_memory().unwrap_or(u128::MAX), progress)
     }
 
     /// [`Medium::build_with_progress`] refusing a grid whose build needs
     /// more than `avail` bytes (instead of the memory the system reports).
-    pub fn build_within(scene: &Scene, avail: u128, progress: Progress) -> Result<Medium> {
+    pub fn build_within(scene: &Scene, avail: u128, progress: BuildProgress) -> Result<Medium> {
         let est = Self::memory_estimate(scene);
         if est.peak > avail {
             return Err(scene.error_at(

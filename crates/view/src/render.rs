@@ -41,7 +41,7 @@ use crate::background::{LightSample, Surroundings};
 use crate::macrocell::MacroCells;
 use crate::properties::Properties;
 use eikon_grid::ray::step_rk4;
-use eikon_grid::{CameraSettings, Form, IndexField, Medium, Method, RayState, Scene};
+use eikon_grid::{CameraSettings, Form, IndexField, Integrator, Medium, Progress, RayState, Scene};
 use eikon_optics::phase::hg;
 use eikon_optics::{fresnel, Camera, CameraError, Image};
 use eikon_wavefront::LightVolume;
@@ -55,7 +55,7 @@ pub struct Options {
     /// Step length, voxels.
     pub step: f64,
     /// Integrator: Euler (eqs 11-12) or RK4.
-    pub method: Method,
+    pub integrator: Integrator,
     /// Cross empty blocks in one straight step.
     pub skip_empty: bool,
     /// Seed of the pixel sample jitter.
@@ -69,7 +69,7 @@ impl Default for Options {
     fn default() -> Self {
         Self {
             step: 0.5,
-            method: Method::Euler,
+            integrator: Integrator::Euler,
             skip_empty: true,
             seed: 0,
             min_transmittance: 1e-5,
@@ -117,9 +117,6 @@ pub fn camera(settings: &CameraSettings) -> Result<Camera, CameraError> {
         c.samples,
     )
 }
-
-/// Render progress: `(tiles done, tiles in all)`.
-pub type Progress<'a> = &'a (dyn Fn(usize, usize) + Sync);
 
 /// Mirror directions closer than this cosine (a quarter degree) share one
 /// lookup of the surroundings.
@@ -207,7 +204,8 @@ impl<'a> Renderer<'a> {
 
     /// Render the frame over tiles in parallel. The result does not depend
     /// on the number of threads: every pixel is computed on its own, its
-    /// samples summed in order.
+    /// samples summed in order. `progress` hears `(tiles done, tiles in
+    /// all)`.
     pub fn render(&self, progress: Progress) -> (Image, Stats) {
         let (w, h) = (self.camera.width(), self.camera.height());
         let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
@@ -377,8 +375,8 @@ impl<'a> Renderer<'a> {
             let x0 = walk.ray.x;
             let (n, grad) = field.sample(x0);
             self.gather(x0, (n, grad), dir, step, ch, &mut walk);
-            match self.opts.method {
-                Method::Euler => {
+            match self.opts.integrator {
+                Integrator::Euler => {
                     // Eqs 11-12 with the sample already taken.
                     let r = &mut walk.ray;
                     r.x += r.v * (step / n);

@@ -10,7 +10,7 @@
 #![cfg(feature = "gpu")]
 
 use eikon_gpu::Gpu;
-use eikon_grid::{Medium, Method, Scene};
+use eikon_grid::{Integrator, Medium, Scene};
 use eikon_optics::image::log_average_luminance;
 use eikon_optics::{Camera, Image};
 use eikon_view::background::load_environment;
@@ -312,7 +312,7 @@ square = 0.4
 colors = [[1, 0, 0], [0, 0, 1]]
 "#;
     let opts = Options {
-        method: Method::Rk4,
+        integrator: Integrator::Rk4,
         step: 0.25,
         ..Options::default()
     };

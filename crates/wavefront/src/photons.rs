@@ -71,7 +71,7 @@ use crate::propagate::{step_depth, Bounded};
 use crate::{Error, LightVolume, Options, Summary};
 use eikon_grid::interface::{probe_length, Interfaces};
 use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
-use eikon_grid::{EmptySpace, Form, GridGeometry, IndexField, Light, Medium, Method, RayState};
+use eikon_grid::{EmptySpace, Form, GridGeometry, IndexField, Integrator, Light, Medium, RayState};
 use eikon_optics::spot::cone_weight;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -105,7 +105,7 @@ pub fn working_bytes(cells: u128) -> u128 {
 /// same [`LightVolume`] the wavefront writes. `seed` picks the random numbers: the same
 /// seed gives bitwise the same result whatever the number of threads.
 ///
-/// Of `opts`, `step`, `method`, `threshold`, `max_steps` and `fresnel` apply, with
+/// Of `opts`, `step`, `integrator`, `threshold`, `max_steps` and `fresnel` apply, with
 /// the same meaning as for the wavefront. In the summary, `emitted` counts
 /// photons that entered the volume, `exited`, `absorbed` (below the
 /// threshold) and `step_limit` how they ended, `steps` is the longest
@@ -158,7 +158,7 @@ pub fn simulate_photons(
             grid,
             field: Bounded::new(medium, g),
             empty: EmptySpace::new(medium, g),
-            method: opts.method,
+            integrator: opts.integrator,
             dt,
             threshold: opts.threshold,
             max_steps,
@@ -448,7 +448,7 @@ struct Tracer<'a> {
     grid: &'a GridGeometry,
     field: Bounded<'a>,
     empty: EmptySpace,
-    method: Method,
+    integrator: Integrator,
     dt: f64,
     threshold: f64,
     max_steps: usize,
@@ -551,8 +551,8 @@ impl Tracer<'_> {
             } else {
                 let b = before.unwrap_or_else(|| self.extinction_per_index(x0));
                 // On the eikonal shell |v| = n, like the wavefront's corners.
-                match self.method {
-                    Method::Euler => {
+                match self.integrator {
+                    Integrator::Euler => {
                         step_euler_on_shell(&self.field, Form::EqualTime, &mut s, self.dt)
                     }
                     _ => step_rk4_on_shell(&self.field, Form::EqualTime, &mut s, self.dt),

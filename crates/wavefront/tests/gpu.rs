@@ -651,7 +651,7 @@ fn gpu_patch_limit_and_euler_match_the_cpu() {
             ..paper()
         },
         Options {
-            method: eikon_grid::Method::Euler,
+            integrator: eikon_grid::Integrator::Euler,
             ..paper()
         },
     ] {
@@ -661,7 +661,7 @@ fn gpu_patch_limit_and_euler_match_the_cpu() {
         let a = agreement(&cv, &gv);
         println!(
             "{:?}, max {}: held {} / {}, peak {} / {}; median {:.1e}, within 1% {:.4}, within 10% {:.4}, lit differ {}",
-            opts.method, opts.max_patches, cs.held, gs.held, cs.peak_patches, gs.peak_patches,
+            opts.integrator, opts.max_patches, cs.held, gs.held, cs.peak_patches, gs.peak_patches,
             a.median, a.within_1, a.within_10, a.lit_differs
         );
         assert!(gs.peak_patches <= opts.max_patches);

@@ -5,7 +5,7 @@ use super::locate::{Checker, Seg};
 use super::raw::{RawExtinction, RawGridMap, RawIndex, RawObject, RawProfile, RawShape};
 use super::MAX_EXTINCTION;
 use crate::error::Result;
-use crate::mesh::MeshSolid;
+use crate::mesh_solid::MeshSolid;
 use crate::object::{GridExtinction, GridIndex, IndexProfile, Material};
 use crate::shape::Shape;
 use crate::vdb::{FloatVolume, VdbError};

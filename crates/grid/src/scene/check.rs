@@ -488,8 +488,8 @@ fn check_render(c: &Checker, r: &RawRender) -> Result<RenderSettings> {
     Ok(RenderSettings {
         step,
         integrator: match r.integrator {
-            RawIntegrator::Euler => crate::ray::Method::Euler,
-            RawIntegrator::Rk4 => crate::ray::Method::Rk4,
+            RawIntegrator::Euler => crate::ray::Integrator::Euler,
+            RawIntegrator::Rk4 => crate::ray::Integrator::Rk4,
         },
         exposure: r.exposure,
         seed: r.seed,

@@ -147,7 +147,7 @@ pub struct RenderSettings {
     /// Step length, voxels.
     pub step: f64,
     /// Integrator of the eye rays: Euler (eqs 11-12) or RK4.
-    pub integrator: crate::ray::Method,
+    pub integrator: crate::ray::Integrator,
     /// Exposure in stops, or `None` for automatic exposure.
     pub exposure: Option<f64>,
     /// Seed of the pixel sample jitter.
@@ -158,7 +158,7 @@ impl Default for RenderSettings {
     fn default() -> Self {
         Self {
             step: default_render_step(),
-            integrator: crate::ray::Method::Euler,
+            integrator: crate::ray::Integrator::Euler,
             exposure: None,
             seed: 0,
         }

@@ -41,7 +41,7 @@ use crate::macrocell::{MacroCells, BLOCK};
 use crate::properties::Properties;
 use crate::render::{probe_length, Options, Stats, MIRROR_COS};
 use eikon_gpu::{texture_bytes, Buffer, Gpu, GpuError, Texture, MIN_BUFFER_BYTES};
-use eikon_grid::{Light, Medium, Method};
+use eikon_grid::{Integrator, Light, Medium};
 use eikon_optics::phase::G_MAX;
 use eikon_optics::{Camera, Environment, Image};
 use eikon_wavefront::LightVolume;
@@ -429,7 +429,7 @@ impl<'a> GpuRenderer<'a> {
             [nx as u32, ny as u32, nz as u32, channels as u32],
             [w, h, budget, surroundings.lights.len() as u32],
             [
-                u32::from(!matches!(opts.method, Method::Euler)),
+                u32::from(!matches!(opts.integrator, Integrator::Euler)),
                 u32::from(opts.skip_empty),
                 u32::from(properties.emission.is_some()),
                 u32::from(scatters),

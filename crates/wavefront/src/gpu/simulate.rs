@@ -87,10 +87,10 @@ use crate::deposit::Counters;
 use crate::patch::Patches;
 use crate::refine::Incident;
 use crate::{crossings_bound, power_bound, units_per_crossing, DepositRule, Summary};
-use crate::{propagate, refine, Error, LightVolume, Options, Progress};
+use crate::{propagate, refine, Error, LightVolume, Options};
 use eikon_gpu::{groups, texture_bytes, Buffer, Gpu, GpuError, Texture, MIN_BUFFER_BYTES};
 use eikon_grid::interface::{probe_length, Interfaces};
-use eikon_grid::{EmptySpace, Light, Medium, Method};
+use eikon_grid::{EmptySpace, Integrator, Light, Medium, Progress};
 use glam::DVec3;
 use ndarray::Array4;
 use std::sync::OnceLock;
@@ -766,7 +766,7 @@ impl<'a> GpuSimulator<'a> {
             params.v(0, grid.min);
             params.v(4, grid.spacing());
             params.v(8, 1.0 / grid.spacing());
-            params.0[11] = u32::from(opts.method != Method::Euler);
+            params.0[11] = u32::from(opts.integrator != Integrator::Euler);
             for a in 0..3 {
                 params.0[12 + a] = grid.dims[a] as u32;
                 params.0[20 + a] = (grid.dims[a] as f32 - 1.0).to_bits();

@@ -1,6 +1,6 @@
 // The wavefront light simulator on the GPU (Ihrke et al. 2007, 5.2): the
 // same steps, definitions and units as the CPU modules `propagate`,
-// `deposit`, `refine` and `voxelize` (see their docs), in f32. One thread
+// `deposit`, `refine` and `deposit::paper` (see their docs), in f32. One thread
 // per patch (or per output slot of the HistoPyramid walk). Two deposit
 // rules (`DepositRule`): the track-length fluence deposit inside the
 // propagate kernel (`propagate_tube`, 64-bit fixed-point counters), or the
@@ -1387,7 +1387,7 @@ fn expand(@builtin(global_invocation_id) id: vec3<u32>,
 }
 
 // ---------------------------------------------------------------------
-// Step 4: voxelization by the highest-energy rule (`voxelize`), with
+// Step 4: voxelization by the highest-energy rule (`deposit::paper`), with
 // atomics. A deposit's packed key is tier << 31 | bits(energy): energies
 // are non-negative floats, whose bits order like the values, so one
 // atomicMax picks the midpoint tier first, then the highest energy. Three
@@ -1404,7 +1404,7 @@ struct Deposit {
 
 // Whether the straight corner rays x + t u cross for some t in [lo, hi]:
 // the tube's oriented area along d, a quadratic in t, fails to stay
-// positive there (`voxelize::rays_cross`).
+// positive there (`deposit::paper::rays_cross`).
 fn rays_cross(x: array<vec3<f32>, 4>, u: array<vec3<f32>, 4>, d: vec3<f32>, lo: f32, hi: f32) -> bool {
     let a0 = x[2] - x[0];
     let a1 = u[2] - u[0];
@@ -1424,7 +1424,7 @@ fn rays_cross(x: array<vec3<f32>, 4>, u: array<vec3<f32>, 4>, d: vec3<f32>, lo: 
 }
 
 // Patch i's irradiance carried to the centre of cell `flat`
-// (`voxelize::deposit_at`).
+// (`deposit::paper::deposit_at`).
 fn deposit_at(i: u32, mid: vec3<f32>, d: vec3<f32>, ext: vec3<f32>, flat: u32, tier: u32) -> Deposit {
     let s = dot(d, voxel_center(flat) - mid);
     var m: array<vec3<f32>, 4>;
