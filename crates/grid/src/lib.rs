@@ -13,6 +13,7 @@
 //! * [`vdb`]: OpenVDB export (our own writer) and import of float grids.
 
 pub mod animation;
+pub mod blocks;
 pub mod error;
 pub mod field;
 pub mod geometry;

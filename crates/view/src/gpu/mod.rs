@@ -37,10 +37,11 @@
 //! ([`GpuRenderer::render_with_stats`]) within 0.4% of the CPU's.
 
 use crate::background::Surroundings;
-use crate::macrocell::{MacroCells, BLOCK};
+use crate::macrocell::MacroCells;
 use crate::properties::Properties;
 use crate::render::{probe_length, Options, Stats, MIRROR_COS};
 use eikon_gpu::{texture_bytes, Buffer, Gpu, GpuError, Texture, MIN_BUFFER_BYTES};
+use eikon_grid::blocks::BLOCK;
 use eikon_grid::{Integrator, Light, Medium};
 use eikon_optics::phase::G_MAX;
 use eikon_optics::{Camera, Environment, Image};
@@ -362,7 +363,7 @@ impl<'a> GpuRenderer<'a> {
             let cells: Vec<MacroCells> =
                 (0..channels).map(|c| MacroCells::new(medium, c)).collect();
             for m in &cells {
-                debug_assert_eq!(m.dims, blocks);
+                debug_assert_eq!(m.blocks.dims, blocks);
                 for c in &m.cells {
                     if c[0].is_nan() {
                         skip.extend([u32::MAX; 4]);

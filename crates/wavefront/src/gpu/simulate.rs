@@ -89,6 +89,7 @@ use crate::refine::Incident;
 use crate::{crossings_bound, power_bound, units_per_crossing, DepositRule, Summary};
 use crate::{propagate, refine, Error, LightVolume, Options};
 use eikon_gpu::{groups, texture_bytes, Buffer, Gpu, GpuError, Texture, MIN_BUFFER_BYTES};
+use eikon_grid::blocks::BLOCK;
 use eikon_grid::interface::{probe_length, Interfaces};
 use eikon_grid::{EmptySpace, Integrator, Light, Medium, Progress};
 use glam::DVec3;
@@ -255,20 +256,14 @@ fn texture(gpu: &Gpu, label: &str, dims: [usize; 3], data: &[f32]) -> Texture {
 /// read through its public lookup at each block's centre).
 fn empty_table(medium: &Medium, channel: usize) -> (Vec<f32>, [u32; 3], DVec3) {
     let empty = EmptySpace::new(medium, channel);
-    let g = &medium.geometry;
-    let b = EmptySpace::BLOCK;
-    let dims = g.dims.map(|d| d.div_ceil(b));
-    let block = g.spacing() * b as f64;
-    let mut out = Vec::with_capacity(dims[0] * dims[1] * dims[2]);
-    for i in 0..dims[0] {
-        for j in 0..dims[1] {
-            for k in 0..dims[2] {
-                let c = g.min + (DVec3::new(i as f64, j as f64, k as f64) + 0.5) * block;
-                out.push(empty.index_at(c).map_or(-1.0, |n| n as f32));
-            }
-        }
-    }
-    (out, dims.map(|d| d as u32), 1.0 / block)
+    let blocks = empty.blocks();
+    let out = (0..blocks.len())
+        .map(|f| {
+            let c = blocks.centre(blocks.coords(f));
+            empty.index_at(c).map_or(-1.0, |n| n as f32)
+        })
+        .collect();
+    (out, blocks.dims.map(|d| d as u32), blocks.inv_edge())
 }
 
 /// Growable GPU patch list.
@@ -533,7 +528,7 @@ impl<'a> GpuSimulator<'a> {
         let buffer = |bytes: u64| bytes.max(MIN_BUFFER_BYTES);
         let blocks = dims
             .iter()
-            .map(|&d| d.div_ceil(EmptySpace::BLOCK) as u64)
+            .map(|&d| d.div_ceil(BLOCK) as u64)
             .product::<u64>();
         let field = texture_bytes(dims, TEXEL);
         let channels = channels as u64;
