@@ -305,22 +305,17 @@ fn without_the_gpu_feature_the_gpu_backend_is_refused_and_the_default_is_the_cpu
     let dir = tempfile::tempdir().unwrap();
     let scene = write(dir.path(), "amber.toml", AMBER);
     let out = dir.path().join("gpu");
-    let o = eikon(&[
-        "simulate",
-        &scene,
-        "-o",
-        out.to_str().unwrap(),
-        "--backend",
-        "gpu",
-    ]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "{err}");
-    assert!(err.contains("built without the `gpu` feature"), "{err}");
-    assert!(!err.contains("panicked"), "{err}");
+    let args = ["simulate", &scene, "-o", out.to_str().unwrap()];
+    binary::expect_error_after_notes(
+        &[&args[..], &["--backend", "gpu"]].concat(),
+        &[
+            "built without the `gpu` feature",
+            "rebuild with default features",
+        ],
+    );
     assert!(!out.exists());
     let auto = dir.path().join("auto");
-    let o = eikon(&["simulate", &scene, "-o", auto.to_str().unwrap(), "--json"]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = eikon_ok(&["simulate", &scene, "-o", auto.to_str().unwrap(), "--json"]);
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(v["backend"].as_str().unwrap().starts_with("cpu"));
 }
