@@ -3,8 +3,9 @@
 //!
 //! The format is documented field by field in `docs/SCENES.md`. This
 //! module holds the checked scene and its public types; the schema serde
-//! reads is [`raw`], the checks [`check`], the files a scene names (meshes,
-//! VDB grids) [`assets`], and the location of errors [`locate`].
+//! reads is `scene/raw.rs`, the checks `scene/check.rs`, the files a scene
+//! names (meshes, VDB grids) `scene/assets.rs`, and the location of errors
+//! `scene/locate.rs`.
 
 mod assets;
 mod check;

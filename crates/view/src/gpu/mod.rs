@@ -19,7 +19,7 @@
 //!   one), each marching the same rays; pass 0 adds what needs no light
 //!   volume, every pass its volume's in-scatter and receiver light (the
 //!   image is linear in them).
-//! * Tone mapping stays on the host ([`crate::image`]).
+//! * Tone mapping stays on the host ([`eikon_optics::image`]).
 //!
 //! Differences from the CPU: f32 instead of f64 arithmetic (the plane-hit
 //! rounding allowance is 2e-6 instead of 1e-9 of the scene's scale), and
