@@ -5,11 +5,9 @@ use crate::backend::Backend;
 use crate::output::{build_medium, write_all_atomic};
 use anyhow::{bail, Context, Result};
 use clap::ValueEnum;
-use eikon_grid::{Medium, Method, Scene};
-use eikon_view::{
-    encode_exr, encode_png, Camera, Exposure, Image, Options, Renderer, Stats, Surroundings,
-    ToneMap,
-};
+use eikon_grid::{ray, Medium, Scene};
+use eikon_optics::{encode_exr, encode_png, Camera, Exposure, Image, ToneMap};
+use eikon_view::{Options, Renderer, Stats, Surroundings};
 use eikon_wavefront::lightdir::{LightDir, SIDECAR};
 use eikon_wavefront::LightVolume;
 use glam::DVec3;
@@ -206,7 +204,7 @@ pub fn run(args: Args) -> Result<()> {
 
 /// Render `scene` by an exact mesh method (`--method walter`, ...): the
 /// image, its statistics and the seconds it took.
-fn exact_image(scene: &Scene, args: &Args) -> Result<(Image, eikon_view::single::Stats, f64)> {
+fn exact_image(scene: &Scene, args: &Args) -> Result<(Image, eikon_exact::single::Stats, f64)> {
     let camera = camera(scene, &args.overrides)?;
     let method = crate::exact::method(args.method.name(), args.exact.scatter_samples)?;
     let seed = args.overrides.seed.unwrap_or(scene.render.seed);
@@ -377,7 +375,7 @@ pub fn camera(scene: &Scene, overrides: &Overrides) -> Result<Camera> {
             cs.samples
         );
     }
-    Camera::from_settings(&cs).with_context(|| format!("{}: camera", scene.origin))
+    eikon_view::render::camera(&cs).with_context(|| format!("{}: camera", scene.origin))
 }
 
 /// The largest image side, pixels (as the scene's `[camera] resolution`).
@@ -446,9 +444,9 @@ pub fn render_image(
     let r = &scene.render;
     let opts = Options {
         step: overrides.step.unwrap_or(r.step),
-        method: match overrides.integrator {
-            Some(Integrator::Euler) => Method::Euler,
-            Some(Integrator::Rk4) => Method::Rk4,
+        integrator: match overrides.integrator {
+            Some(Integrator::Euler) => ray::Integrator::Euler,
+            Some(Integrator::Rk4) => ray::Integrator::Rk4,
             None => r.integrator,
         },
         skip_empty: !overrides.no_skip,
@@ -470,13 +468,7 @@ pub fn render_image(
             "warning: no --light volumes given: in-scatter and the receiver are dark (run `eikon simulate` first, or `eikon run`)"
         );
     }
-    let gpu = match backend {
-        Backend::Gpu(g) => {
-            let size = eikon_view::gpu::DeviceSize::of(medium, volumes, &env, &camera, &opts);
-            crate::grid::gpu_host_bytes(g, eikon_view::gpu::GpuRenderer::device_bytes(&size))
-        }
-        Backend::Cpu => None,
-    };
+    let gpu = backend.renderer_host_bytes(medium, volumes, &env, &camera, &opts);
     crate::grid::check_memory(
         scene,
         &crate::grid::Needs {
@@ -489,6 +481,7 @@ pub fn render_image(
     )?;
     let surroundings = Surroundings::new(scene, env, volumes, &medium.geometry);
     crate::backend::announce();
+    #[cfg(feature = "gpu")]
     if let Backend::Gpu(gpu) = backend {
         let started = Instant::now();
         let renderer =
@@ -552,7 +545,7 @@ fn report(
                 "seconds": seconds,
                 "ray_steps": stats.steps,
                 "empty_skips": stats.skips,
-                "mean_luminance": image.data.iter().map(|&p| eikon_view::image::luminance(p)).sum::<f64>() / image.data.len().max(1) as f64,
+                "mean_luminance": image.data.iter().map(|&p| eikon_optics::image::luminance(p)).sum::<f64>() / image.data.len().max(1) as f64,
             }))?
         );
     } else {

@@ -3,7 +3,7 @@
 use crate::output::{fmt_vec, parse_vec3};
 use anyhow::{bail, Result};
 use clap::ValueEnum;
-use eikon_grid::{trace, AnalyticField, Form, IndexField, Method, Scene, TraceOptions};
+use eikon_grid::{ray, trace, AnalyticField, Form, IndexField, Scene, TraceOptions};
 use glam::DVec3;
 use serde_json::json;
 use std::path::PathBuf;
@@ -102,9 +102,9 @@ pub fn run(args: Args) -> Result<()> {
         FormArg::Time => Form::EqualTime,
     };
     let method = match args.integrator {
-        Integrator::Euler => Method::Euler,
-        Integrator::Rk4 => Method::Rk4,
-        Integrator::Dopri5 => Method::DormandPrince,
+        Integrator::Euler => ray::Integrator::Euler,
+        Integrator::Rk4 => ray::Integrator::Rk4,
+        Integrator::Dopri5 => ray::Integrator::DormandPrince,
     };
     let opts = TraceOptions {
         tolerance: args.tolerance * geom.voxel_size(),

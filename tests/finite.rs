@@ -64,7 +64,7 @@ fn slab(sigma: f64, offset: f64, direction: &str) -> String {
 /// Before the fix the paper's deposit carried patches back to cell
 /// centres behind them with `exp(+sigma |s|)`: in the oblique slab its
 /// peak was 1.16 at sigma 10, 6.6 at 100, 291 at 300, 1.6e8 at 1000, and at
-/// 1e4 it wrote 1347 infinite fluence values (see `voxelize`).
+/// 1e4 it wrote 1347 infinite fluence values (see `deposit::paper`).
 ///
 /// Tolerances. Cell by cell: 1e-6 of the incident (f32 rounding; measured
 /// 0). "At most the incident" along the axis: 1e-4 (the

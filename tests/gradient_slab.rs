@@ -24,10 +24,10 @@
 //! measured values.
 
 use eikon_grid::ray::{trace, Status, TraceOptions};
-use eikon_grid::{Form, Medium, Method, Scene};
+use eikon_grid::{Form, Integrator, Medium, Scene};
 use eikon_view::background::load_environment;
-use eikon_view::render::camera_settings;
-use eikon_view::{Camera, Options, Renderer, Surroundings};
+use eikon_view::render::{camera, camera_settings};
+use eikon_view::{Options, Renderer, Surroundings};
 use glam::DVec3;
 use std::path::Path;
 
@@ -170,8 +170,8 @@ fn eye_rays_follow_the_catenary() {
     let geom = &medium.geometry;
     let h = geom.voxel_size();
     let field = medium.field(0);
-    let cam = Camera::from_settings(&camera_settings(&scene)).unwrap();
-    let mut opts = TraceOptions::in_voxels(geom, Form::EqualDistance, Method::Rk4, 0.25);
+    let cam = camera(&camera_settings(&scene)).unwrap();
+    let mut opts = TraceOptions::in_voxels(geom, Form::EqualDistance, Integrator::Rk4, 0.25);
     opts.record_path = true;
     // Centre column from 2 to 13 degrees down, and three off-centre rays.
     for &(px, py) in &[
@@ -274,12 +274,12 @@ fn the_image_shows_the_sky_upside_down_below_the_horizon() {
     let mut settings = camera_settings(&scene);
     settings.resolution = [160, 120];
     settings.samples = 1;
-    let cam = Camera::from_settings(&settings).unwrap();
+    let cam = camera(&settings).unwrap();
     let env = load_environment(&scene.background).unwrap();
     let s = Surroundings::new(&scene, env, &[], &medium.geometry);
     let opts = Options {
         step: scene.render.step,
-        method: scene.render.integrator,
+        integrator: scene.render.integrator,
         seed: scene.render.seed,
         ..Options::default()
     };

@@ -367,7 +367,7 @@ fn bad_settings_and_scenes_are_refused() {
         ),
         (
             Options {
-                method: eikon_grid::Method::DormandPrince,
+                integrator: eikon_grid::Integrator::DormandPrince,
                 ..Options::default()
             },
             "method",
@@ -422,7 +422,7 @@ fn wavefront_drift(text: &str, length: f64, step: f64) -> (f64, f64, usize) {
         medium: &m,
         field: &field,
         empty: &empty,
-        method: eikon_grid::Method::Rk4,
+        integrator: eikon_grid::Integrator::Rk4,
         dt,
         interfaces: None,
         channel: 0,
@@ -492,7 +492,7 @@ fn particles_stay_on_one_wavefront() {
 fn no_spikes_where_patches_graze_a_refracting_sphere() {
     // A weakly refracting, absorbing sphere lit from behind: grazing
     // patches fold in its smoothed interface band. Without the caustic
-    // rule of `voxelize`, cells there held over 500 times the unrefracted
+    // rule of `deposit::paper`, cells there held over 500 times the unrefracted
     // 1/r^2 irradiance (a speckled ring); refraction and absorption alone
     // stay within a small factor of it.
     let light = DVec3::new(0.4, 0.6, -2.5);

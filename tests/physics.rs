@@ -9,13 +9,17 @@
 
 use eikon_grid::ray::{step_euler, step_rk4};
 use eikon_grid::{
-    trace, AnalyticField, Form, GridGeometry, IndexField, Medium, Method, RayEnd, RayState, Scene,
-    Status, TraceOptions,
+    trace, AnalyticField, Form, GridGeometry, IndexField, Integrator, Medium, RayEnd, RayState,
+    Scene, Status, TraceOptions,
 };
 use glam::DVec3;
 
 const FORMS: [Form; 2] = [Form::EqualDistance, Form::EqualTime];
-const METHODS: [Method; 3] = [Method::Euler, Method::Rk4, Method::DormandPrince];
+const METHODS: [Integrator; 3] = [
+    Integrator::Euler,
+    Integrator::Rk4,
+    Integrator::DormandPrince,
+];
 
 // ---------------------------------------------------------------------------
 // Shared helpers.
@@ -43,7 +47,7 @@ fn domain_size(geom: &GridGeometry) -> f64 {
 }
 
 /// Trace options with `step` given in voxels of `geom`.
-fn options(geom: &GridGeometry, method: Method, form: Form, step_voxels: f64) -> TraceOptions {
+fn options(geom: &GridGeometry, method: Integrator, form: Form, step_voxels: f64) -> TraceOptions {
     TraceOptions {
         tolerance: 1e-9,
         record_path: true,
@@ -64,7 +68,7 @@ fn trace_exit<F: IndexField>(
         end.status,
         Status::Exited,
         "ray from {origin} along {dir} ({:?} {:?}) did not exit: {end:?}",
-        opts.method,
+        opts.integrator,
         opts.form
     );
     end
@@ -226,7 +230,7 @@ index = {{ type = "linear", n0 = {}, gradient = {}, origin = {} }}
 /// in world units.
 fn catenary_trace_errors<F: IndexField>(field: &F, geom: &GridGeometry) -> (f64, f64) {
     let cat = Catenary::standard();
-    let opts = options(geom, Method::Rk4, Form::EqualDistance, 0.5);
+    let opts = options(geom, Integrator::Rk4, Form::EqualDistance, 0.5);
     let end = trace_exit(field, geom, cat.p0, cat.d0, &opts);
     let turn = angle_deg(cat.d0, end.direction);
     assert!(
@@ -384,7 +388,7 @@ fn luneburg_misses<F: IndexField>(
     let e1 = tangent(dir, DVec3::Y);
     let e2 = dir.cross(e1);
     let focus = center + dir * radius;
-    let opts = options(geom, Method::Rk4, Form::EqualDistance, 0.5);
+    let opts = options(geom, Integrator::Rk4, Form::EqualDistance, 0.5);
     let mut misses = Vec::new();
     for azimuth in [0.0f64, 100.0, 230.0] {
         let (s, c) = azimuth.to_radians().sin_cos();
@@ -456,17 +460,17 @@ index = {{ type = "luneburg" }}
 fn fixed_length_error<F: IndexField>(
     field: &F,
     cat: &Catenary,
-    method: Method,
+    integrator: Integrator,
     length: f64,
     steps: usize,
 ) -> f64 {
     let h = length / steps as f64;
     let mut s = RayState::new(cat.p0, cat.d0, cat.index(cat.p0));
     for _ in 0..steps {
-        match method {
-            Method::Euler => step_euler(field, Form::EqualDistance, &mut s, h),
-            Method::Rk4 => step_rk4(field, Form::EqualDistance, &mut s, h),
-            Method::DormandPrince => unreachable!("fixed-step methods only"),
+        match integrator {
+            Integrator::Euler => step_euler(field, Form::EqualDistance, &mut s, h),
+            Integrator::Rk4 => step_rk4(field, Form::EqualDistance, &mut s, h),
+            Integrator::DormandPrince => unreachable!("fixed-step methods only"),
         }
     }
     (s.x - cat.point_at(length)).length()
@@ -480,10 +484,10 @@ fn integrators_converge_at_their_order() {
     // Arc length 0.8 of the unit cube; the ray turns by ~20 degrees over it.
     let length = 0.8;
     assert!(angle_deg(cat.d0, cat.direction_at(length)) > 10.0);
-    let cases: [(Method, &[usize], f64, f64); 2] = [
+    let cases: [(Integrator, &[usize], f64, f64); 2] = [
         // RK4 errors well above round-off at these step counts.
-        (Method::Rk4, &[8, 16, 32], 12.0, 20.0),
-        (Method::Euler, &[200, 400, 800], 1.7, 2.3),
+        (Integrator::Rk4, &[8, 16, 32], 12.0, 20.0),
+        (Integrator::Euler, &[200, 400, 800], 1.7, 2.3),
     ];
     for (method, steps, lo, hi) in cases {
         let errs: Vec<f64> = steps
@@ -528,7 +532,7 @@ fn interface_error<F: IndexField>(
         geom,
         point - d * (depth / c),
         d,
-        &options(geom, Method::Rk4, Form::EqualDistance, 0.5),
+        &options(geom, Integrator::Rk4, Form::EqualDistance, 0.5),
     );
     let side = (end.position - point).dot(normal);
     let sin_t = n_glass * s;
@@ -672,7 +676,7 @@ fn equal_time_and_equal_distance_trace_the_same_path() {
     let size = domain_size(geom);
     let step = 0.5 * geom.voxel_size();
     let path = |form| {
-        let opts = options(geom, Method::Rk4, form, 0.5);
+        let opts = options(geom, Integrator::Rk4, form, 0.5);
         let mut p = trace_exit(&field, geom, cat.p0, cat.d0, &opts).path;
         // The last point is the exit cut along a chord, off the integrated curve.
         p.pop();

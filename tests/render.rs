@@ -4,10 +4,11 @@
 //! errors.
 
 use eikon_grid::ray::{trace, TraceOptions};
-use eikon_grid::{AnalyticField, Form, Medium, Method, Scene};
+use eikon_grid::{AnalyticField, Form, Integrator, Medium, Scene};
+use eikon_optics::{hg, Camera, Image};
 use eikon_view::background::load_environment;
 use eikon_view::render::camera_settings;
-use eikon_view::{hg, Camera, Image, Options, Renderer, Surroundings};
+use eikon_view::{Options, Renderer, Surroundings};
 use eikon_wavefront::{simulate_light, LightVolume};
 use glam::DVec3;
 
@@ -28,7 +29,7 @@ fn setup(text: &str) -> (Scene, Medium, Vec<LightVolume>) {
 }
 
 fn camera(scene: &Scene) -> Camera {
-    Camera::from_settings(&camera_settings(scene)).unwrap()
+    eikon_view::render::camera(&camera_settings(scene)).unwrap()
 }
 
 /// Render with `opts`; also returns the camera.
@@ -209,7 +210,7 @@ colors = [[1, 1, 1], [1, 1, 1]]
 "#;
     let (scene, medium, volumes) = setup(text);
     let (img, _) = render(&scene, &medium, &volumes, Options::default());
-    let want = eikon_view::fresnel::reflectance(45f64.to_radians().cos(), 1.0, 1.5);
+    let want = eikon_optics::fresnel::reflectance(45f64.to_radians().cos(), 1.0, 1.5);
     let got = img.pixel(2, 2).unwrap()[1] as f64;
     println!("reflection at 45 degrees: {got:.5}, Fresnel R = {want:.5}");
     assert!((got / want - 1.0).abs() < 0.01, "{got} vs {want}");
@@ -377,7 +378,8 @@ fn a_luneburg_lens_images_the_checkerboard_as_the_ray_map_predicts() {
     let (scene, medium, volumes) = setup(LUNEBURG);
     let (img, cam) = render(&scene, &medium, &volumes, Options::default());
     let field = AnalyticField::new(&scene, 0);
-    let opts = TraceOptions::in_voxels(&medium.geometry, Form::EqualDistance, Method::Rk4, 0.05);
+    let opts =
+        TraceOptions::in_voxels(&medium.geometry, Form::EqualDistance, Integrator::Rk4, 0.05);
     let (square, board_z) = (0.4, -1.2);
     let (mut judged, mut agree, mut through_lens) = (0, 0, 0);
     for y in 0..cam.height() {
@@ -452,12 +454,12 @@ colors = [[1, 1, 1], [0, 0, 0]]
     let (scene, medium, volumes) = setup(text);
     // RK4, so that what is compared is dispersion, not Euler's error.
     let opts = Options {
-        method: Method::Rk4,
+        integrator: Integrator::Rk4,
         step: 0.25,
         ..Options::default()
     };
     let (img, cam) = render(&scene, &medium, &volumes, opts);
-    let opts = TraceOptions::in_voxels(&medium.geometry, Form::EqualDistance, Method::Rk4, 0.1);
+    let opts = TraceOptions::in_voxels(&medium.geometry, Form::EqualDistance, Integrator::Rk4, 0.1);
     let mut seen = [0.0; 3];
     let mut predicted = [0.0; 3];
     for c in 0..3 {

@@ -24,9 +24,9 @@
 //! keeps all its power (`R` is not applied).
 
 use crate::field::Medium;
-use crate::fresnel;
 use crate::geometry::Trilinear;
 use crate::ray::IndexField;
+use eikon_optics::fresnel;
 use eikon_shader::{nothing, Module};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -34,7 +34,7 @@ use rayon::prelude::*;
 /// The WGSL of [`crossing_transmittance`] and [`band_transmittance`].
 pub static WGSL: Module = Module {
     name: "interface",
-    requires: &[&crate::fresnel::WGSL],
+    requires: &[&eikon_optics::fresnel::WGSL],
     declarations: nothing,
     text: include_str!("interface.wgsl"),
 };

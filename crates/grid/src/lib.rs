@@ -13,12 +13,12 @@
 //! * [`vdb`]: OpenVDB export (our own writer) and import of float grids.
 
 pub mod animation;
+pub mod blocks;
 pub mod error;
 pub mod field;
-pub mod fresnel;
 pub mod geometry;
 pub mod interface;
-pub mod mesh;
+pub mod mesh_solid;
 pub mod object;
 pub mod ray;
 pub mod scene;
@@ -30,10 +30,16 @@ mod voxelize;
 pub use error::{Error, Location, Result};
 pub use field::{AnalyticField, EmptySpace, Medium, MemoryEstimate, VoxelField};
 pub use geometry::{GridGeometry, Trilinear};
-pub use mesh::MeshSolid;
+pub use mesh_solid::MeshSolid;
 pub use object::{GridExtinction, GridIndex, IndexProfile, Material, Object};
 pub use ray::{
-    trace, trace_many, Form, IndexField, Method, RayEnd, RayState, Status, TraceOptions,
+    trace, trace_many, Form, IndexField, Integrator, RayEnd, RayState, Status, TraceOptions,
 };
 pub use scene::{Background, CameraSettings, GridOverride, Light, Receiver, RenderSettings, Scene};
 pub use shape::Shape;
+
+/// Progress of a long computation over many items: `(done, total)` or the
+/// like, the caller's docs say which two counts (the light simulation's
+/// step and live patches, the renderer's tiles done and in all); called
+/// from worker threads.
+pub type Progress<'a> = &'a (dyn Fn(usize, usize) + Sync);

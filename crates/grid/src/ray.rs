@@ -39,7 +39,7 @@ pub enum Form {
 
 /// Numerical integration scheme.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Method {
+pub enum Integrator {
     /// Forward Euler, first order (eqs 11-12).
     Euler,
     /// Classical Runge-Kutta, fourth order.
@@ -53,8 +53,8 @@ fn ray_declarations() -> String {
     Consts::new()
         .u32("FORM_EQUAL_DISTANCE", Form::EqualDistance as u32)
         .u32("FORM_EQUAL_TIME", Form::EqualTime as u32)
-        .u32("INTEGRATOR_EULER", Method::Euler as u32)
-        .u32("INTEGRATOR_RK4", Method::Rk4 as u32)
+        .u32("INTEGRATOR_EULER", Integrator::Euler as u32)
+        .u32("INTEGRATOR_RK4", Integrator::Rk4 as u32)
         .wgsl()
         .to_string()
 }
@@ -369,7 +369,7 @@ pub struct TraceOptions {
     /// Parameterization.
     pub form: Form,
     /// Integrator.
-    pub method: Method,
+    pub integrator: Integrator,
     /// Step in world units (distance for equal distance, optical path for
     /// equal time); the largest step for Dormand-Prince.
     pub step: f64,
@@ -386,11 +386,16 @@ impl TraceOptions {
     /// Options with the step given in voxels of `grid` (its smallest cell
     /// edge), a Dormand-Prince tolerance of 1e-4 voxel, a guard of a
     /// million steps and no path recording.
-    pub fn in_voxels(grid: &GridGeometry, form: Form, method: Method, step_voxels: f64) -> Self {
+    pub fn in_voxels(
+        grid: &GridGeometry,
+        form: Form,
+        integrator: Integrator,
+        step_voxels: f64,
+    ) -> Self {
         let h = grid.voxel_size();
         Self {
             form,
-            method,
+            integrator,
             step: step_voxels * h,
             tolerance: 1e-4 * h,
             max_steps: 1_000_000,
@@ -485,16 +490,16 @@ impl March {
         let prev = self.s;
         let end = &mut self.end;
         let s = &mut self.s;
-        let h_used = match opts.method {
-            Method::Euler => {
+        let h_used = match opts.integrator {
+            Integrator::Euler => {
                 step_euler(field, opts.form, s, self.h);
                 self.h
             }
-            Method::Rk4 => {
+            Integrator::Rk4 => {
                 step_rk4(field, opts.form, s, self.h);
                 self.h
             }
-            Method::DormandPrince => {
+            Integrator::DormandPrince => {
                 let tol_v = opts.tolerance / opts.step;
                 let r = step_dopri(
                     field,
@@ -729,7 +734,7 @@ pub fn trace_many<F: IndexField + ?Sized>(
     }
     let mut finished = [false; LANES];
     loop {
-        if opts.method == Method::Rk4 {
+        if opts.integrator == Integrator::Rk4 {
             rk4_lockstep(field, grid, opts, &mut lanes, &mut finished);
         } else {
             for (lane, done) in lanes.iter_mut().zip(finished.iter_mut()) {
@@ -767,10 +772,10 @@ mod tests {
         }
     }
 
-    fn opts(method: Method) -> TraceOptions {
+    fn opts(integrator: Integrator) -> TraceOptions {
         TraceOptions {
             form: Form::EqualDistance,
-            method,
+            integrator,
             step: 0.01,
             tolerance: 1e-9,
             max_steps: 100_000,
@@ -786,10 +791,10 @@ mod tests {
             &g,
             DVec3::new(-1.0, 2.0, 0.5),
             DVec3::X,
-            &opts(Method::Rk4),
+            &opts(Integrator::Rk4),
         );
         assert_eq!(r.status, Status::Missed);
-        let mut o = opts(Method::Euler);
+        let mut o = opts(Integrator::Euler);
         o.max_steps = 10;
         let r = trace(&Uniform(1.0), &g, DVec3::splat(0.5), DVec3::X, &o);
         assert_eq!(r.status, Status::MaxSteps);
@@ -822,10 +827,14 @@ mod tests {
                 (o, DVec3::new(1.0, 0.1 * (y - 0.5), 0.05))
             })
             .collect();
-        for m in [Method::Euler, Method::Rk4, Method::DormandPrince] {
+        for m in [
+            Integrator::Euler,
+            Integrator::Rk4,
+            Integrator::DormandPrince,
+        ] {
             let mut o = opts(m);
             o.tolerance = 1e-6;
-            o.max_steps = if m == Method::Euler { 50 } else { 100_000 };
+            o.max_steps = if m == Integrator::Euler { 50 } else { 100_000 };
             let batch = trace_many(&Bump, &g, &rays, &o);
             for (r, b) in rays.iter().zip(&batch) {
                 let single = trace(&Bump, &g, r.0, r.1, &o);
@@ -841,7 +850,11 @@ mod tests {
     #[test]
     fn exit_point_and_optical_path_in_uniform_glass() {
         let g = GridGeometry::new([8, 8, 8], DVec3::ZERO, DVec3::ONE);
-        for m in [Method::Euler, Method::Rk4, Method::DormandPrince] {
+        for m in [
+            Integrator::Euler,
+            Integrator::Rk4,
+            Integrator::DormandPrince,
+        ] {
             for form in [Form::EqualDistance, Form::EqualTime] {
                 let mut o = opts(m);
                 o.form = form;

@@ -9,7 +9,8 @@ use eikon_gpu::{Gpu, Texture, DISPATCH};
 use eikon_grid::geometry::{GridGpu, WGSL as GRID};
 use eikon_grid::interface::{band_transmittance, crossing_transmittance, Sides};
 use eikon_grid::ray::{step_euler, step_euler_on_shell, step_rk4, step_rk4_on_shell};
-use eikon_grid::{fresnel, interface, ray, Form, IndexField, Medium, RayState, Scene};
+use eikon_grid::{interface, ray, Form, IndexField, Medium, RayState, Scene};
+use eikon_optics::fresnel;
 use eikon_shader::{compose, VECTOR};
 use glam::DVec3;
 
@@ -77,9 +78,12 @@ priority = 1
 /// A `(nx, ny, nz, 4)` array as an rgba32float texture.
 fn texture(gpu: &Gpu, dims: [usize; 3], data: &[f32]) -> Texture {
     let slab = dims[1] * dims[2] * 4;
-    gpu.texture_3d("field", dims, wgpu::TextureFormat::Rgba32Float, &|i0, i1| {
-        bytemuck::cast_slice(&data[i0 * slab..i1 * slab]).to_vec()
-    })
+    gpu.texture_3d(
+        "field",
+        dims,
+        wgpu::TextureFormat::Rgba32Float,
+        &|i0, i1| bytemuck::cast_slice(&data[i0 * slab..i1 * slab]).to_vec(),
+    )
 }
 
 #[test]
@@ -139,7 +143,10 @@ fn geometry(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
             (p, d)
         })
         .collect();
-    let inputs: Vec<[f32; 4]> = cases.iter().flat_map(|&(p, d)| [v4(p, 0.0), v4(d, 0.0)]).collect();
+    let inputs: Vec<[f32; 4]> = cases
+        .iter()
+        .flat_map(|&(p, d)| [v4(p, 0.0), v4(d, 0.0)])
+        .collect();
     let out = gpu
         .eval(
             &source,
@@ -171,7 +178,10 @@ fn geometry(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
             Some((t0, t1)) => {
                 assert_eq!(o[0][1], 1.0, "clip {p} {d}");
                 let tol = 1e-5 * (1.0 + t0.abs().max(t1.abs()));
-                assert!((o[0][2] as f64 - t0).abs() < tol && (o[0][3] as f64 - t1).abs() < tol, "clip {p} {d}");
+                assert!(
+                    (o[0][2] as f64 - t0).abs() < tol && (o[0][3] as f64 - t1).abs() < tol,
+                    "clip {p} {d}"
+                );
             }
             None => assert_eq!(o[0][1], 0.0, "clip {p} {d}"),
         }
@@ -188,12 +198,22 @@ fn geometry(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
         // grad(n^2 / 2) (the gradient over n).
         let (n, grad) = vf.sample(p);
         let stored = grad * n;
-        assert!((o[2][0] as f64 - n).abs() < 2e-6, "n at {p}: {} vs {n}", o[2][0]);
+        assert!(
+            (o[2][0] as f64 - n).abs() < 2e-6,
+            "n at {p}: {} vs {n}",
+            o[2][0]
+        );
         let got = DVec3::new(o[2][1] as f64, o[2][2] as f64, o[2][3] as f64);
-        assert!((got - stored).length() < 1e-5 * (1.0 + stored.length()), "grad at {p}");
+        assert!(
+            (got - stored).length() < 1e-5 * (1.0 + stored.length()),
+            "grad at {p}"
+        );
         // Trilinear weights, as Medium::sample_rgb.
         let sigma = m.sample_rgb(&m.extinction, p);
-        assert!((dv(o[3]) - sigma).length() < 1e-5 * (1.0 + sigma.length()), "sigma at {p}");
+        assert!(
+            (dv(o[3]) - sigma).length() < 1e-5 * (1.0 + sigma.length()),
+            "sigma at {p}"
+        );
     }
     assert!(inside > 1000, "{inside}");
 }
@@ -285,7 +305,10 @@ fn step(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
             "step",
             &inputs,
             1,
-            &[grid.as_entire_binding(), wgpu::BindingResource::TextureView(&tex.view)],
+            &[
+                grid.as_entire_binding(),
+                wgpu::BindingResource::TextureView(&tex.view),
+            ],
         )
         .unwrap();
     for (k, &(x, v, h, form, integ, shell)) in cases.iter().enumerate() {
@@ -303,9 +326,15 @@ fn step(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
         // f32 rounding of the stages' positions (about 1e-7 of x) moves
         // the samples; the increments agree to that over a step.
         let tol_x = 2e-5 * dx.length() + 1e-6 * h;
-        assert!((got_dx - dx).length() < tol_x, "{k} {form:?} {integ} dx {got_dx} vs {dx}");
+        assert!(
+            (got_dx - dx).length() < tol_x,
+            "{k} {form:?} {integ} dx {got_dx} vs {dx}"
+        );
         let tol_v = 2e-5 * (1.0 + dvel.length()) * h.max(dvel.length());
-        assert!((got_dv - dvel).length() < tol_v.max(1e-6), "{k} {form:?} {integ} dv {got_dv} vs {dvel}");
+        assert!(
+            (got_dv - dvel).length() < tol_v.max(1e-6),
+            "{k} {form:?} {integ} dv {got_dv} vs {dvel}"
+        );
         assert!((o[0][3] as f64 - dl).abs() < 1e-5 * dl, "{k} opl");
     }
 }
@@ -400,12 +429,20 @@ fn fresnel(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups
             let sin_t2 = (n1 / n2).powi(2) * (1.0 - cos * cos);
             let cos_t = (1.0 - sin_t2).max(0.0).sqrt();
             let tol = 2e-6 + 1e-6 / cos_t.max(1e-3);
-            assert!((o[0] as f64 - want).abs() < tol, "R({cos}, {n1}, {n2}): {} vs {want}", o[0]);
+            assert!(
+                (o[0] as f64 - want).abs() < tol,
+                "R({cos}, {n1}, {n2}): {} vs {want}",
+                o[0]
+            );
         }
         tir += usize::from(want == 1.0);
         let sides = Sides { lo, hi };
         let normal = grad.normalize();
-        let normal32 = DVec3::new(normal.x as f32 as f64, normal.y as f32 as f64, normal.z as f32 as f64);
+        let normal32 = DVec3::new(
+            normal.x as f32 as f64,
+            normal.y as f32 as f64,
+            normal.z as f32 as f64,
+        );
         let vt2 = (v - normal * v.dot(normal)).length_squared();
         let grazing = (vt2.sqrt() - lo.min(hi)).abs() < 1e-4;
         if !grazing {
@@ -414,9 +451,17 @@ fn fresnel(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups
             let cos_lo = (1.0 - vt2 / (lo * lo)).max(0.0).sqrt();
             let tol = 2e-6 + 1e-6 / cos_lo.max(1e-3);
             let want = crossing_transmittance(sides, v, normal32);
-            assert!((o[1] as f64 - want).abs() < tol, "crossing {k}: {} vs {want}", o[1]);
+            assert!(
+                (o[1] as f64 - want).abs() < tol,
+                "crossing {k}: {} vs {want}",
+                o[1]
+            );
             let want = band_transmittance(sides, delta, grad, v, dx);
-            assert!((o[2] as f64 - want).abs() < tol, "band {k}: {} vs {want}", o[2]);
+            assert!(
+                (o[2] as f64 - want).abs() < tol,
+                "band {k}: {} vs {want}",
+                o[2]
+            );
         }
     }
     assert!(tir > 100, "{tir} cases of total internal reflection");

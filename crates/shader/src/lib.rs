@@ -286,7 +286,15 @@ mod tests {
 
     #[test]
     fn float_literals_round_trip() {
-        for v in [0.5f32, 1e-9, 0.9999, 3.4028235e38, 1.0, -2.0, 1.17549435e-38] {
+        for v in [
+            0.5f32,
+            1e-9,
+            0.9999,
+            3.4028235e38,
+            1.0,
+            -2.0,
+            f32::MIN_POSITIVE,
+        ] {
             let s = f32_literal(v);
             assert!(s.contains('.') || s.contains('e'), "{s}");
             assert_eq!(s.parse::<f32>().unwrap(), v);

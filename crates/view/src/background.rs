@@ -11,8 +11,8 @@
 //! lights directly: a directional light's irradiance, or a point or spot
 //! light's `P / (4 pi r^2)` (times the cone weight for a spot).
 
-use crate::environment::{Environment, EnvironmentError, LatLongMap};
 use eikon_grid::{Background, GridGeometry, Light, Receiver, Scene, Trilinear};
+use eikon_optics::environment::{Environment, EnvironmentError, LatLongMap};
 use eikon_wavefront::volume::mean_cosine;
 use eikon_wavefront::LightVolume;
 use glam::DVec3;
@@ -59,8 +59,6 @@ fn tangent(n: DVec3) -> DVec3 {
 /// that leaves the grid exactly on a plane lying on the grid's face must
 /// still meet it.
 const PLANE_EPS: f64 = 1e-9;
-/// [`PLANE_EPS`] for the GPU renderer: f32's rounding needs more.
-pub(crate) const PLANE_EPS_F32: f32 = 2e-6;
 
 /// Distance along the unit `d` from `o` to the plane `(p, n)`, if ahead
 /// (or within rounding of `o`, then 0).
@@ -222,7 +220,7 @@ fn direct(light: &Light, x: DVec3, n: DVec3) -> DVec3 {
             power,
         } => {
             let to = (x - *position).normalize_or_zero();
-            let w = eikon_wavefront::light::cone_weight(to, Some((*direction, *angle, *falloff)));
+            let w = eikon_optics::spot::cone_weight(to, Some((*direction, *angle, *falloff)));
             point_irradiance(*position, *power, x, n, w)
         }
     }

@@ -38,14 +38,12 @@
 //! is known to extend around it.
 
 use crate::background::{LightSample, Surroundings};
-use crate::camera::Camera;
-use crate::fresnel;
-use crate::image::Image;
 use crate::macrocell::MacroCells;
-use crate::phase::hg;
 use crate::properties::Properties;
 use eikon_grid::ray::step_rk4;
-use eikon_grid::{CameraSettings, Form, IndexField, Medium, Method, RayState, Scene};
+use eikon_grid::{CameraSettings, Form, IndexField, Integrator, Medium, Progress, RayState, Scene};
+use eikon_optics::phase::hg;
+use eikon_optics::{fresnel, Camera, CameraError, Image};
 use eikon_wavefront::LightVolume;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -57,7 +55,7 @@ pub struct Options {
     /// Step length, voxels.
     pub step: f64,
     /// Integrator: Euler (eqs 11-12) or RK4.
-    pub method: Method,
+    pub integrator: Integrator,
     /// Cross empty blocks in one straight step.
     pub skip_empty: bool,
     /// Seed of the pixel sample jitter.
@@ -71,7 +69,7 @@ impl Default for Options {
     fn default() -> Self {
         Self {
             step: 0.5,
-            method: Method::Euler,
+            integrator: Integrator::Euler,
             skip_empty: true,
             seed: 0,
             min_transmittance: 1e-5,
@@ -101,8 +99,24 @@ pub fn camera_settings(scene: &Scene) -> CameraSettings {
     }
 }
 
-/// Render progress: `(tiles done, tiles in all)`.
-pub type Progress<'a> = &'a (dyn Fn(usize, usize) + Sync);
+/// The camera that `settings` describe: a scene's `[camera]` or the
+/// default of [`camera_settings`], with whatever the caller changed.
+///
+/// # Errors
+///
+/// As [`Camera::new`].
+pub fn camera(settings: &CameraSettings) -> Result<Camera, CameraError> {
+    let c = settings;
+    Camera::new(
+        c.position,
+        c.target,
+        c.up,
+        c.fov,
+        c.resolution[0],
+        c.resolution[1],
+        c.samples,
+    )
+}
 
 /// Mirror directions closer than this cosine (a quarter degree) share one
 /// lookup of the surroundings.
@@ -190,7 +204,8 @@ impl<'a> Renderer<'a> {
 
     /// Render the frame over tiles in parallel. The result does not depend
     /// on the number of threads: every pixel is computed on its own, its
-    /// samples summed in order.
+    /// samples summed in order. `progress` hears `(tiles done, tiles in
+    /// all)`.
     pub fn render(&self, progress: Progress) -> (Image, Stats) {
         let (w, h) = (self.camera.width(), self.camera.height());
         let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
@@ -360,8 +375,8 @@ impl<'a> Renderer<'a> {
             let x0 = walk.ray.x;
             let (n, grad) = field.sample(x0);
             self.gather(x0, (n, grad), dir, step, ch, &mut walk);
-            match self.opts.method {
-                Method::Euler => {
+            match self.opts.integrator {
+                Integrator::Euler => {
                     // Eqs 11-12 with the sample already taken.
                     let r = &mut walk.ray;
                     r.x += r.v * (step / n);

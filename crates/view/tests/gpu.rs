@@ -7,14 +7,16 @@
 //! ([`psnr`]). `cargo test --release -p eikon-view --test gpu --
 //! --nocapture` prints the measured numbers; those quoted in the doc
 //! comments were measured on lavapipe (llvmpipe, Vulkan).
+#![cfg(feature = "gpu")]
 
 use eikon_gpu::Gpu;
-use eikon_grid::{Medium, Method, Scene};
+use eikon_grid::{Integrator, Medium, Scene};
+use eikon_optics::image::log_average_luminance;
+use eikon_optics::{Camera, Image};
 use eikon_view::background::load_environment;
 use eikon_view::gpu::GpuRenderer;
-use eikon_view::image::log_average_luminance;
 use eikon_view::render::camera_settings;
-use eikon_view::{Camera, Image, Options, Renderer, Stats, Surroundings};
+use eikon_view::{Options, Renderer, Stats, Surroundings};
 use eikon_wavefront::{simulate_light, LightVolume};
 
 fn gpu() -> Option<Gpu> {
@@ -38,7 +40,7 @@ fn setup(text: &str) -> (Scene, Medium, Vec<LightVolume>) {
 }
 
 fn camera(scene: &Scene) -> Camera {
-    Camera::from_settings(&camera_settings(scene)).unwrap()
+    eikon_view::render::camera(&camera_settings(scene)).unwrap()
 }
 
 /// The CPU and the GPU image of `text` with `opts`.
@@ -310,7 +312,7 @@ square = 0.4
 colors = [[1, 0, 0], [0, 0, 1]]
 "#;
     let opts = Options {
-        method: Method::Rk4,
+        integrator: Integrator::Rk4,
         step: 0.25,
         ..Options::default()
     };

@@ -21,7 +21,7 @@ use crate::deposit::{self, Counters};
 use crate::patch::{area, Patches};
 use eikon_grid::interface::Interfaces;
 use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
-use eikon_grid::{EmptySpace, Form, GridGeometry, IndexField, Medium, Method, VoxelField};
+use eikon_grid::{EmptySpace, Form, GridGeometry, IndexField, Integrator, Medium, VoxelField};
 use eikon_shader::{nothing, Module};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -107,7 +107,7 @@ pub struct Step<'a> {
     /// Its empty blocks.
     pub empty: &'a EmptySpace,
     /// Integrator.
-    pub method: Method,
+    pub integrator: Integrator,
     /// Equal-time step, world units of optical path.
     pub dt: f64,
     /// Interface sides for Fresnel transmission; `None` leaves the flux
@@ -141,7 +141,7 @@ pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
         medium,
         field,
         empty,
-        method,
+        integrator,
         dt,
         interfaces,
         channel,
@@ -184,8 +184,8 @@ pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
             for s in [&mut *a, &mut *b, &mut *c, &mut *d] {
                 // On the shell |v| = n, so each corner advances exactly dt
                 // of optical path and the four stay on one wavefront.
-                match method {
-                    Method::Euler => step_euler_on_shell(field, Form::EqualTime, s, dt),
+                match integrator {
+                    Integrator::Euler => step_euler_on_shell(field, Form::EqualTime, s, dt),
                     _ => step_rk4_on_shell(field, Form::EqualTime, s, dt),
                 }
             }

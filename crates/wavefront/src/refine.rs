@@ -142,7 +142,7 @@ impl Incident {
             } => {
                 let d = x - position;
                 let r2 = d.length_squared();
-                power * crate::light::cone_weight(d / r2.sqrt(), cone)
+                power * eikon_optics::spot::cone_weight(d / r2.sqrt(), cone)
                     / (4.0 * std::f64::consts::PI * r2)
             }
         }

@@ -2,6 +2,7 @@
 //! or DX12 adapter: CI installs Mesa's lavapipe and sets `CI` and
 //! `WGPU_BACKEND=vulkan`, and there a missing adapter fails the test
 //! instead of skipping it.
+#![cfg(feature = "gpu")]
 
 use eikon_gpu::Gpu;
 
@@ -592,7 +593,7 @@ fn gpu_patch_limit_and_euler_match_the_cpu() {
             ..paper()
         },
         Options {
-            method: eikon_grid::Method::Euler,
+            integrator: eikon_grid::Integrator::Euler,
             ..paper()
         },
     ] {
@@ -602,7 +603,7 @@ fn gpu_patch_limit_and_euler_match_the_cpu() {
         let a = agreement(&cv, &gv);
         println!(
             "{:?}, max {}: held {} / {}, peak {} / {}; median {:.1e}, within 1% {:.4}, within 10% {:.4}, lit differ {}",
-            opts.method, opts.max_patches, cs.held, gs.held, cs.peak_patches, gs.peak_patches,
+            opts.integrator, opts.max_patches, cs.held, gs.held, cs.peak_patches, gs.peak_patches,
             a.median, a.within_1, a.within_10, a.lit_differs
         );
         assert!(gs.peak_patches <= opts.max_patches);

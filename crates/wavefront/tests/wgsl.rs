@@ -5,14 +5,14 @@
 //! drift names the function that drifted. They need a Vulkan, Metal or
 //! DX12 adapter (lavapipe in CI, where a missing adapter fails them).
 
-use eikon_gpu::{Gpu, DISPATCH};
+use eikon_gpu::DISPATCH;
 use eikon_grid::geometry::{GridGpu, WGSL as GRID};
 use eikon_grid::GridGeometry;
-use eikon_shader::{compose, VECTOR};
+use eikon_shader::compose;
 use eikon_wavefront::deposit::{self, Counters};
 use eikon_wavefront::patch::{area, normal, span, Split};
 use eikon_wavefront::propagate::step_depth;
-use eikon_wavefront::{histopyramid, light, patch, propagate, HistoPyramid};
+use eikon_wavefront::{histopyramid, patch, propagate, HistoPyramid};
 use glam::DVec3;
 
 /// A seeded xorshift: the same cases on every run.
@@ -122,9 +122,11 @@ fn histopyramid_module_equals_the_cpu_pyramid() {
     let reduce = gpu.eval_kernel(&source, "reduce").unwrap();
     let walk = gpu.eval_kernel(&source, "walk").unwrap();
     let mut cases: Vec<Vec<u8>> = vec![vec![], vec![0], vec![4], vec![0; 1000], vec![4; 4097]];
-    for (i, n) in [1usize, 3, 5, 17, 63, 64, 65, 255, 1023, 4099, 100_003, 1_000_001]
-        .into_iter()
-        .enumerate()
+    for (i, n) in [
+        1usize, 3, 5, 17, 63, 64, 65, 255, 1023, 4099, 100_003, 1_000_001,
+    ]
+    .into_iter()
+    .enumerate()
     {
         cases.push(counts(n, 7 + i as u64, [1, 5, 1]));
         cases.push(counts(n, 99 + i as u64, [3, 1, 3]));
@@ -148,9 +150,7 @@ fn histopyramid_module_equals_the_cpu_pyramid() {
         let mut len = c.len().max(1);
         for level in 1..depth as u32 {
             len = len.div_ceil(4);
-            let inputs: Vec<[f32; 4]> = (0..len as u32)
-                .map(|j| bits([level, n, j, 0]))
-                .collect();
+            let inputs: Vec<[f32; 4]> = (0..len as u32).map(|j| bits([level, n, j, 0])).collect();
             reduce
                 .run(&gpu, &inputs, 1, &[pyramid.as_entire_binding()])
                 .unwrap();
@@ -168,7 +168,12 @@ fn histopyramid_module_equals_the_cpu_pyramid() {
             assert_eq!(o[2] as usize, total, "total of {} counts", c.len());
             if k < total {
                 let (src, part) = cpu.locate(k);
-                assert_eq!((o[0], o[1]), (src as u32, part), "slot {k} of {} counts", c.len());
+                assert_eq!(
+                    (o[0], o[1]),
+                    (src as u32, part),
+                    "slot {k} of {} counts",
+                    c.len()
+                );
             }
             if k < c.len() {
                 assert_eq!(o[3], prefix, "rank of entry {k} of {} counts", c.len());
@@ -234,9 +239,18 @@ fn geometry(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
     for (k, p) in quads.iter().enumerate() {
         let o = &out[6 * k..];
         let n = normal(p);
-        assert!((dv(o[0]) - n).length() < 1e-5 * (1.0 + n.length()), "normal {k}");
-        assert!((o[0][3] as f64 - area(p)).abs() < 1e-5 * (1.0 + area(p)), "area {k}");
-        assert!((o[1][0] as f64 - span(p)).abs() < 1e-5 * span(p), "span {k}");
+        assert!(
+            (dv(o[0]) - n).length() < 1e-5 * (1.0 + n.length()),
+            "normal {k}"
+        );
+        assert!(
+            (o[0][3] as f64 - area(p)).abs() < 1e-5 * (1.0 + area(p)),
+            "area {k}"
+        );
+        assert!(
+            (o[1][0] as f64 - span(p)).abs() < 1e-5 * span(p),
+            "span {k}"
+        );
         let split = Split::of(p);
         assert_eq!(o[1][1] as u32, split as u32, "split {k}");
         for q in 0..4 {
@@ -316,7 +330,9 @@ fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>) {{}}
         let x0: [DVec3; 4] = [0.0, 1.0, 1.0, 0.0]
             .into_iter()
             .zip([0.0, 0.0, 1.0, 1.0])
-            .map(|(s, t)| o + DVec3::new(s * size, t * size * r.f(0.3, 1.5), 0.0) + r.v(-0.02, 0.02))
+            .map(|(s, t)| {
+                o + DVec3::new(s * size, t * size * r.f(0.3, 1.5), 0.0) + r.v(-0.02, 0.02)
+            })
             .collect::<Vec<_>>()
             .try_into()
             .unwrap();
@@ -337,7 +353,9 @@ fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>) {{}}
         // either way; every other case must agree exactly.
         let near = |a: usize, b: usize, c: usize, d: usize| {
             let l = (x0[a] - x0[b]).length().max((x0[c] - x0[d]).length());
-            let l = l.max((x1[a] - x1[b]).length()).max((x1[c] - x1[d]).length());
+            let l = l
+                .max((x1[a] - x1[b]).length())
+                .max((x1[c] - x1[d]).length());
             let u = l / (deposit::SUBPATCH_SIZE * voxel);
             (u - u.round()).abs() < 1e-4
         };
@@ -381,8 +399,14 @@ fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>) {{}}
         }
         assert_eq!(got[0][2] as usize, n, "parts of ({c}, {w})");
         for (p, g) in want.iter().take(n).zip(got) {
-            assert!((g[0] as f64 - p.0).abs() < 1e-5, "fraction of ({c}, {w}): {g:?} vs {p:?}");
-            assert!((g[1] as f64 - p.1).abs() < 1e-5, "offset of ({c}, {w}): {g:?} vs {p:?}");
+            assert!(
+                (g[0] as f64 - p.0).abs() < 1e-5,
+                "fraction of ({c}, {w}): {g:?} vs {p:?}"
+            );
+            assert!(
+                (g[1] as f64 - p.1).abs() < 1e-5,
+                "offset of ({c}, {w}): {g:?} vs {p:?}"
+            );
         }
     }
 }
@@ -471,7 +495,12 @@ fn chord(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
     let grid_buf = gpu.uniform("grid", &[GridGpu::new(&g)]);
     let scales = gpu.uniform(
         "scales",
-        &[[scale[0] as f32, scale[1] as f32, scale[2] as f32, flux_scale as f32]],
+        &[[
+            scale[0] as f32,
+            scale[1] as f32,
+            scale[2] as f32,
+            flux_scale as f32,
+        ]],
     );
     let out = gpu
         .eval(
@@ -504,12 +533,11 @@ fn chord(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
         let total: f64 = f.iter().sum::<f64>() * (b - a).length() / volume;
         for (cell, (fl, fx)) in fl.iter().zip(&fx).enumerate() {
             let [i, j, kk] = [cell / 20, (cell / 4) % 5, cell % 4];
-            for c in 0..3 {
+            for (c, got) in fl.iter().enumerate() {
                 let want = cpu.fluence[[i, j, kk, c]] as f64;
                 assert!(
-                    (fl[c] - want).abs() < 1e-5 * total + 1e-7,
-                    "chord {k} cell {cell} channel {c}: {} vs {want}",
-                    fl[c]
+                    (got - want).abs() < 1e-5 * total + 1e-7,
+                    "chord {k} cell {cell} channel {c}: {got} vs {want}"
                 );
             }
             let want = DVec3::new(
@@ -517,7 +545,10 @@ fn chord(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
                 cpu.flux[0][[i, j, kk, 1]] as f64,
                 cpu.flux[0][[i, j, kk, 2]] as f64,
             );
-            assert!((*fx - want).length() < 1e-5 * total + 1e-7, "chord {k} cell {cell} flux");
+            assert!(
+                (*fx - want).length() < 1e-5 * total + 1e-7,
+                "chord {k} cell {cell} flux"
+            );
         }
     }
     println!("{} chords, {pieces} pieces: module == CPU", chords.len());
@@ -561,7 +592,12 @@ fn cone(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
     );
     let source = compose(
         "",
-        &[&DISPATCH, &GRID, &propagate::WGSL, &light::SPOT_WGSL],
+        &[
+            &DISPATCH,
+            &GRID,
+            &propagate::WGSL,
+            &eikon_optics::spot::WGSL,
+        ],
         &main,
     );
     let g = grid();
@@ -580,14 +616,23 @@ fn cone(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
         .flat_map(|&(x0, x1, b, a, dt)| [v4(x0, dt), v4(x1, 0.0), v4(b, 0.0), v4(a, 0.0)])
         .collect();
     let out = gpu
-        .eval(&source, "depth", &inputs, 1, &[grid_buf.as_entire_binding()])
+        .eval(
+            &source,
+            "depth",
+            &inputs,
+            1,
+            &[grid_buf.as_entire_binding()],
+        )
         .unwrap();
     let mut crossing = 0;
     for (k, &(x0, x1, b, a, dt)) in steps.iter().enumerate() {
         let want = step_depth(&g, x0, x1, b, a, dt);
         crossing += usize::from(g.contains(x0) != g.contains(x1));
         let got = dv(out[4 * k]);
-        assert!((got - want).length() < 1e-5 * (1.0 + want.length()), "step {k}: {got} vs {want}");
+        assert!(
+            (got - want).length() < 1e-5 * (1.0 + want.length()),
+            "step {k}: {got} vs {want}"
+        );
     }
     assert!(crossing > 100, "{crossing} steps across the bounds");
 
@@ -612,7 +657,7 @@ fn cone(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
     let out = gpu.eval(&source, "cone", &inputs, 1, &[]).unwrap();
     let mut checked = 0;
     for (k, &(d, a, angle, fall)) in cones.iter().enumerate() {
-        let want = light::cone_weight(d, Some((a, angle, fall)));
+        let want = eikon_optics::spot::cone_weight(d, Some((a, angle, fall)));
         let got = out[2 * k][0] as f64;
         // Within f32 rounding of the edge or of the band's inner edge the
         // weight may fall either side of a kink.

@@ -19,7 +19,7 @@
 //!   one), each marching the same rays; pass 0 adds what needs no light
 //!   volume, every pass its volume's in-scatter and receiver light (the
 //!   image is linear in them).
-//! * Tone mapping stays on the host ([`crate::image`]).
+//! * Tone mapping stays on the host ([`eikon_optics::image`]).
 //!
 //! Differences from the CPU: f32 instead of f64 arithmetic (the plane-hit
 //! rounding allowance is 2e-6 instead of 1e-9 of the scene's scale), and
@@ -37,15 +37,14 @@
 //! ([`GpuRenderer::render_with_stats`]) within 0.4% of the CPU's.
 
 use crate::background::{Checker, Surroundings};
-use crate::camera::Camera;
-use crate::environment::Environment;
-use crate::image::Image;
-use crate::macrocell::{MacroCells, BLOCK};
+use crate::macrocell::MacroCells;
 use crate::properties::Properties;
 use crate::render::{probe_length, Options, Stats, MIRROR_COS};
 use eikon_gpu::{texture_bytes, Buffer, Gpu, GpuError, Texture, MIN_BUFFER_BYTES};
+use eikon_grid::blocks::BLOCK;
 use eikon_grid::geometry::GridGpu;
-use eikon_grid::{Light, Medium, Method};
+use eikon_grid::{Integrator, Light, Medium};
+use eikon_optics::{Camera, Environment, Image};
 use eikon_shader::{compose, layout, Consts, Layout, VECTOR};
 use eikon_wavefront::LightVolume;
 use glam::DVec3;
@@ -70,6 +69,10 @@ const PIXEL_BYTES: u64 = 12;
 /// Bytes of the frame's counters: ray-equation steps and empty-space
 /// skips, 64 bits each.
 const COUNTER_BYTES: u64 = 16;
+
+/// The rounding allowance of a plane hit relative to the scene's scale
+/// (`background.rs`: 1e-9 in f64; f32's rounding needs more).
+const PLANE_EPS: f32 = 2e-6;
 
 /// Kinds of [`ViewLight`].
 const LIGHT_DIRECTIONAL: u32 = 0;
@@ -217,7 +220,7 @@ fn declarations() -> String {
         .u32("LIGHT_POINT", LIGHT_POINT)
         .u32("LIGHT_SPOT", LIGHT_SPOT)
         .f32("MIRROR_COS", MIRROR_COS as f32)
-        .f32("PLANE_EPS", crate::background::PLANE_EPS_F32)
+        .f32("PLANE_EPS", PLANE_EPS)
         .u32("NONE", u32::MAX)
         .f32("INF", 1e30);
     format!(
@@ -238,9 +241,9 @@ pub fn source() -> String {
             &VECTOR,
             &eikon_grid::geometry::WGSL,
             &eikon_grid::ray::WGSL,
-            &eikon_grid::fresnel::WGSL,
-            &crate::phase::WGSL,
-            &eikon_wavefront::light::SPOT_WGSL,
+            &eikon_optics::fresnel::WGSL,
+            &eikon_optics::phase::WGSL,
+            &eikon_optics::spot::WGSL,
         ],
         SHADER,
     )
@@ -391,7 +394,14 @@ fn upload_medium(gpu: &Gpu, medium: &Medium, properties: &Properties) -> MediumT
     let mut textures = Vec::new();
     for (c, idx) in medium.index.iter().enumerate() {
         let data = idx.as_slice().expect("standard layout");
-        textures.push(flat_texture(gpu, &format!("index {c}"), dims, RGBA, 4, data));
+        textures.push(flat_texture(
+            gpu,
+            &format!("index {c}"),
+            dims,
+            RGBA,
+            4,
+            data,
+        ));
     }
     let scatters = properties
         .texels
@@ -515,7 +525,7 @@ fn skip_table(medium: &Medium, skip_empty: bool) -> SkipTable {
             .map(|c| MacroCells::new(medium, c))
             .collect();
         for m in &cells {
-            debug_assert_eq!(m.dims, blocks);
+            debug_assert_eq!(m.blocks.dims, blocks);
             for c in &m.cells {
                 if c[0].is_nan() {
                     words.extend([u32::MAX; 4]);
@@ -549,7 +559,7 @@ fn environment_data(surroundings: &Surroundings) -> EnvironmentData {
             kind: 0,
             width: 1,
             height: 1,
-            constant: c.map(|x| x as f32),
+            constant: *c,
             texels: vec![0.0; 3],
         },
         Environment::LatLong(m) => EnvironmentData {
@@ -651,10 +661,10 @@ fn view_params(
         height: camera.height(),
         budget: budget.min(u64::from(u32::MAX)) as u32,
         light_count: surroundings.lights.len() as u32,
-        integrator: if opts.method == Method::Euler {
-            Method::Euler as u32
+        integrator: if opts.integrator == Integrator::Euler {
+            Integrator::Euler as u32
         } else {
-            Method::Rk4 as u32
+            Integrator::Rk4 as u32
         },
         skip_empty: u32::from(opts.skip_empty),
         emits: u32::from(textures.emits),
@@ -873,7 +883,11 @@ impl<'a> GpuRenderer<'a> {
 
     /// The grid against the 3D texture limit, the lights against
     /// [`MAX_LIGHTS`].
-    fn check_limits(gpu: &Gpu, medium: &Medium, surroundings: &Surroundings) -> Result<(), GpuError> {
+    fn check_limits(
+        gpu: &Gpu,
+        medium: &Medium,
+        surroundings: &Surroundings,
+    ) -> Result<(), GpuError> {
         let dims = medium.geometry.dims;
         let [nx, ny, nz] = dims;
         let max3d = gpu.device.limits().max_texture_dimension_3d as usize;

@@ -93,11 +93,14 @@ use crate::deposit::{self, Counters};
 use crate::patch::{self, Patches};
 use crate::refine::{Fate, Incident, Rules};
 use crate::{crossings_bound, power_bound, units_per_crossing, DepositRule, Summary};
-use crate::{histopyramid, light, propagate, refine, Error, LightVolume, Options, Progress};
-use eikon_gpu::{groups, texture_bytes, Buffer, Gpu, GpuError, Texture, DISPATCH, MIN_BUFFER_BYTES};
+use crate::{histopyramid, propagate, refine, Error, LightVolume, Options};
+use eikon_gpu::{
+    groups, texture_bytes, Buffer, Gpu, GpuError, Texture, DISPATCH, MIN_BUFFER_BYTES,
+};
+use eikon_grid::blocks::BLOCK;
 use eikon_grid::geometry::GridGpu;
 use eikon_grid::interface::{probe_length, Interfaces};
-use eikon_grid::{EmptySpace, Light, Medium, Method};
+use eikon_grid::{EmptySpace, Integrator, Light, Medium, Progress};
 use eikon_shader::{compose, layout, Consts, Layout, VECTOR};
 use glam::DVec3;
 use ndarray::Array4;
@@ -252,7 +255,7 @@ pub fn source() -> String {
             &eikon_grid::geometry::WGSL,
             &eikon_grid::ray::WGSL,
             &eikon_grid::interface::WGSL,
-            &light::SPOT_WGSL,
+            &eikon_optics::spot::WGSL,
             &patch::WGSL,
             &deposit::WGSL,
             &propagate::WGSL,
@@ -435,20 +438,14 @@ fn texture(gpu: &Gpu, label: &str, dims: [usize; 3], data: &[f32]) -> Texture {
 /// read through its public lookup at each block's centre).
 fn empty_table(medium: &Medium, channel: usize) -> (Vec<f32>, [u32; 3], DVec3) {
     let empty = EmptySpace::new(medium, channel);
-    let g = &medium.geometry;
-    let b = EmptySpace::BLOCK;
-    let dims = g.dims.map(|d| d.div_ceil(b));
-    let block = g.spacing() * b as f64;
-    let mut out = Vec::with_capacity(dims[0] * dims[1] * dims[2]);
-    for i in 0..dims[0] {
-        for j in 0..dims[1] {
-            for k in 0..dims[2] {
-                let c = g.min + (DVec3::new(i as f64, j as f64, k as f64) + 0.5) * block;
-                out.push(empty.index_at(c).map_or(-1.0, |n| n as f32));
-            }
-        }
-    }
-    (out, dims.map(|d| d as u32), 1.0 / block)
+    let blocks = empty.blocks();
+    let out = (0..blocks.len())
+        .map(|f| {
+            let c = blocks.centre(blocks.coords(f));
+            empty.index_at(c).map_or(-1.0, |n| n as f32)
+        })
+        .collect();
+    (out, blocks.dims.map(|d| d as u32), blocks.inv_edge())
 }
 
 /// Growable GPU patch list.
@@ -782,7 +779,7 @@ impl<'a> GpuSimulator<'a> {
         let buffer = |bytes: u64| bytes.max(MIN_BUFFER_BYTES);
         let blocks = dims
             .iter()
-            .map(|&d| d.div_ceil(EmptySpace::BLOCK) as u64)
+            .map(|&d| d.div_ceil(BLOCK) as u64)
             .product::<u64>();
         let field = texture_bytes(dims, TEXEL);
         let channels = channels as u64;
@@ -958,7 +955,14 @@ impl<'a> GpuSimulator<'a> {
             summary.step_limit += traced.left;
             summary.peak_patches = summary.peak_patches.max(traced.peak);
             summary.steps = summary.steps.max(traced.steps);
-            self.end_group(&run, &params, &mut summary, g, tally.as_mut(), &mut directions)?;
+            self.end_group(
+                &run,
+                &params,
+                &mut summary,
+                g,
+                tally.as_mut(),
+                &mut directions,
+            )?;
             drop(lists);
         }
         let volume = match tally {
@@ -1063,10 +1067,10 @@ impl<'a> GpuSimulator<'a> {
         let mut params = SimParams {
             grid: GridGpu::new(grid),
             group: group.map_or(-1, |c| c as i32),
-            integrator: if opts.method == Method::Euler {
-                Method::Euler as u32
+            integrator: if opts.integrator == Integrator::Euler {
+                Integrator::Euler as u32
             } else {
-                Method::Rk4 as u32
+                Integrator::Rk4 as u32
             },
             empty_dims: self.empty_dims,
             max_depth: rules.max_depth as u32,

@@ -671,7 +671,7 @@ struct Deposit {
 
 // Whether the straight corner rays x + t u cross for some t in [lo, hi]:
 // the tube's oriented area along d, a quadratic in t, fails to stay
-// positive there (`voxelize::rays_cross`).
+// positive there (`deposit::paper::rays_cross`).
 fn rays_cross(x: array<vec3<f32>, 4>, u: array<vec3<f32>, 4>, d: vec3<f32>, lo: f32, hi: f32) -> bool {
     let a0 = x[2] - x[0];
     let a1 = u[2] - u[0];
@@ -691,7 +691,7 @@ fn rays_cross(x: array<vec3<f32>, 4>, u: array<vec3<f32>, 4>, d: vec3<f32>, lo: 
 }
 
 // Patch i's irradiance carried to the centre of cell `flat`
-// (`voxelize::deposit_at`).
+// (`deposit::paper::deposit_at`).
 fn deposit_at(i: u32, mid: vec3<f32>, d: vec3<f32>, ext: vec3<f32>, flat: u32, tier: u32) -> Deposit {
     let s = dot(d, grid_voxel_center(P.grid, flat) - mid);
     var m: array<vec3<f32>, 4>;

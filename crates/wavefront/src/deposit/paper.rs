@@ -1,6 +1,6 @@
-//! The paper's voxelization of the wavefront (5.2.2), kept as
+//! The paper's deposit: its voxelization of the wavefront (5.2.2), kept as
 //! `--deposit paper` so its results can be reproduced; the default is the
-//! track-length fluence of [`deposit`](crate::deposit).
+//! track-length fluence of [`deposit`](super).
 //!
 //! After every step each patch deposits into the cell that contains its
 //! midpoint; the cells under its corners are filled too where no midpoint

@@ -1,4 +1,4 @@
-// A spot light's cone (`light::cone_weight`).
+// A spot light's cone (`spot::cone_weight`).
 
 // 1 inside the cone of half-angle `angle` (degrees) about the unit `axis`,
 // a smoothstep across the `falloff` band at its edge, 0 outside.

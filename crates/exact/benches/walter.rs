@@ -10,34 +10,21 @@
 //!   K = 16 reference (the sweep is printed before the timings).
 
 use criterion::{criterion_group, criterion_main, Criterion};
+use eikon_exact::single::{self, MeshLight, MeshMedium, Method};
+use eikon_exact::walter::{self, Mode, Options, PnTree};
 use eikon_mesh::{icosphere, BumpySphere};
-use eikon_view::single::{self, MeshLight, MeshMedium, Method};
-use eikon_view::walter::{self, Mode, Options, PnTree};
-use eikon_view::{Camera, Image};
+use eikon_optics::{Camera, Image};
 use glam::DVec3;
 use std::hint::black_box;
 use std::time::Instant;
 
 fn pairs(bumpy: &BumpySphere, n: usize) -> Vec<(DVec3, DVec3)> {
-    let mut s = 12345u64;
-    let mut unit = || {
-        s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = s;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    };
-    let dir = |u: &mut dyn FnMut() -> f64| {
-        let z = 2.0 * u() - 1.0;
-        let phi = std::f64::consts::TAU * u();
-        let r = (1.0 - z * z).sqrt();
-        DVec3::new(r * phi.cos(), r * phi.sin(), z)
-    };
+    let mut rng = eikon_rng::SplitMix64::new(12345);
     (0..n)
         .map(|_| {
-            let dv = dir(&mut unit);
-            let v = dv * bumpy.radius_at(dv) * (0.2 + 0.7 * unit());
-            let l = dir(&mut unit) * (2.0 + 2.0 * unit());
+            let dv = DVec3::from(rng.direction());
+            let v = dv * bumpy.radius_at(dv) * (0.2 + 0.7 * rng.unit());
+            let l = DVec3::from(rng.direction()) * (2.0 + 2.0 * rng.unit());
             (v, l)
         })
         .collect()

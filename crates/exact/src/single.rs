@@ -40,10 +40,10 @@
 //! its own rays, so the image is identical whatever the thread count.
 
 use crate::holzschuch::{self, Counters};
-use crate::image::Image;
 use crate::walter::{self, Mode, PnTree, Solution, TreeStats};
-use crate::{fresnel, phase, Camera};
 use eikon_mesh::{Bvh, Mesh, MeshError, Ray};
+use eikon_optics::image::Image;
+use eikon_optics::{fresnel, phase, Camera};
 use glam::DVec3;
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicUsize, Ordering};

@@ -2,34 +2,15 @@
 //! 2009, Holzschuch 2015) and nested dielectrics in the Snell tracer
 //! (Schmidt & Budge 2002). Run with `--nocapture` for the measured numbers.
 
+use eikon_exact::single::{self, MediumError, MeshLight, MeshMedium, Method, Settings};
+use eikon_exact::snell::{self, Body, Scene};
+use eikon_exact::walter::{self, Mode, Options, PnTree};
 use eikon_mesh::{cuboid, icosphere, BumpySphere, Bvh, Mesh, MeshError, Ray};
-use eikon_view::single::{self, MediumError, MeshLight, MeshMedium, Method, Settings};
-use eikon_view::snell::{self, Body, Scene};
-use eikon_view::walter::{self, Mode, Options, PnTree};
-use eikon_view::{Camera, Image};
+use eikon_optics::{Camera, Image};
 use glam::{DAffine3, DVec3};
 use std::collections::BTreeSet;
 
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-    fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn dir(&mut self) -> DVec3 {
-        let z = 2.0 * self.unit() - 1.0;
-        let phi = std::f64::consts::TAU * self.unit();
-        let s = (1.0 - z * z).sqrt();
-        DVec3::new(s * phi.cos(), s * phi.sin(), z)
-    }
-}
+use eikon_rng::SplitMix64 as Rng;
 
 /// Triangles with a solution, by brute force over all triangles.
 fn brute(tree: &PnTree, v: DVec3, l: DVec3, eta: f64, mode: Mode) -> BTreeSet<u32> {
@@ -47,14 +28,14 @@ fn pn_tree_never_prunes_a_solution() {
     let mesh = bumpy.mesh(12).unwrap();
     let tree = PnTree::new(walter::mesh_triangles(&mesh));
     let n_tri = tree.triangles().len();
-    let mut rng = Rng(99);
+    let mut rng = Rng::new(99);
     let (mut with_solution, mut kept_point, mut kept_seg, mut solutions) = (0, 0, 0, 0);
     let mut cases = 0;
     for k in 0..120 {
         let eta = if k % 4 == 3 { 1.1 } else { 1.5 };
-        let dv = rng.dir();
+        let dv = DVec3::from(rng.direction());
         let v = dv * bumpy.radius_at(dv) * (0.1 + 0.8 * rng.unit());
-        let l = rng.dir() * (1.3 + 3.0 * rng.unit());
+        let l = DVec3::from(rng.direction()) * (1.3 + 3.0 * rng.unit());
         let truth = brute(&tree, v, l, eta, Mode::Heuristic);
         let mut cand = Vec::new();
         tree.query_point(v, l, eta, &mut cand);
@@ -66,7 +47,7 @@ fn pn_tree_never_prunes_a_solution() {
         );
         // Holzschuch's segment query over a chord through V along a random
         // direction, clipped to stay inside.
-        let c = rng.dir();
+        let c = DVec3::from(rng.direction());
         let (a, b) = (v - 0.05 * c, v + 0.05 * c);
         let mut seg = Vec::new();
         tree.query_segment(a, b, l, eta, &mut seg);
@@ -105,7 +86,7 @@ fn heuristic_miss_rate_on_a_bumpy_sphere() {
     let bumpy = BumpySphere::new(1.0, 0.3, 16, 3).unwrap();
     let mesh = bumpy.mesh(10).unwrap();
     let tree = PnTree::new(walter::mesh_triangles(&mesh));
-    let mut rng = Rng(5);
+    let mut rng = Rng::new(5);
     let (mut guaranteed, mut heuristic, mut missed, mut extra) = (0, 0, 0, 0);
     let mut paper_missed = 0;
     let paper = Options {
@@ -114,9 +95,9 @@ fn heuristic_miss_rate_on_a_bumpy_sphere() {
     };
     let mut scratch = Vec::new();
     for _ in 0..300 {
-        let dv = rng.dir();
+        let dv = DVec3::from(rng.direction());
         let v = dv * bumpy.radius_at(dv) * (0.5 + 0.45 * rng.unit());
-        let l = rng.dir() * (1.5 + 2.0 * rng.unit());
+        let l = DVec3::from(rng.direction()) * (1.5 + 2.0 * rng.unit());
         let g = walter::solve_mesh(
             &tree,
             v,
@@ -269,7 +250,7 @@ fn brute_pixel(
     };
     let ng = hit.geometric_normal;
     let eta = medium.index;
-    let iface = eikon_view::fresnel::interface(d, ng, 1.0, eta);
+    let iface = eikon_optics::fresnel::interface(d, ng, 1.0, eta);
     let din = iface.refracted.unwrap();
     let exit = bvh
         .closest_hit(&Ray::segment(hit.point, din, 1e-9, f64::INFINITY))

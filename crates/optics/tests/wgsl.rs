@@ -1,11 +1,11 @@
-//! Function-level parity of the view crate's WGSL module (the
+//! Function-level parity of the optics crate's WGSL module (the
 //! Henyey-Greenstein phase function the GPU renderer is composed with)
 //! with the Rust it mirrors, at f32 tolerance. It needs a Vulkan, Metal or
 //! DX12 adapter (lavapipe in CI, where a missing adapter fails it).
 
 use eikon_gpu::DISPATCH;
+use eikon_optics::phase::{self, hg, G_MAX};
 use eikon_shader::{compose, VECTOR};
-use eikon_view::phase::{self, hg, G_MAX};
 
 #[test]
 fn henyey_greenstein_matches_the_cpu() {
@@ -58,6 +58,9 @@ fn phase(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
         // rounded to f32 is 6e-8 off.
         let near_one = 1.0 - g.abs().min(G_MAX);
         let tol = 1e-5 + 6e-8 * 3.0 / near_one;
-        assert!((got - want).abs() <= tol * want, "hg({c}, {g}): {got} vs {want}");
+        assert!(
+            (got - want).abs() <= tol * want,
+            "hg({c}, {g}): {got} vs {want}"
+        );
     }
 }

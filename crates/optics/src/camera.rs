@@ -29,6 +29,7 @@
 //! carried between calls, so a render is bit-identical however the pixels
 //! are distributed over threads.
 
+use eikon_rng::{mix, unit_f64, GOLDEN};
 use glam::DVec3;
 
 /// Largest number of samples per pixel accepted by [`Camera::new`].
@@ -95,24 +96,6 @@ pub struct Camera {
 }
 
 impl Camera {
-    /// The camera a scene's `[camera]` settings describe (see
-    /// [`crate::render::camera_settings`] for the defaults).
-    ///
-    /// # Errors
-    ///
-    /// As [`Camera::new`].
-    pub fn from_settings(c: &eikon_grid::CameraSettings) -> Result<Camera, CameraError> {
-        Camera::new(
-            c.position,
-            c.target,
-            c.up,
-            c.fov,
-            c.resolution[0],
-            c.resolution[1],
-            c.samples,
-        )
-    }
-
     /// Builds a camera at `position` looking at `target`, with `up` fixing the
     /// roll (it need not be orthogonal to the view direction, nor unit length).
     ///
@@ -283,7 +266,7 @@ impl Camera {
         let (cx, cy) = (cell % self.grid_x, cell / self.grid_x);
         let jitter = hash_words(&[seed, u64::from(px), u64::from(py), u64::from(sample), 1]);
         let ju = unit_f64(jitter);
-        let jv = unit_f64(mix64(jitter ^ 0x6a09_e667_f3bc_c909));
+        let jv = unit_f64(mix(jitter ^ 0x6a09_e667_f3bc_c909));
         // `(c + j) / n` can round up to exactly 1.0 for j close to 1; clamp
         // to the largest double below 1 so the point stays in its pixel.
         let below_one = f64::from_bits(1.0f64.to_bits() - 1);
@@ -319,24 +302,13 @@ fn strata_grid(n: u32) -> (u32, u32) {
     (nx, ny)
 }
 
-/// splitmix64 finalizer: a bijective 64-bit mixer with full avalanche.
-fn mix64(mut z: u64) -> u64 {
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
-}
-
-/// Hash of a word sequence, absorbing one word per splitmix64 round; the
-/// golden-ratio increment keeps all-zero inputs from hashing to zero.
+/// Hash of a word sequence, absorbing one word per splitmix64 round
+/// ([`eikon_rng::mix`]); the golden-ratio increment keeps all-zero inputs
+/// from hashing to zero.
 fn hash_words(words: &[u64]) -> u64 {
-    words.iter().fold(0x9e37_79b9_7f4a_7c15, |h, &w| {
-        mix64(h.wrapping_add(0x9e37_79b9_7f4a_7c15) ^ w)
-    })
-}
-
-/// The top 53 bits of a hash as a double in `[0, 1)`.
-fn unit_f64(h: u64) -> f64 {
-    (h >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    words
+        .iter()
+        .fold(GOLDEN, |h, &w| mix(h.wrapping_add(GOLDEN) ^ w))
 }
 
 /// Pseudo-random permutation of `0..len` evaluated at `i` (Kensler 2013,

@@ -4,31 +4,30 @@
 use super::func::Problem;
 use super::newton::newton2;
 use super::*;
-use crate::fresnel;
+use eikon_optics::fresnel;
 use std::time::Instant;
 
 /// SplitMix64: seeded, reproducible.
-pub(super) struct Rng(pub u64);
+use eikon_rng::SplitMix64 as Rng;
 
-impl Rng {
-    pub fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
+/// The draws these tests need beyond [`Rng`]'s own.
+trait Draw {
+    /// Uniform in the cube `[-r, r]^3`.
+    fn vec(&mut self, r: f64) -> DVec3;
+    /// One of `xs`, uniformly.
+    fn pick<T: Copy>(&mut self, xs: &[T]) -> T;
+}
+
+impl Draw for Rng {
+    fn vec(&mut self, r: f64) -> DVec3 {
+        DVec3::new(
+            self.uniform(-r, r),
+            self.uniform(-r, r),
+            self.uniform(-r, r),
+        )
     }
-    pub fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    pub fn range(&mut self, a: f64, b: f64) -> f64 {
-        a + (b - a) * self.unit()
-    }
-    pub fn vec(&mut self, r: f64) -> DVec3 {
-        DVec3::new(self.range(-r, r), self.range(-r, r), self.range(-r, r))
-    }
-    pub fn pick<T: Copy>(&mut self, xs: &[T]) -> T {
-        xs[(self.next() % xs.len() as u64) as usize]
+    fn pick<T: Copy>(&mut self, xs: &[T]) -> T {
+        xs[self.below(xs.len())]
     }
 }
 
@@ -165,8 +164,8 @@ fn random_flat_case(rng: &mut Rng) -> (Triangle, DVec3, DVec3, f64) {
             continue;
         }
         let c = (tri.p[0] + tri.p[1] + tri.p[2]) / 3.0;
-        let v = c + rng.vec(0.8) - rng.range(0.02, 2.0) * ng;
-        let l = c + rng.vec(3.0) + rng.range(0.02, 3.0) * ng;
+        let v = c + rng.vec(0.8) - rng.uniform(0.02, 2.0) * ng;
+        let l = c + rng.vec(3.0) + rng.uniform(0.02, 3.0) * ng;
         let plane = ng.dot(tri.p[0]);
         if v.dot(ng) < plane && l.dot(ng) > plane {
             let eta = rng.pick(&[1.33, 1.5, 2.42, 1.05, 0.75]);
@@ -185,8 +184,8 @@ fn random_smooth_triangle(rng: &mut Rng) -> Triangle {
     ];
     let g = (p[1] - p[0]).cross(p[2] - p[0]).normalize();
     let c = (p[0] + p[1] + p[2]) / 3.0;
-    let k = rng.range(-1.2, 1.2);
-    let noise = rng.range(0.0, 0.5);
+    let k = rng.uniform(-1.2, 1.2);
+    let noise = rng.uniform(0.0, 0.5);
     let n = p.map(|q| (g + k * (q - c) + noise * rng.vec(1.0)).normalize());
     Triangle::new(p, n)
 }
@@ -247,8 +246,8 @@ fn random_smooth_case(
         let c = (tri.p[0] + tri.p[1] + tri.p[2]) / 3.0;
         let (v, l, uv) = if placement == Placement::Free {
             (
-                c + rng.vec(0.6) - rng.range(0.05, 1.5) * ng,
-                c + rng.vec(3.0) + rng.range(0.1, 3.0) * ng,
+                c + rng.vec(0.6) - rng.uniform(0.05, 1.5) * ng,
+                c + rng.vec(3.0) + rng.uniform(0.1, 3.0) * ng,
                 None,
             )
         } else {
@@ -261,12 +260,12 @@ fn random_smooth_case(
             let p = tri.point(uv);
             let ns = tri.shading_normal(uv);
             let wv = (-ns + rng.vec(0.8)).normalize();
-            let v = p + rng.range(0.05, 2.0) * wv;
+            let v = p + rng.uniform(0.05, 2.0) * wv;
             // The ray from V along −ω̂_V leaves the medium at P.
             let Some(wl) = fresnel::refract(-wv, ns, eta, 1.0) else {
                 continue;
             };
-            let mut t = rng.range(0.05, 4.0);
+            let mut t = rng.uniform(0.05, 4.0);
             if placement == Placement::NearCaustic {
                 let Some(sol) = finish(&tri, v, p + wl, eta, uv, 0, false) else {
                     continue;
@@ -276,7 +275,7 @@ fn random_smooth_case(
                     continue;
                 }
                 let band = rng.pick(&[0.3, 0.01]);
-                t = rng.pick(&f) * rng.range(1.0 - band, 1.0 + band);
+                t = rng.pick(&f) * rng.uniform(1.0 - band, 1.0 + band);
             }
             (v, p + t * wl, Some(uv))
         };
@@ -293,7 +292,7 @@ fn random_smooth_case(
 
 #[test]
 fn flat_solutions_obey_snell_and_match_brute_force() {
-    let mut rng = Rng(2009);
+    let mut rng = Rng::new(2009);
     let (mut cases, mut found, mut both_none, mut ambiguous) = (0, 0, 0, 0);
     let (mut max_angle, mut max_coplanar, mut max_refract, mut max_dp) =
         (0.0f64, 0.0f64, 0.0f64, 0.0f64);
@@ -392,7 +391,7 @@ fn degenerate_inputs() {
 /// obey Snell's law about the shading normal.
 #[test]
 fn smooth_planted_solutions_are_found() {
-    let mut rng = Rng(92);
+    let mut rng = Rng::new(92);
     let cases = 300;
     let (mut missed_h, mut total, mut max_angle, mut max_cop) = (0, 0, 0.0f64, 0.0f64);
     for _ in 0..cases {
@@ -430,7 +429,7 @@ fn smooth_planted_solutions_are_found() {
 /// mode's misses are counted against the guaranteed mode.
 #[test]
 fn smooth_guaranteed_covers_brute_force_and_heuristic() {
-    let mut rng = Rng(0xC0FFEE);
+    let mut rng = Rng::new(0xC0FFEE);
     let cases = 400;
     let mut hist = [0usize; 6];
     let (mut n_brute, mut n_guar, mut n_heur, mut n_heur_missed) = (0, 0, 0, 0);
@@ -614,7 +613,7 @@ fn fd_distance_resolve(tri: &Triangle, v: DVec3, l: DVec3, eta: f64, sol: &Solut
 /// flat triangles; and the reciprocity `dA_V/dω_L = D/η²` on flat ones.
 #[test]
 fn distance_factor_matches_finite_differences() {
-    let mut rng = Rng(17);
+    let mut rng = Rng::new(17);
     let (mut n_flat, mut n_smooth, mut n_b, mut near_caustic) = (0, 0, 0, 0);
     let (mut err_a, mut err_b, mut err_closed, mut err_recip) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
     let (mut recip_lo, mut recip_hi) = (f64::INFINITY, 0.0f64);
@@ -719,7 +718,7 @@ fn contribution_is_eq17() {
     // Eye looking back along the light's direction of travel: forward
     // scattering, the phase function's peak.
     let c = contribution(&tri, &s, &medium, 3.0, s.omega_v * 2.0);
-    assert!((c.phase - crate::phase::hg(1.0, 0.6)).abs() < 1e-12);
+    assert!((c.phase - eikon_optics::phase::hg(1.0, 0.6)).abs() < 1e-12);
     let cos_i = s.omega_l.z;
     assert!((c.transmittance - fresnel::transmittance(cos_i, 1.0, 1.5)).abs() < 1e-15);
     assert!((c.attenuation - (-0.8 * (v - s.point).length()).exp()).abs() < 1e-15);
@@ -736,7 +735,7 @@ fn contribution_is_eq17() {
 #[test]
 fn krawczyk_decides_boxes() {
     use super::search::{krawczyk, Krawczyk};
-    let mut rng = Rng(7);
+    let mut rng = Rng::new(7);
     let (mut unique, mut empty, mut pairs) = (0, 0, 0);
     let cases = 300;
     let boxed = |c: DVec2, w: f64| {
@@ -795,25 +794,12 @@ fn diag_bumpy_breakdown() {
     let bumpy = eikon_mesh::BumpySphere::new(1.0, 0.15, 12, 7).unwrap();
     let mesh = bumpy.mesh(22).unwrap();
     let tree = PnTree::new(mesh_triangles(&mesh));
-    let mut s = 12345u64;
-    let mut unit = || {
-        s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = s;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    };
-    let dir = |u: &mut dyn FnMut() -> f64| {
-        let z = 2.0 * u() - 1.0;
-        let phi = std::f64::consts::TAU * u();
-        let r = (1.0 - z * z).sqrt();
-        DVec3::new(r * phi.cos(), r * phi.sin(), z)
-    };
+    let mut rng = Rng::new(12345);
     let ps: Vec<(DVec3, DVec3)> = (0..32)
         .map(|_| {
-            let dv = dir(&mut unit);
-            let v = dv * bumpy.radius_at(dv) * (0.2 + 0.7 * unit());
-            let l = dir(&mut unit) * (2.0 + 2.0 * unit());
+            let dv = DVec3::from(rng.direction());
+            let v = dv * bumpy.radius_at(dv) * (0.2 + 0.7 * rng.unit());
+            let l = DVec3::from(rng.direction()) * (2.0 + 2.0 * rng.unit());
             (v, l)
         })
         .collect();
@@ -953,7 +939,7 @@ fn nearly_flat_smooth_triangles_find_the_flat_roots() {
             },
         ),
     ];
-    let mut rng = Rng(1717);
+    let mut rng = Rng::new(1717);
     let mut cases = Vec::new();
     // Cases with V 1e-6 below the plane (the issue's; 60), and random flat
     // cases with the root on the triangle (40) and off it (20).
@@ -962,7 +948,7 @@ fn nearly_flat_smooth_triangles_find_the_flat_roots() {
         let near = want[0] > 0;
         let (tri, mut v, l, eta) = random_flat_case(&mut rng);
         if near {
-            let (a, b) = (rng.range(0.1, 0.8), rng.range(0.1, 0.8));
+            let (a, b) = (rng.uniform(0.1, 0.8), rng.uniform(0.1, 0.8));
             if a + b > 0.9 {
                 continue;
             }
@@ -1005,10 +991,10 @@ fn nearly_flat_smooth_triangles_find_the_flat_roots() {
         });
         roots += flat.len();
         near_roots += usize::from(near) * flat.len();
-        let mut arng = Rng(0x7117 + k as u64);
+        let mut arng = Rng::new(0x7117 + k as u64);
         let axes = tri.n.map(|n| {
             let (a, b) = n.any_orthonormal_pair();
-            let phi = arng.range(0.0, std::f64::consts::TAU);
+            let phi = arng.uniform(0.0, std::f64::consts::TAU);
             a * phi.cos() + b * phi.sin()
         });
         for (t, &theta) in tilts.iter().enumerate() {
@@ -1100,11 +1086,11 @@ fn nearly_flat_smooth_triangles_find_the_flat_roots() {
 #[test]
 fn certify_root_proves_roots_and_only_roots() {
     use super::search::certify_root;
-    let mut rng = Rng(4242);
+    let mut rng = Rng::new(4242);
     let (mut proven, mut refused, mut noisy) = (0, 0, 0);
     while proven < 100 {
         let (tri, _, l, eta) = random_flat_case(&mut rng);
-        let (a, b) = (rng.range(0.1, 0.8), rng.range(0.1, 0.8));
+        let (a, b) = (rng.uniform(0.1, 0.8), rng.uniform(0.1, 0.8));
         if a + b > 0.9 {
             continue;
         }

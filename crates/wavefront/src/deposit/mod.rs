@@ -19,11 +19,16 @@
 //! `1 / units_per_crossing` of what the brightest emitted flux deposits
 //! over one voxel length; rounding each piece to a unit then costs at most
 //! half a unit.
+//!
+//! The paper's own rule, the highest-energy ray per cell (5.2.2,
+//! `--deposit paper`), is [`paper`].
+
+pub mod paper;
 
 use crate::patch::span;
-use eikon_shader::{Consts, Module};
 use crate::volume::LightVolume;
 use eikon_grid::GridGeometry;
+use eikon_shader::{Consts, Module};
 use glam::DVec3;
 use ndarray::Array4;
 use rayon::prelude::*;

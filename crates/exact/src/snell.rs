@@ -21,8 +21,8 @@
 //! that leave all bodies, with their weights. Weights are power (throughput)
 //! fractions: the radiance factor `(n2/n1)²` is not applied.
 
-use crate::fresnel;
 use eikon_mesh::{Bvh, Hit, Mesh, MeshError, Ray};
+use eikon_optics::fresnel;
 use glam::DVec3;
 
 /// One homogeneous medium bounded by a closed, outward-facing mesh.

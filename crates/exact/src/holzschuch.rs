@@ -64,7 +64,7 @@ fn refracted_inside(p: DVec3, n: DVec3, l: DVec3, eta: f64) -> Option<DVec3> {
     if wl.dot(n) <= 0.0 {
         return None;
     }
-    crate::fresnel::refract(-wl, n, 1.0, eta)
+    eikon_optics::fresnel::refract(-wl, n, 1.0, eta)
 }
 
 /// Parameters `(t, u)` of the closest approach between the camera line

@@ -5,7 +5,7 @@
 //! eqs 21 and 24 are explained in the documentation of [`super`].
 
 use super::{Solution, Triangle};
-use crate::{fresnel, phase};
+use eikon_optics::{fresnel, phase};
 use glam::{DVec2, DVec3};
 
 /// Eq 18: the exact distance factor for a flat face (shading normal equal
@@ -102,7 +102,7 @@ pub struct Contribution {
 /// towards the eye (the reverse of the view ray's direction; any length).
 /// The phase function's argument is the cosine between the light's
 /// direction of travel at `V`, which is `ω̂_V` (it goes from `P` to `V`),
-/// and `toward_eye`, as [`crate::phase`] expects.
+/// and `toward_eye`, as [`eikon_optics::phase`] expects.
 pub fn contribution(
     tri: &Triangle,
     sol: &Solution,
