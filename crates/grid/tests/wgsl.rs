@@ -3,7 +3,8 @@
 //! evaluates shared WGSL functions on a batch of inputs in a small kernel
 //! and compares them with the CPU functions at f32 tolerance, so a drift
 //! names the function that drifted. They need a Vulkan, Metal or DX12
-//! adapter (lavapipe in CI, where a missing adapter fails them).
+//! adapter (lavapipe in CI, where a missing adapter fails them; elsewhere
+//! they are reported as ignored).
 
 use eikon_gpu::{Gpu, Texture, DISPATCH};
 use eikon_grid::geometry::{GridGpu, WGSL as GRID};
@@ -12,6 +13,7 @@ use eikon_grid::ray::{step_euler, step_euler_on_shell, step_rk4, step_rk4_on_she
 use eikon_grid::{interface, ray, Form, IndexField, Medium, RayState, Scene};
 use eikon_optics::fresnel;
 use eikon_shader::{compose, VECTOR};
+use eikon_testkit::Tests;
 use glam::DVec3;
 
 /// A seeded xorshift: the same cases on every run.
@@ -86,11 +88,7 @@ fn texture(gpu: &Gpu, dims: [usize; 3], data: &[f32]) -> Texture {
     )
 }
 
-#[test]
-fn grid_geometry_and_trilinear_samples_match_the_cpu() {
-    let Some(gpu) = eikon_gpu::test_device() else {
-        return;
-    };
+fn grid_geometry_and_trilinear_samples_match_the_cpu(gpu: &Gpu) {
     let main = format!(
         "{IO}
 @group(0) @binding(2) var<uniform> G: GridGpu;
@@ -218,11 +216,7 @@ fn geometry(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
     assert!(inside > 1000, "{inside}");
 }
 
-#[test]
-fn ray_steps_match_the_cpu_in_both_forms() {
-    let Some(gpu) = eikon_gpu::test_device() else {
-        return;
-    };
+fn ray_steps_match_the_cpu_in_both_forms(gpu: &Gpu) {
     let main = format!(
         "{IO}
 @group(0) @binding(2) var<uniform> G: GridGpu;
@@ -352,11 +346,7 @@ fn dv_of(gpu_v: [f32; 4], v: DVec3, shell: bool) -> DVec3 {
     got
 }
 
-#[test]
-fn fresnel_and_interface_transmittance_match_the_cpu() {
-    let Some(gpu) = eikon_gpu::test_device() else {
-        return;
-    };
+fn fresnel_and_interface_transmittance_match_the_cpu(gpu: &Gpu) {
     let main = format!(
         "{IO}
 // Input: (cos, n1, n2, 0), (v, lo), (normal, hi), (dx, delta).
@@ -465,4 +455,21 @@ fn fresnel(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups
         }
     }
     assert!(tir > 100, "{tir} cases of total internal reflection");
+}
+
+fn main() {
+    Tests::new()
+        .gpu(
+            "grid_geometry_and_trilinear_samples_match_the_cpu",
+            grid_geometry_and_trilinear_samples_match_the_cpu,
+        )
+        .gpu(
+            "ray_steps_match_the_cpu_in_both_forms",
+            ray_steps_match_the_cpu_in_both_forms,
+        )
+        .gpu(
+            "fresnel_and_interface_transmittance_match_the_cpu",
+            fresnel_and_interface_transmittance_match_the_cpu,
+        )
+        .run()
 }

@@ -3,12 +3,15 @@
 //! test evaluates one shared WGSL function on a batch of inputs in a small
 //! kernel and compares it with the CPU function at f32 tolerance, so a
 //! drift names the function that drifted. They need a Vulkan, Metal or
-//! DX12 adapter (lavapipe in CI, where a missing adapter fails them).
+//! DX12 adapter (lavapipe in CI, where a missing adapter fails them; elsewhere
+//! they are reported as ignored).
 
+use eikon_gpu::Gpu;
 use eikon_gpu::DISPATCH;
 use eikon_grid::geometry::{GridGpu, WGSL as GRID};
 use eikon_grid::GridGeometry;
 use eikon_shader::compose;
+use eikon_testkit::Tests;
 use eikon_wavefront::deposit::{self, Counters};
 use eikon_wavefront::patch::{area, normal, span, Split};
 use eikon_wavefront::propagate::step_depth;
@@ -113,11 +116,7 @@ fn counts(n: usize, seed: u64, mix: [u64; 3]) -> Vec<u8> {
         .collect()
 }
 
-#[test]
-fn histopyramid_module_equals_the_cpu_pyramid() {
-    let Some(gpu) = eikon_gpu::test_device() else {
-        return;
-    };
+fn histopyramid_module_equals_the_cpu_pyramid(gpu: &Gpu) {
     let source = pyramid_source();
     let reduce = gpu.eval_kernel(&source, "reduce").unwrap();
     let walk = gpu.eval_kernel(&source, "walk").unwrap();
@@ -152,7 +151,7 @@ fn histopyramid_module_equals_the_cpu_pyramid() {
             len = len.div_ceil(4);
             let inputs: Vec<[f32; 4]> = (0..len as u32).map(|j| bits([level, n, j, 0])).collect();
             reduce
-                .run(&gpu, &inputs, 1, &[pyramid.as_entire_binding()])
+                .run(gpu, &inputs, 1, &[pyramid.as_entire_binding()])
                 .unwrap();
         }
         cpu.build(c);
@@ -160,7 +159,7 @@ fn histopyramid_module_equals_the_cpu_pyramid() {
         let threads = total.max(c.len()).max(1) as u32;
         let inputs: Vec<[f32; 4]> = (0..threads).map(|k| bits([k, n, 0, 0])).collect();
         let out = walk
-            .run(&gpu, &inputs, 1, &[pyramid.as_entire_binding()])
+            .run(gpu, &inputs, 1, &[pyramid.as_entire_binding()])
             .unwrap();
         let mut prefix = 0u32;
         for (k, o) in out.iter().enumerate() {
@@ -188,11 +187,7 @@ fn histopyramid_module_equals_the_cpu_pyramid() {
 // ---------------------------------------------------------------------
 // Patch geometry.
 
-#[test]
-fn patch_geometry_matches_the_cpu() {
-    let Some(gpu) = eikon_gpu::test_device() else {
-        return;
-    };
+fn patch_geometry_matches_the_cpu(gpu: &Gpu) {
     let main = format!(
         "{IO}
 @compute @workgroup_size(WORKGROUP)
@@ -272,11 +267,7 @@ fn grid() -> GridGeometry {
     )
 }
 
-#[test]
-fn subpatches_and_box_footprints_match_the_cpu() {
-    let Some(gpu) = eikon_gpu::test_device() else {
-        return;
-    };
+fn subpatches_and_box_footprints_match_the_cpu(gpu: &Gpu) {
     let main = format!(
         "{IO}
 // Input: a tube's corners before (4) and after (4), the voxel in w of the
@@ -411,11 +402,7 @@ fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>) {{}}
     }
 }
 
-#[test]
-fn a_chords_pieces_match_the_cpu_deposit() {
-    let Some(gpu) = eikon_gpu::test_device() else {
-        return;
-    };
+fn a_chords_pieces_match_the_cpu_deposit(gpu: &Gpu) {
     const PIECES: usize = 16;
     let main = format!(
         "{IO}
@@ -557,11 +544,7 @@ fn chord(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
 // ---------------------------------------------------------------------
 // Eq 18's step depth and the spot cone.
 
-#[test]
-fn step_depth_and_the_spot_cone_match_the_cpu() {
-    let Some(gpu) = eikon_gpu::test_device() else {
-        return;
-    };
+fn step_depth_and_the_spot_cone_match_the_cpu(gpu: &Gpu) {
     let main = format!(
         "{IO}
 @group(0) @binding(2) var<uniform> G: GridGpu;
@@ -675,4 +658,29 @@ fn cone(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
         checked += 1;
     }
     assert!(checked > 3800, "{checked}");
+}
+
+fn main() {
+    Tests::new()
+        .gpu(
+            "histopyramid_module_equals_the_cpu_pyramid",
+            histopyramid_module_equals_the_cpu_pyramid,
+        )
+        .gpu(
+            "patch_geometry_matches_the_cpu",
+            patch_geometry_matches_the_cpu,
+        )
+        .gpu(
+            "subpatches_and_box_footprints_match_the_cpu",
+            subpatches_and_box_footprints_match_the_cpu,
+        )
+        .gpu(
+            "a_chords_pieces_match_the_cpu_deposit",
+            a_chords_pieces_match_the_cpu_deposit,
+        )
+        .gpu(
+            "step_depth_and_the_spot_cone_match_the_cpu",
+            step_depth_and_the_spot_cone_match_the_cpu,
+        )
+        .run()
 }
