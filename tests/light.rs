@@ -370,7 +370,7 @@ fn bad_settings_and_scenes_are_refused() {
                 integrator: eikon_grid::Integrator::DormandPrince,
                 ..Options::default()
             },
-            "method",
+            "integrator",
         ),
     ] {
         let e = simulate_light(&scene.lights[0], &m, &opts, &|_, _| {})
