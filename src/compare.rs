@@ -166,7 +166,7 @@ pub fn run(args: Args) -> Result<()> {
         crate::backend::Backend::Cpu
     };
     let wyman = if methods.contains(&RenderMethod::Wyman) {
-        crate::wyman::warn(&scene);
+        crate::wyman::check(&scene)?;
         Some(crate::wyman::device()?)
     } else {
         None

@@ -305,6 +305,7 @@ fn run_frames(args: &Args) -> Result<()> {
     };
     let wyman = if args.method == RenderMethod::Wyman {
         crate::wyman::check_backend(&args.overrides)?;
+        crate::wyman::check(&anim.frame(plan.range.first)?)?;
         Some(crate::wyman::device()?)
     } else {
         None

@@ -89,13 +89,14 @@ pub fn image(
     Ok((image, stats, started.elapsed().as_secs_f64()))
 }
 
-/// Say what the image-space method leaves out of `scene`'s object, once.
-pub fn warn(scene: &Scene) {
-    if let Ok(r) = eikon_wyman::Refractor::from_scene(scene) {
-        for u in &r.unhandled {
-            eprintln!("warning: {}: {u}", scene.origin);
-        }
+/// Refuse a scene the image-space method cannot render (before any
+/// work), and say what it leaves out of the one it can.
+pub fn check(scene: &Scene) -> Result<()> {
+    let r = eikon_wyman::render::check(scene)?;
+    for u in &r.unhandled {
+        eprintln!("warning: {}: {u}", scene.origin);
     }
+    Ok(())
 }
 
 /// `eikon render --method wyman` of one frame: write `outputs` and report.
@@ -107,8 +108,8 @@ pub fn render(
     json_out: bool,
 ) -> Result<()> {
     check_backend(overrides)?;
+    check(scene)?;
     let gpu = device()?;
-    warn(scene);
     let (image, stats, seconds) = image(&gpu, scene, overrides, options)?;
     crate::render::write_images(outputs, &image, &crate::render::tone(scene, overrides))?;
     let names: Vec<String> = outputs.iter().map(|p| p.display().to_string()).collect();

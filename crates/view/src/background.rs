@@ -52,7 +52,7 @@ pub(crate) struct Checker {
 /// A unit vector orthogonal to the unit `n` (a fixed, documented choice:
 /// from the world axis least aligned with `n`), so that checker squares
 /// line up with the world axes where they can.
-fn tangent(n: DVec3) -> DVec3 {
+pub fn tangent(n: DVec3) -> DVec3 {
     let a = n.abs();
     let axis = if a.x <= a.y && a.x <= a.z {
         DVec3::X

@@ -355,51 +355,38 @@ impl<'g> Raster<'g> {
                 (4, wgpu::BindingResource::TextureView(&t.front_normal.view)),
             ],
         );
-        let depth = |value: f32| {
-            Some(wgpu::RenderPassDepthStencilAttachment {
-                view: &t.depth.view,
-                depth_ops: Some(wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(value),
-                    store: wgpu::StoreOp::Store,
-                }),
-                stencil_ops: None,
-            })
-        };
-        {
-            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("wyman back faces"),
-                color_attachments: &[Some(clear(&t.back))],
-                depth_stencil_attachment: depth(0.0),
-                ..Default::default()
-            });
-            pass.set_pipeline(&self.back);
-            pass.set_bind_group(0, &back_group, &[]);
-            pass.draw(0..self.vertices, 0..1);
-        }
-        {
-            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("wyman front faces"),
-                color_attachments: &[Some(clear(&t.front_position)), Some(clear(&t.front_normal))],
-                depth_stencil_attachment: depth(1.0),
-                ..Default::default()
-            });
-            pass.set_pipeline(&self.front);
-            pass.set_bind_group(0, &front_group, &[]);
-            pass.draw(0..self.vertices, 0..1);
-        }
-        {
-            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("wyman refraction"),
-                color_attachments: &[
-                    Some(clear(&t.exit_position)),
-                    Some(clear(&t.exit_direction)),
-                ],
-                ..Default::default()
-            });
-            pass.set_pipeline(&self.refract);
-            pass.set_bind_group(0, &refract_group, &[]);
-            pass.draw(0..3, 0..1);
-        }
+        let n = [self.vertices, 1];
+        let depth = Some((&t.depth, 0.0));
+        pass(
+            enc,
+            "wyman back faces",
+            &self.back,
+            &back_group,
+            &[&t.back],
+            depth,
+            n,
+        );
+        let depth = Some((&t.depth, 1.0));
+        let front = [&t.front_position, &t.front_normal];
+        pass(
+            enc,
+            "wyman front faces",
+            &self.front,
+            &front_group,
+            &front,
+            depth,
+            n,
+        );
+        let exit = [&t.exit_position, &t.exit_direction];
+        pass(
+            enc,
+            "wyman refraction",
+            &self.refract,
+            &refract_group,
+            &exit,
+            None,
+            [3, 1],
+        );
         block
     }
 
@@ -514,24 +501,9 @@ impl<'g> Raster<'g> {
                         },
                     ],
                 });
-            {
-                let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                    label: Some("wyman splats"),
-                    color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                        view: &dummy.view,
-                        resolve_target: None,
-                        ops: wgpu::Operations {
-                            load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                            store: wgpu::StoreOp::Discard,
-                        },
-                    })],
-                    ..Default::default()
-                });
-                pass.set_pipeline(&self.splat);
-                pass.set_bind_group(0, &group, &[]);
-                let photons = settings.photons * settings.photons;
-                pass.draw(0..6, 0..photons);
-            }
+            let photons = settings.photons * settings.photons;
+            let (pipe, label) = (&self.splat, "wyman splats");
+            pass(&mut enc, label, pipe, &group, &[&dummy], None, [6, photons]);
             self.gpu.queue.submit([enc.finish()]);
             b
         })?;
@@ -586,6 +558,37 @@ fn fullscreen(
             multiview: None,
             cache: None,
         })
+}
+
+/// Record a render pass of `pipe` with bind group 0 `group`, drawing
+/// `[vertices, instances]` into `targets` (cleared to zero), depth-tested
+/// against a buffer cleared to the value given.
+fn pass(
+    enc: &mut wgpu::CommandEncoder,
+    label: &str,
+    pipe: &wgpu::RenderPipeline,
+    group: &wgpu::BindGroup,
+    targets: &[&Texture],
+    depth: Option<(&Texture, f32)>,
+    [vertices, instances]: [u32; 2],
+) {
+    let colors: Vec<_> = targets.iter().map(|t| Some(clear(t))).collect();
+    let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
+        label: Some(label),
+        color_attachments: &colors,
+        depth_stencil_attachment: depth.map(|(t, value)| wgpu::RenderPassDepthStencilAttachment {
+            view: &t.view,
+            depth_ops: Some(wgpu::Operations {
+                load: wgpu::LoadOp::Clear(value),
+                store: wgpu::StoreOp::Store,
+            }),
+            stencil_ops: None,
+        }),
+        ..Default::default()
+    });
+    pass.set_pipeline(pipe);
+    pass.set_bind_group(0, group, &[]);
+    pass.draw(0..vertices, 0..instances);
 }
 
 /// A colour attachment cleared to zero and kept.
@@ -689,16 +692,15 @@ pub fn fresnel_probe(
             }],
         });
         let mut enc = gpu.device.create_command_encoder(&Default::default());
-        {
-            let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("wyman fresnel probe"),
-                color_attachments: &[Some(clear(&a)), Some(clear(&b))],
-                ..Default::default()
-            });
-            pass.set_pipeline(&pipe);
-            pass.set_bind_group(0, &group, &[]);
-            pass.draw(0..3, 0..1);
-        }
+        pass(
+            &mut enc,
+            "wyman fresnel probe",
+            &pipe,
+            &group,
+            &[&a, &b],
+            None,
+            [3, 1],
+        );
         gpu.queue.submit([enc.finish()]);
     })?;
     let out = read_rgba(gpu, &[&a, &b], [n, 1])?;

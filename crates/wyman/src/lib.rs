@@ -70,7 +70,7 @@ pub mod view;
 pub use caustic::CausticMap;
 pub use gpu::{Exit, ExitRays, Raster};
 pub use refractor::{Refractor, Shading};
-pub use render::{render, Stats};
+pub use render::{render, Renderer, Stats};
 pub use view::View;
 
 /// What total internal reflection at the back surface becomes: the

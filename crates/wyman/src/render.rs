@@ -100,6 +100,15 @@ fn light_views(
         .collect()
 }
 
+/// The scene's refractor, once every part of the scene the method needs
+/// is known to be one it can take (its object, and its lights where there
+/// is a receiver to light): the checks of [`render`] that need no device.
+pub fn check(scene: &Scene) -> Result<Refractor, WymanError> {
+    let refractor = Refractor::from_scene(scene)?;
+    light_views(scene, &refractor, &Settings::default())?;
+    Ok(refractor)
+}
+
 /// Where in its pixel sample `s` of `samples` lies: the centre of the
 /// s-th cell of the camera's strata grid, the same offset in every pixel
 /// (a rasterizer's jitter), so every pass is one ordinary projection.
@@ -113,65 +122,106 @@ pub fn sample_offset(camera: &Camera, s: u32) -> DVec2 {
 
 /// Render `scene` through `camera` on `gpu` by Wyman's image-space
 /// refraction and caustic maps (crate docs): the image and what it took.
+/// [`Renderer`] keeps the mesh and pipelines for more frames.
 pub fn render(
     gpu: &eikon_gpu::Gpu,
     scene: &Scene,
     camera: &Camera,
     settings: &Settings,
 ) -> Result<(Image, Stats), WymanError> {
-    let refractor = Refractor::from_scene(scene)?;
-    settings.check(gpu.device.limits().max_texture_dimension_2d)?;
-    if refractor.contains(camera.position()) {
-        return Err(WymanError::Scene(scene.error_at(
-            "camera.position",
-            "the image-space method (wyman) needs the camera outside the refracting object",
-        )));
+    Renderer::new(gpu, scene, settings)?.render(camera)
+}
+
+/// A scene ready to render: its refractor on the device, the pipelines,
+/// the background loaded.
+pub struct Renderer<'a> {
+    scene: &'a Scene,
+    settings: Settings,
+    refractor: Refractor,
+    raster: Raster<'a>,
+    environment: eikon_view::Environment,
+}
+
+impl<'a> Renderer<'a> {
+    /// Check `scene` (refused by field where the method cannot take it),
+    /// mesh its object and build the pipelines.
+    pub fn new(
+        gpu: &'a eikon_gpu::Gpu,
+        scene: &'a Scene,
+        settings: &Settings,
+    ) -> Result<Renderer<'a>, WymanError> {
+        let refractor = check(scene)?;
+        settings.check(gpu.device.limits().max_texture_dimension_2d)?;
+        let environment = eikon_view::background::load_environment(&scene.background)?;
+        let raster = Raster::new(gpu, &refractor)?;
+        Ok(Renderer {
+            scene,
+            settings: *settings,
+            refractor,
+            raster,
+            environment,
+        })
     }
-    light_views(scene, &refractor, settings)?;
-    let env = eikon_view::background::load_environment(&scene.background)?;
-    let raster = Raster::new(gpu, &refractor)?;
-    let mut stats = Stats::default();
-    let started = Instant::now();
-    let maps = caustic_maps(&raster, scene, &refractor, settings)?;
-    stats.caustic_seconds = started.elapsed().as_secs_f64();
-    stats.caustic_lights = maps.len();
-    stats.passes += 4 * maps.len();
-    let np = u64::from(settings.photons).pow(2);
-    let nc = u64::from(settings.caustic_map).pow(2);
-    stats.readback_bytes += maps.len() as u64 * (16 * np + 24 * nc);
-    let factor = |j: usize, x: DVec3| maps[j].factor(x);
-    let mut surroundings = Surroundings::new(scene, env, &[], &scene.grid.geometry);
-    if !maps.is_empty() {
-        surroundings = surroundings.with_light_factor(&factor);
+
+    /// One frame through `camera`: each light's caustic and shadow maps,
+    /// then per pixel sample the eye's passes and the CPU's shading.
+    pub fn render(&self, camera: &Camera) -> Result<(Image, Stats), WymanError> {
+        let (scene, settings, refractor) = (self.scene, &self.settings, &self.refractor);
+        if refractor.contains(camera.position()) {
+            return Err(WymanError::Scene(scene.error_at(
+                "camera.position",
+                "the image-space method (wyman) needs the camera outside the refracting object",
+            )));
+        }
+        let mut stats = Stats::default();
+        let started = Instant::now();
+        let maps = caustic_maps(&self.raster, scene, refractor, settings)?;
+        stats.caustic_seconds = started.elapsed().as_secs_f64();
+        stats.caustic_lights = maps.len();
+        stats.passes += 4 * maps.len();
+        let np = u64::from(settings.photons).pow(2);
+        let nc = u64::from(settings.caustic_map).pow(2);
+        stats.readback_bytes += maps.len() as u64 * (16 * np + 24 * nc);
+        let factor = |j: usize, x: DVec3| maps[j].factor(x);
+        let mut surroundings =
+            Surroundings::new(scene, self.environment.clone(), &[], &scene.grid.geometry);
+        if !maps.is_empty() {
+            surroundings = surroundings.with_light_factor(&factor);
+        }
+        let (w, h) = (camera.width(), camera.height());
+        let targets = self.raster.targets([w, h])?;
+        let (centre, radius) = refractor.bounding_sphere();
+        let mut sum = vec![DVec3::ZERO; (w as usize) * (h as usize)];
+        for s in 0..camera.samples() {
+            let offset = sample_offset(camera, s);
+            let t = Instant::now();
+            let view = View::of_camera(camera, offset, centre, radius);
+            let rays = self.raster.exit_rays(&view, settings.tir, &targets)?;
+            stats.eye_seconds += t.elapsed().as_secs_f64();
+            stats.passes += 3;
+            stats.readback_bytes += 64 * u64::from(w) * u64::from(h);
+            let t = Instant::now();
+            shade(
+                &rays,
+                camera,
+                offset,
+                &surroundings,
+                refractor,
+                &mut sum,
+                &mut stats,
+            );
+            stats.shade_seconds += t.elapsed().as_secs_f64();
+        }
+        let k = 1.0 / f64::from(camera.samples());
+        let data = sum.iter().map(|c| (*c * k).as_vec3().to_array()).collect();
+        let image = Image::from_data(w, h, data).expect("one pixel per sample");
+        Ok((image, stats))
     }
-    let (w, h) = (camera.width(), camera.height());
-    let targets = raster.targets([w, h])?;
-    let (centre, radius) = refractor.bounding_sphere();
-    let mut sum = vec![DVec3::ZERO; (w as usize) * (h as usize)];
-    for s in 0..camera.samples() {
-        let offset = sample_offset(camera, s);
-        let t = Instant::now();
-        let view = View::of_camera(camera, offset, centre, radius);
-        let rays = raster.exit_rays(&view, settings.tir, &targets)?;
-        stats.eye_seconds += t.elapsed().as_secs_f64();
-        stats.passes += 3;
-        stats.readback_bytes += 64 * u64::from(w) * u64::from(h);
-        let t = Instant::now();
-        shade(
-            &rays,
-            camera,
-            offset,
-            &surroundings,
-            &refractor,
-            &mut sum,
-            &mut stats,
-        );
-        stats.shade_seconds += t.elapsed().as_secs_f64();
+
+    /// The refractor.
+    pub fn refractor(&self) -> &Refractor {
+        &self.refractor
     }
-    let k = 1.0 / f64::from(camera.samples());
-    let data = sum.iter().map(|c| (*c * k).as_vec3().to_array()).collect();
-    let image = Image::from_data(w, h, data).expect("one pixel per sample");
-    Ok((image, stats))
 }
 
 /// Device bytes a frame holds at its peak: the eye's targets and

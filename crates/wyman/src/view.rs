@@ -110,7 +110,7 @@ impl View {
             }
             Light::Spot { .. } => return Err(LightView::Spot),
         };
-        let right = tangent(forward);
+        let right = eikon_view::background::tangent(forward);
         let up = right.cross(forward);
         Ok(View {
             eye,
@@ -220,20 +220,6 @@ impl LightView {
         };
         WymanError::Scene(scene.error_at(&field, msg))
     }
-}
-
-/// A unit vector orthogonal to the unit `n`, from the world axis least
-/// aligned with it.
-fn tangent(n: DVec3) -> DVec3 {
-    let a = n.abs();
-    let axis = if a.x <= a.y && a.x <= a.z {
-        DVec3::X
-    } else if a.y <= a.z {
-        DVec3::Y
-    } else {
-        DVec3::Z
-    };
-    (axis - n * n.dot(axis)).normalize()
 }
 
 #[cfg(test)]

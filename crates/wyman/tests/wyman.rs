@@ -26,18 +26,7 @@ fn refract(d: DVec3, n: DVec3, eta: f64) -> Option<DVec3> {
     (k >= 0.0).then(|| (eta * d + (eta * c - k.sqrt()) * n).normalize())
 }
 
-/// Unpolarized Fresnel reflectance from n1 into n2 (Born & Wolf).
-fn reflectance(cos: f64, n1: f64, n2: f64) -> f64 {
-    let cos = cos.abs().min(1.0);
-    let s2 = (n1 / n2).powi(2) * (1.0 - cos * cos);
-    if s2 >= 1.0 {
-        return 1.0;
-    }
-    let ct = (1.0 - s2).sqrt();
-    let rs = ((n1 * cos - n2 * ct) / (n1 * cos + n2 * ct)).powi(2);
-    let rp = ((n2 * cos - n1 * ct) / (n2 * cos + n1 * ct)).powi(2);
-    0.5 * (rs + rp)
-}
+use eikon_grid::fresnel::reflectance;
 
 fn angle_deg(a: DVec3, b: DVec3) -> f64 {
     a.normalize()
@@ -383,10 +372,12 @@ fn caustic_of_a_glass_sphere_against_the_eikonal_light_simulation() {
         return;
     };
     // Ihrke et al. Fig. 7 (configs/glass-sphere.toml) at 64^3 for the
-    // eikonal light simulation.
+    // eikonal light simulation (EIKON_CAUSTIC_RESOLUTION=128 for the
+    // config's own, a minute more).
+    let res = std::env::var("EIKON_CAUSTIC_RESOLUTION").unwrap_or_else(|_| "64".into());
     let text = include_str!("../../../configs/glass-sphere.toml")
-        .replace("resolution = 128", "resolution = 64");
-    let scene = eikon_grid::Scene::parse(&text, "glass-sphere.toml at 64^3").unwrap();
+        .replace("resolution = 128", &format!("resolution = {res}"));
+    let scene = eikon_grid::Scene::parse(&text, "glass-sphere.toml").unwrap();
     let t = std::time::Instant::now();
     let medium = eikon_grid::Medium::build(&scene).unwrap();
     let (volume, _) = eikon_wavefront::simulate_light(
@@ -525,7 +516,7 @@ fn caustic_of_a_glass_sphere_against_the_eikonal_light_simulation() {
     let texel = 2.0 * radius * 1.01 * settings.caustic_extent / f64::from(settings.caustic_map);
     let off = (cw - ce).length() / texel;
     println!(
-        "caustic flux over the region (W): wyman {fw:.4}, the paper's method in f64 {paper:.4} (GPU / f64 {:.4}), exact two refractions {exact2:.4} (+{exact_more:.4} after internal reflections), eikonal at 64^3 {fe:.4}",
+        "caustic flux over the region (W): wyman {fw:.4}, the paper's method in f64 {paper:.4} (GPU / f64 {:.4}), exact two refractions {exact2:.4} (+{exact_more:.4} after internal reflections), eikonal at {res}^3 {fe:.4}",
         fw / paper
     );
     println!(
