@@ -61,7 +61,12 @@ impl WymanOptions {
 /// The device for `--method wyman`: any Vulkan, Metal or DX12 adapter, a
 /// software one included (the method has no CPU path).
 pub fn device() -> Result<Gpu> {
-    let gpu = Gpu::new().context("--method wyman")?;
+    let gpu = match Gpu::new() {
+        Err(eikon_gpu::GpuError::NoAdapter { wanted }) => bail!(
+            "--method wyman: no GPU adapter found ({wanted}): the method runs on a Vulkan, Metal or DX12 device's render pipelines (a software Vulkan such as Mesa's lavapipe will do); --method eikonal or an exact method render without one"
+        ),
+        other => other.context("--method wyman")?,
+    };
     eprintln!("wyman: {}", gpu.describe());
     Ok(gpu)
 }
