@@ -23,7 +23,8 @@ pub struct Args {
     /// `compare.json`; the eikonal method's light volumes go to `light/`.
     #[arg(short, long)]
     output: PathBuf,
-    /// Methods to render, in order.
+    /// Methods to render, in order (add `wyman`, the image-space method on
+    /// the GPU, for its row).
     #[arg(
         long,
         value_enum,
@@ -36,6 +37,8 @@ pub struct Args {
     reference: RenderMethod,
     #[command(flatten)]
     exact: ExactOptions,
+    #[command(flatten)]
+    wyman: crate::wyman::WymanOptions,
     #[command(flatten)]
     overrides: Overrides,
     /// Print the table as JSON.
@@ -162,6 +165,12 @@ pub fn run(args: Args) -> Result<()> {
     } else {
         crate::backend::Backend::Cpu
     };
+    let wyman = if methods.contains(&RenderMethod::Wyman) {
+        crate::wyman::check(&scene)?;
+        Some(crate::wyman::device()?)
+    } else {
+        None
+    };
     let mut results: Vec<(RenderMethod, Image, f64)> = Vec::new();
     for &m in &methods {
         eprintln!("{}:", m.name());
@@ -171,6 +180,8 @@ pub fn run(args: Args) -> Result<()> {
             let sim = simulate::Args::defaults(args.scene.clone(), args.output.join("light"));
             let volumes = simulate::simulate_quiet(&sim, &scene, &medium, &backend)?;
             render::render_image(&scene, &medium, &volumes, &args.overrides, &backend)?.0
+        } else if let (RenderMethod::Wyman, Some(gpu)) = (m, &wyman) {
+            crate::wyman::image(gpu, &scene, &args.overrides, &args.wyman)?.0
         } else {
             let method = crate::exact::method(m.name(), args.exact.scatter_samples)?;
             crate::exact::render(&scene, &camera, method, args.exact.guaranteed, seed)?.0

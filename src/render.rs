@@ -75,6 +75,9 @@ pub enum RenderMethod {
     /// Single scattering with straight shadow rays: refraction on the light
     /// side ignored (the approximation the exact methods improve on).
     Straight,
+    /// Wyman's image-space two-interface refraction and caustic maps on
+    /// the GPU's render pipelines: the fast approximate preview.
+    Wyman,
 }
 
 impl RenderMethod {
@@ -85,6 +88,7 @@ impl RenderMethod {
             RenderMethod::Walter => "walter",
             RenderMethod::Holzschuch => "holzschuch",
             RenderMethod::Straight => "straight",
+            RenderMethod::Wyman => "wyman",
         }
     }
 }
@@ -127,6 +131,8 @@ pub struct Args {
     #[command(flatten)]
     exact: ExactOptions,
     #[command(flatten)]
+    wyman: crate::wyman::WymanOptions,
+    #[command(flatten)]
     overrides: Overrides,
     /// Print the render's statistics as JSON (not with `--frames`: `eikon
     /// status FOLDER --json` reports a frame run).
@@ -142,12 +148,21 @@ pub struct Args {
 pub fn run(args: Args) -> Result<()> {
     check_outputs(&args.output)?;
     if args.method != RenderMethod::Eikonal && args.light.is_some() {
-        bail!("--light: light volumes are for --method eikonal; the exact methods connect to the lights themselves");
+        bail!("--light: light volumes are for --method eikonal; the other methods reach the lights themselves");
     }
     if args.frames.frames.is_some() {
         return run_frames(&args);
     }
     let scene = args.overrides.grid.load(&args.scene)?;
+    if args.method == RenderMethod::Wyman {
+        return crate::wyman::render(
+            &scene,
+            &args.overrides,
+            &args.wyman,
+            &args.output,
+            args.json,
+        );
+    }
     if args.method != RenderMethod::Eikonal {
         let (image, stats, seconds) = exact_image(&scene, &args)?;
         let tone = tone(&scene, &args.overrides);
@@ -286,8 +301,15 @@ fn run_frames(args: &Args) -> Result<()> {
     } else {
         Backend::Cpu
     };
+    let wyman = if args.method == RenderMethod::Wyman {
+        crate::wyman::check_backend(&args.overrides)?;
+        crate::wyman::check(&anim.frame(plan.range.first)?)?;
+        Some(crate::wyman::device()?)
+    } else {
+        None
+    };
     let settings = format!(
-        "method {}; light {}; images {}; scatter samples {:?}; guaranteed {}; {}",
+        "method {}; light {}; images {}; scatter samples {:?}; guaranteed {}; wyman {}; {}",
         args.method.name(),
         args.light
             .as_ref()
@@ -299,6 +321,7 @@ fn run_frames(args: &Args) -> Result<()> {
             .join(" "),
         args.exact.scatter_samples,
         args.exact.guaranteed,
+        args.wyman.describe(),
         overrides_settings(&args.overrides, &backend)
     );
     let mut job = Job::open(&folder, "render", &plan, settings, false)?;
@@ -314,6 +337,11 @@ fn run_frames(args: &Args) -> Result<()> {
             };
             let (image, ..) = render_image(&scene, &medium, &volumes, &args.overrides, &backend)?;
             (image, note)
+        } else if let Some(gpu) = &wyman {
+            (
+                crate::wyman::image(gpu, &scene, &args.overrides, &args.wyman)?.0,
+                "",
+            )
         } else {
             (exact_image(&scene, args)?.0, "")
         };

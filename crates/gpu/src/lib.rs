@@ -201,6 +201,8 @@ impl Gpu {
                 // and samples the medium from 3D textures.
                 max_storage_buffers_per_shader_stage: limits.max_storage_buffers_per_shader_stage,
                 max_texture_dimension_3d: limits.max_texture_dimension_3d,
+                // Render targets as large as images may be (eikon-wyman).
+                max_texture_dimension_2d: limits.max_texture_dimension_2d,
                 max_bind_groups: limits.max_bind_groups,
                 ..wgpu::Limits::downlevel_defaults()
             },
@@ -437,6 +439,40 @@ impl Gpu {
             );
             i0 = i1;
         }
+        Texture {
+            view: texture.create_view(&Default::default()),
+            texture,
+            bytes,
+            tally: self.tally.clone(),
+        }
+    }
+
+    /// A `width` x `height` 2D texture of `format` with `usage` (render
+    /// targets, depth buffers), tallied as [`Gpu::texture_3d`]'s are.
+    pub fn texture_2d(
+        &self,
+        label: &str,
+        [width, height]: [u32; 2],
+        format: wgpu::TextureFormat,
+        usage: wgpu::TextureUsages,
+    ) -> Texture {
+        let texture = self.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d {
+                width,
+                height,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage,
+            view_formats: &[],
+        });
+        let texel = format.block_copy_size(None).unwrap_or(4);
+        let bytes = u64::from(width) * u64::from(height) * u64::from(texel);
+        self.tally.add(bytes);
         Texture {
             view: texture.create_view(&Default::default()),
             texture,

@@ -122,13 +122,13 @@ fn geometry(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
     let source = compose("", &[&DISPATCH, &GRID], &main);
     let m = medium();
     let g = &m.geometry;
-    let field = texture(&gpu, g.dims, m.index[0].as_slice().unwrap());
+    let field = texture(gpu, g.dims, m.index[0].as_slice().unwrap());
     let ext = m.extinction.as_slice().unwrap();
     let mut rgba = vec![0f32; g.voxel_count() * 4];
     for (o, e) in rgba.chunks_exact_mut(4).zip(ext.chunks_exact(3)) {
         o[..3].copy_from_slice(e);
     }
-    let ext = texture(&gpu, g.dims, &rgba);
+    let ext = texture(gpu, g.dims, &rgba);
     let grid = gpu.uniform("grid", &[GridGpu::new(g)]);
     let mut r = Rng(3);
     let cases: Vec<(DVec3, DVec3)> = (0..5000)
@@ -259,7 +259,7 @@ fn step(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
     let source = compose("", &[&DISPATCH, &GRID, &ray::WGSL], &main);
     let m = medium();
     let g = &m.geometry;
-    let tex = texture(&gpu, g.dims, m.index[0].as_slice().unwrap());
+    let tex = texture(gpu, g.dims, m.index[0].as_slice().unwrap());
     let grid = gpu.uniform("grid", &[GridGpu::new(g)]);
     let f = m.field(0);
     let mut r = Rng(17);

@@ -10,7 +10,7 @@
 use eikon_shader::{nothing, Module};
 use glam::DVec3;
 
-/// The WGSL of [`reflectance`].
+/// The WGSL of [`reflectance`], [`refract`] and [`reflect`].
 pub static WGSL: Module = Module {
     name: "fresnel",
     requires: &[],

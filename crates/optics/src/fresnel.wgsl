@@ -20,3 +20,25 @@ fn fresnel_reflectance(cos_in: f32, n1: f32, n2: f32) -> f32 {
     let rp = (n2 * cos_i - n1 * cos_t) / (n2 * cos_i + n1 * cos_t);
     return 0.5 * (rs * rs + rp * rp);
 }
+
+// `fresnel::refract`: Snell's law for the unit d entering n2 from n1
+// through a unit normal of either orientation; zero under total internal
+// reflection.
+fn fresnel_refract(d: vec3<f32>, normal: vec3<f32>, n1: f32, n2: f32) -> vec3<f32> {
+    var n = normal;
+    if dot(d, normal) > 0.0 {
+        n = -normal;
+    }
+    let cos_i = min(-dot(d, n), 1.0);
+    let eta = n1 / n2;
+    let k = 1.0 - eta * eta * (1.0 - cos_i * cos_i);
+    if k < 0.0 {
+        return vec3<f32>(0.0);
+    }
+    return normalize(eta * d + (eta * cos_i - sqrt(k)) * n);
+}
+
+// `fresnel::reflect`: the mirror direction of d about the plane of normal n.
+fn fresnel_reflect(d: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
+    return d - 2.0 * dot(d, n) * n;
+}

@@ -60,6 +60,13 @@ scalar!(f32, "f32");
 scalar!(u32, "u32");
 scalar!(i32, "i32");
 
+/// A column-major 4x4 matrix (glam's `to_cols_array_2d`).
+impl WgslType for [[f32; 4]; 4] {
+    fn wgsl() -> String {
+        "mat4x4<f32>".into()
+    }
+}
+
 /// An array of structs, `array<T, N>`.
 impl<T: Layout, const N: usize> WgslType for [T; N] {
     fn wgsl() -> String {
@@ -102,7 +109,8 @@ pub trait Layout: bytemuck::Pod {
 /// Declare a `#[repr(C)]` struct shared with WGSL: the Rust struct (with
 /// `Clone`, `Copy`, `Debug`, `Default`, `Pod`, `Zeroable`) and its
 /// [`Layout`]. Fields are `f32`, `u32`, `i32`, arrays of 2 to 4 of them
-/// (WGSL vectors) or arrays of other layouts. The struct may have no
+/// (WGSL vectors), `[[f32; 4]; 4]` (a column-major `mat4x4<f32>`), other
+/// layouts or arrays of them. The struct may have no
 /// implicit padding (a compile-time check): pad by hand with named fields,
 /// so that the WGSL alignment rules (a `vec3` aligned to 16 bytes) and the
 /// Rust layout agree; `eikon_gpu::layout::check` verifies that they do.
