@@ -1,8 +1,12 @@
 //! End to end: `eikon render --method wyman` and the `wyman` row of
 //! `eikon compare` (Wyman's image-space refraction and caustic maps on the
-//! GPU's render pipelines). They need a Vulkan adapter; CI has Mesa's
-//! lavapipe and sets `CI`, and there they must not be skipped.
+//! GPU's render pipelines). The renders need a Vulkan, Metal or DX12
+//! adapter: without one they are reported as ignored, and under `CI` (which
+//! has Mesa's lavapipe) they fail. Built with the `gpu` feature only
+//! (`required-features`).
 
+use eikon_gpu::Gpu;
+use eikon_testkit::Tests;
 use std::path::Path;
 mod binary;
 
@@ -44,11 +48,7 @@ fn write(dir: &Path, name: &str, text: &str) -> String {
     p.to_str().unwrap().to_string()
 }
 
-#[test]
-fn render_method_wyman_writes_the_image_and_says_what_it_did() {
-    if eikon_gpu::test_device().is_none() {
-        return;
-    }
+fn render_method_wyman_writes_the_image_and_says_what_it_did(_: &Gpu) {
     let dir = tempfile::tempdir().unwrap();
     let scene = write(dir.path(), "sphere.toml", SPHERE);
     let png = dir.path().join("w.png");
@@ -81,11 +81,7 @@ fn render_method_wyman_writes_the_image_and_says_what_it_did() {
     assert!(png.is_file() && exr.is_file());
 }
 
-#[test]
-fn compare_has_a_wyman_row() {
-    if eikon_gpu::test_device().is_none() {
-        return;
-    }
+fn compare_has_a_wyman_row(_: &Gpu) {
     let dir = tempfile::tempdir().unwrap();
     let text = std::fs::read_to_string(
         Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/glass-bumpy.toml"),
@@ -115,7 +111,6 @@ fn compare_has_a_wyman_row() {
     assert!(out.join("wyman.png").is_file() && out.join("contact.png").is_file());
 }
 
-#[test]
 fn wyman_refuses_what_it_cannot_do() {
     let dir = tempfile::tempdir().unwrap();
     let png = dir.path().join("x.png");
@@ -147,7 +142,8 @@ fn wyman_refuses_what_it_cannot_do() {
         ],
         &["--light", "eikonal"],
     );
-    if eikon_gpu::test_device().is_some() {
+    // The scene is checked before a device is looked for.
+    {
         let spot = SPHERE.replace(
             "type = \"directional\"",
             "type = \"spot\"\nposition = [0.0, 1.5, 0.0]\nangle = 20.0",
@@ -170,11 +166,7 @@ fn wyman_refuses_what_it_cannot_do() {
     assert!(!Path::new(png).exists());
 }
 
-#[test]
-fn wyman_renders_frame_sequences() {
-    if eikon_gpu::test_device().is_none() {
-        return;
-    }
+fn wyman_renders_frame_sequences(_: &Gpu) {
     let dir = tempfile::tempdir().unwrap();
     let anim = format!(
         "{SPHERE}\n[animation]\nframes = 2\n\n[[animation.track]]\nfield = \"light[0].direction\"\nkeys = [{{ frame = 0, value = [0.2, -1.0, 0.1] }}, {{ frame = 1, value = [-0.2, -1.0, 0.0] }}]\n"
@@ -199,4 +191,13 @@ fn wyman_renders_frame_sequences() {
     // The caustic moves with the light.
     assert_ne!(a, b);
     assert!(out.join("manifest-render.json").is_file());
+}
+
+fn main() {
+    Tests::new()
+        .gpu("render_method_wyman_writes_the_image_and_says_what_it_did", render_method_wyman_writes_the_image_and_says_what_it_did)
+        .gpu("compare_has_a_wyman_row", compare_has_a_wyman_row)
+        .gpu("wyman_renders_frame_sequences", wyman_renders_frame_sequences)
+        .cpu("wyman_refuses_what_it_cannot_do", wyman_refuses_what_it_cannot_do)
+        .run()
 }
