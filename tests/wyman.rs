@@ -195,9 +195,18 @@ fn wyman_renders_frame_sequences(_: &Gpu) {
 
 fn main() {
     Tests::new()
-        .gpu("render_method_wyman_writes_the_image_and_says_what_it_did", render_method_wyman_writes_the_image_and_says_what_it_did)
+        .gpu(
+            "render_method_wyman_writes_the_image_and_says_what_it_did",
+            render_method_wyman_writes_the_image_and_says_what_it_did,
+        )
         .gpu("compare_has_a_wyman_row", compare_has_a_wyman_row)
-        .gpu("wyman_renders_frame_sequences", wyman_renders_frame_sequences)
-        .cpu("wyman_refuses_what_it_cannot_do", wyman_refuses_what_it_cannot_do)
+        .gpu(
+            "wyman_renders_frame_sequences",
+            wyman_renders_frame_sequences,
+        )
+        .cpu(
+            "wyman_refuses_what_it_cannot_do",
+            wyman_refuses_what_it_cannot_do,
+        )
         .run()
 }

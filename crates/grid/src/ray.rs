@@ -158,6 +158,16 @@ pub fn step_euler<F: IndexField + ?Sized>(f: &F, form: Form, s: &mut RayState, h
     *s = apply(s, &k, h);
 }
 
+/// One forward-Euler step of size `h` in the equal-distance form [Ihrke07
+/// eqs 11-12] from the index sample `(n, grad)` already taken at `s.x`
+/// (the eye rays', which gather eq 1 from that sample first).
+#[inline(always)]
+pub fn step_euler_sampled(s: &mut RayState, (n, grad): (f64, DVec3), h: f64) {
+    s.x += s.v * (h / n);
+    s.v += grad * h;
+    s.opl += n * h;
+}
+
 /// One classical RK4 step of size `h`.
 #[inline]
 pub fn step_rk4<F: IndexField + ?Sized>(f: &F, form: Form, s: &mut RayState, h: f64) {

@@ -50,6 +50,12 @@ fn ray_increment(form: u32, integrator: u32, x: vec3<f32>, v: vec3<f32>, k0: Ray
     );
 }
 
+// `ray::step_euler_sampled`: the eye rays' equal-distance Euler step from
+// the sample (n, g) already taken at x [Ihrke07 eqs 11-12].
+fn ray_euler_sampled(n: f32, g: vec3<f32>, v: vec3<f32>, h: f32) -> RayDeriv {
+    return RayDeriv(v * (h / n), g * h, n * h);
+}
+
 // `ray::onto_shell`: v rescaled to |v| = n, its direction kept.
 fn ray_onto_shell(v: vec3<f32>, n: f32) -> vec3<f32> {
     let len = length(v);

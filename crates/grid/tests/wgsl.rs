@@ -9,7 +9,9 @@
 use eikon_gpu::{Gpu, Texture, DISPATCH};
 use eikon_grid::geometry::{GridGpu, WGSL as GRID};
 use eikon_grid::interface::{band_transmittance, crossing_transmittance, Sides};
-use eikon_grid::ray::{step_euler, step_euler_on_shell, step_rk4, step_rk4_on_shell};
+use eikon_grid::ray::{
+    step_euler, step_euler_on_shell, step_euler_sampled, step_rk4, step_rk4_on_shell,
+};
 use eikon_grid::{interface, ray, Form, IndexField, Medium, RayState, Scene};
 use eikon_optics::fresnel;
 use eikon_shader::{compose, VECTOR};
@@ -228,8 +230,8 @@ fn index_field(p: vec3<f32>) -> vec4<f32> {{
     return vec4<f32>(v.x, v.yzw * inv);
 }}
 
-// Input: (x, h), (v, form), (integrator, on the shell): the step's x, v
-// and optical path increments, and the v they apply to.
+// Input: (x, h), (v, form), (integrator, on the shell, sampled Euler): the
+// step's x, v and optical path increments, and the v they apply to.
 @compute @workgroup_size(WORKGROUP)
 fn step(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
     let i = item(id, groups);
@@ -247,6 +249,9 @@ fn step(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
         let s = ray_step_on_shell(form, integrator, a.xyz, v, a.w);
         v = s.v;
         inc = s.inc;
+    }} else if c.z != 0.0 {{
+        let f = index_field(a.xyz);
+        inc = ray_euler_sampled(f.x, f.yzw, v, a.w);
     }} else {{
         inc = ray_increment(form, integrator, a.xyz, v, ray_deriv(form, a.xyz, v), a.w);
     }}
@@ -263,8 +268,10 @@ fn step(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
     let grid = gpu.uniform("grid", &[GridGpu::new(g)]);
     let f = m.field(0);
     let mut r = Rng(17);
-    // Form, integrator (0 Euler, 1 RK4), on the shell.
+    // Form, integrator (0 Euler, 1 RK4, 2 the eye rays' Euler from their
+    // sample), on the shell.
     let kinds = [
+        (Form::EqualDistance, 2u32, false),
         (Form::EqualDistance, 0u32, false),
         (Form::EqualDistance, 1, false),
         (Form::EqualTime, 0, true),
@@ -289,7 +296,12 @@ fn step(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
             [
                 v4(x, h),
                 v4(v, form as u32 as f64),
-                [integ as f32, f32::from(u8::from(shell)), 0.0, 0.0],
+                [
+                    integ.min(1) as f32,
+                    f32::from(u8::from(shell)),
+                    f32::from(u8::from(integ == 2)),
+                    0.0,
+                ],
             ]
         })
         .collect();
@@ -308,6 +320,7 @@ fn step(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
     for (k, &(x, v, h, form, integ, shell)) in cases.iter().enumerate() {
         let mut s = RayState { x, v, opl: 0.0 };
         match (integ, shell) {
+            (2, _) => step_euler_sampled(&mut s, f.sample(x), h),
             (0, false) => step_euler(&f, form, &mut s, h),
             (_, false) => step_rk4(&f, form, &mut s, h),
             (0, true) => step_euler_on_shell(&f, form, &mut s, h),

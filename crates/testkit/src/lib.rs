@@ -45,6 +45,17 @@ impl Backend<'_> {
         }
     }
 
+    /// `cpu` on the CPU, `gpu` on a GPU: the size of a test's grid or
+    /// image where the GPU runs on a software device in CI (lavapipe, several
+    /// times slower than the CPU backend), or an f32 tolerance of a law the
+    /// CPU meets in f64.
+    pub fn pick<T>(&self, cpu: T, gpu: T) -> T {
+        match self {
+            Backend::Cpu => cpu,
+            Backend::Gpu(_) => gpu,
+        }
+    }
+
     /// Simulate `light` in `medium` with `opts` (`eikon_wavefront::
     /// simulate_light` or [`GpuSimulator`]).
     pub fn simulate(
@@ -165,6 +176,16 @@ impl Tests {
             }
         };
         self.trials.push(trial.with_kind("gpu"));
+        self
+    }
+
+    /// A GPU test too slow for every run (a 256^3 grid on a software
+    /// device): ignored unless asked for (`-- --ignored`), and then as
+    /// [`Self::gpu`].
+    pub fn gpu_slow(mut self, name: &str, f: impl FnOnce(&Gpu) + Send + 'static) -> Self {
+        self = self.gpu(name, f);
+        let last = self.trials.pop().expect("just added");
+        self.trials.push(last.with_ignored_flag(true));
         self
     }
 

@@ -1,5 +1,14 @@
 //! Scenes several test files use.
 
+use eikon_grid::{Medium, Scene};
+
+/// Parse a scene and build its medium.
+pub fn medium(text: &str) -> (Scene, Medium) {
+    let scene = Scene::parse(text, "test").unwrap();
+    let m = Medium::build(&scene).unwrap();
+    (scene, m)
+}
+
 /// A glass sphere (n = 1.5, absorbing, scattering) in a `res`^3 grid over
 /// [-1, 1]^3, under a directional, a point and a spot light; `extra` goes
 /// into `[grid]`.

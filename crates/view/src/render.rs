@@ -40,7 +40,7 @@
 use crate::background::{LightSample, Surroundings};
 use crate::macrocell::MacroCells;
 use crate::properties::Properties;
-use eikon_grid::ray::step_rk4;
+use eikon_grid::ray::{step_euler_sampled, step_rk4};
 use eikon_grid::{CameraSettings, Form, IndexField, Integrator, Medium, Progress, RayState, Scene};
 use eikon_optics::phase::hg;
 use eikon_optics::{fresnel, Camera, CameraError, Image};
@@ -376,13 +376,7 @@ impl<'a> Renderer<'a> {
             let (n, grad) = field.sample(x0);
             self.gather(x0, (n, grad), dir, step, ch, &mut walk);
             match self.opts.integrator {
-                Integrator::Euler => {
-                    // Eqs 11-12 with the sample already taken.
-                    let r = &mut walk.ray;
-                    r.x += r.v * (step / n);
-                    r.v += grad * step;
-                    r.opl += n * step;
-                }
+                Integrator::Euler => step_euler_sampled(&mut walk.ray, (n, grad), step),
                 _ => step_rk4(&field, Form::EqualDistance, &mut walk.ray, step),
             }
             walk.stats.steps += 1;

@@ -547,10 +547,12 @@ fn march(o: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
             let xs = w.x;
             let f = index_field(xs);
             gather(xs, f.x, f.yzw, dir, stp, ch, &w);
-            // [Ihrke07 eqs 9-12], the step's first slope from the sample
-            // already taken.
-            let k0 = ray_rhs(FORM_EQUAL_DISTANCE, f.x, f.yzw, w.v);
-            let inc = ray_increment(FORM_EQUAL_DISTANCE, P.integrator, xs, w.v, k0, stp);
+            // [Ihrke07 eqs 9-12] from the sample already taken.
+            var inc = ray_euler_sampled(f.x, f.yzw, w.v, stp);
+            if P.integrator != INTEGRATOR_EULER {
+                let k0 = ray_rhs(FORM_EQUAL_DISTANCE, f.x, f.yzw, w.v);
+                inc = ray_increment(FORM_EQUAL_DISTANCE, P.integrator, xs, w.v, k0, stp);
+            }
             w.x += inc.x;
             w.v += inc.v;
             w.steps += 1u;

@@ -1,10 +1,8 @@
 //! Physics tests of the light simulation (adaptive wavefront tracing)
 //! against analytic optics.
 
-mod common;
-
-use common::{medium, GLASS_SPHERE};
 use eikon_grid::{Medium, Scene};
+use eikon_testkit::scenes::{glass_sphere, medium};
 use eikon_wavefront::{simulate_light, LightVolume, Options, Summary};
 use glam::DVec3;
 use std::f64::consts::PI;
@@ -16,113 +14,6 @@ fn run(scene: &Scene, m: &Medium, light: usize) -> (LightVolume, Summary) {
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(|a, b| a.total_cmp(b));
     v[v.len() / 2]
-}
-
-/// The average of `f` over cell `c` of `g`: 4-point Gauss-Legendre per
-/// axis (exact for polynomials of degree 7; the cells compared keep three
-/// voxels from the light, where 1/r^2 is smooth on a cell).
-fn cell_average(g: &eikon_grid::GridGeometry, c: [usize; 3], f: impl Fn(DVec3) -> f64) -> f64 {
-    let (x, w) = (
-        [
-            -0.861_136_311_594_052_6,
-            -0.339_981_043_584_856_3,
-            0.339_981_043_584_856_3,
-            0.861_136_311_594_052_6,
-        ],
-        [
-            0.347_854_845_137_453_9,
-            0.652_145_154_862_546_1,
-            0.652_145_154_862_546_1,
-            0.347_854_845_137_453_9,
-        ],
-    );
-    let centre = g.voxel_center(c[0], c[1], c[2]);
-    let half = g.spacing() * 0.5;
-    let mut sum = 0.0;
-    for a in 0..4 {
-        for b in 0..4 {
-            for d in 0..4 {
-                let p = centre + half * DVec3::new(x[a], x[b], x[d]);
-                sum += w[a] * w[b] * w[d] * f(p);
-            }
-        }
-    }
-    sum / 8.0
-}
-
-#[test]
-fn point_light_falls_off_as_inverse_square() {
-    let p = DVec3::new(0.013, -0.021, 0.007);
-    let (scene, m) = medium(&format!(
-        "[grid]\nresolution = 64\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
-         [[light]]\ntype = \"point\"\nposition = [{}, {}, {}]\npower = [2, 1, 0.5]\n",
-        p.x, p.y, p.z
-    ));
-    let (vol, summary) = run(&scene, &m, 0);
-    let g = &m.geometry;
-    let h = g.voxel_size();
-    let mut errs = Vec::new();
-    for ((i, j, k), _) in vol.fluence.slice(ndarray::s![.., .., .., 0]).indexed_iter() {
-        let c = g.voxel_center(i, j, k);
-        let r = (c - p).length();
-        if r < 3.0 * h {
-            continue;
-        }
-        // The light volume holds cell averages.
-        let want = cell_average(g, [i, j, k], |x| {
-            2.0 / (4.0 * PI * (x - p).length_squared())
-        });
-        errs.push((vol.fluence[[i, j, k, 0]] as f64 / want - 1.0).abs());
-    }
-    let holes = errs.iter().filter(|&&e| e == 1.0).count();
-    let med = median(errs.clone());
-    let max = errs.iter().copied().fold(0.0, f64::max);
-    println!(
-        "1/r^2: {} voxels, median relative error {med:.2e}, max {max:.2e}, {holes} never reached; {} patches at peak",
-        errs.len(),
-        summary.peak_patches
-    );
-    assert!(med <= 0.01, "median relative error {med}");
-    // The colour channels scale with the power.
-    let (i, j, k) = (10, 40, 50);
-    let e = |c| vol.fluence[[i, j, k, c]] as f64;
-    assert!((e(1) / e(0) - 0.5).abs() < 1e-6 && (e(2) / e(0) - 0.25).abs() < 1e-6);
-}
-
-/// A point light inside absorbing matter: `P exp(-sigma r) / (4 pi r^2)`.
-/// The light's own voxel absorbs too (the wavefront starts one voxel out).
-#[test]
-fn point_light_in_absorbing_matter_decays_by_inverse_square_and_beer_lambert() {
-    let p = DVec3::new(0.013, -0.021, 0.007);
-    let sigma = 1.5;
-    let (scene, m) = medium(&format!(
-        "[grid]\nresolution = 64\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
-         [ambient]\nextinction = [{sigma}, {sigma}, {sigma}]\n\
-         [[light]]\ntype = \"point\"\nposition = [{}, {}, {}]\npower = [2, 2, 2]\n",
-        p.x, p.y, p.z
-    ));
-    let (vol, summary) = run(&scene, &m, 0);
-    let g = &m.geometry;
-    let h = g.voxel_size();
-    let mut errs = Vec::new();
-    for ((i, j, k), e) in vol.fluence.slice(ndarray::s![.., .., .., 0]).indexed_iter() {
-        let r = (g.voxel_center(i, j, k) - p).length();
-        if r < 3.0 * h {
-            continue;
-        }
-        let want = cell_average(g, [i, j, k], |x| {
-            let r = (x - p).length();
-            2.0 * (-sigma * r).exp() / (4.0 * PI * r * r)
-        });
-        errs.push((*e as f64 / want - 1.0).abs());
-    }
-    let med = median(errs.clone());
-    println!(
-        "point light, sigma {sigma}: median relative error {med:.2e}; energy imbalance {:.1e}",
-        summary.energy_imbalance()
-    );
-    assert!(med <= 0.01, "median relative error {med}");
-    assert!(summary.energy_imbalance() < 1e-9);
 }
 
 /// A spot light's cone: on a plane below it, a cell is lit (at least half
@@ -174,70 +65,6 @@ fn a_spot_light_lights_its_cone() {
     );
 }
 
-#[test]
-fn plane_wave_decays_by_beer_lambert() {
-    let sigma = 1.5;
-    let (scene, m) = medium(&format!(
-        "[grid]\nresolution = 64\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
-         [ambient]\nextinction = [{sigma}, {}, 0]\n\
-         [[light]]\ntype = \"directional\"\ndirection = [1, 0, 0]\npower = [3, 3, 3]\n",
-        2.0 * sigma
-    ));
-    let (vol, summary) = run(&scene, &m, 0);
-    let g = &m.geometry;
-    let mut worst: f64 = 0.0;
-    for ((i, j, k), _) in vol.fluence.slice(ndarray::s![.., .., .., 0]).indexed_iter() {
-        let d = g.voxel_center(i, j, k).x - g.min.x;
-        for (c, s) in [(0, sigma), (1, 2.0 * sigma), (2, 0.0)] {
-            let want = 3.0 * (-s * d).exp();
-            let got = vol.fluence[[i, j, k, c]] as f64;
-            worst = worst.max((got / want - 1.0).abs());
-        }
-    }
-    println!(
-        "Beer-Lambert: worst relative error {worst:.2e} (transmission down to {:.3})",
-        (-4.0 * sigma).exp()
-    );
-    assert!(worst <= 0.01, "worst relative error {worst}");
-    // Obliquely, through the same absorbing volume: the depth of a cell
-    // centre is its distance back along the beam to the bounds. Every cell
-    // must be reached.
-    let (scene, m) = medium(&format!(
-        "[grid]\nresolution = 64\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
-         [ambient]\nextinction = [{sigma}, {sigma}, {sigma}]\n\
-         [[light]]\ntype = \"directional\"\ndirection = [1, 0.45, -0.3]\npower = [3, 3, 3]\n"
-    ));
-    let (oblique, _) = run(&scene, &m, 0);
-    let g = &m.geometry;
-    let dir = DVec3::new(1.0, 0.45, -0.3).normalize();
-    let mut errs = Vec::new();
-    for ((i, j, k), &e) in oblique
-        .fluence
-        .slice(ndarray::s![.., .., .., 0])
-        .indexed_iter()
-    {
-        let c = g.voxel_center(i, j, k);
-        let (_, back) = g.clip_line(c, -dir).unwrap();
-        let want = 3.0 * (-sigma * back).exp();
-        errs.push((e as f64 / want - 1.0).abs());
-    }
-    let holes = errs.iter().filter(|&&e| e == 1.0).count();
-    let (med, worst) = (
-        median(errs.clone()),
-        errs.iter().copied().fold(0.0, f64::max),
-    );
-    println!("Beer-Lambert, oblique beam: median relative error {med:.2e}, worst {worst:.2e}, {holes} cells unreached");
-    // Each cell holds one patch's value carried to its centre along the
-    // beam; across the beam the depth varies and is not corrected, which
-    // the median bounds (the worst cells are documented in PERFORMANCE.md).
-    assert_eq!(holes, 0, "cells the oblique wavefront never reached");
-    assert!(med <= 0.01, "oblique: median relative error {med}");
-    // The light volume points along the beam.
-    let f = vol.flux[0].slice(ndarray::s![5, 6, 7, ..]).to_vec();
-    assert!(f[0] > 0.0 && f[1] == 0.0 && f[2] == 0.0, "{f:?}");
-    assert!(summary.energy_imbalance() < 1e-9, "{summary:?}");
-}
-
 /// The estimate behind `simulate`'s time left: in a homogeneous medium
 /// the wavefront crosses the box in straight lines, so the steps it takes
 /// are the estimate's, for a plane wave (oblique) and a point light inside
@@ -264,7 +91,7 @@ fn crossing_steps_match_a_straight_crossing() {
 
 #[test]
 fn energy_is_accounted_for() {
-    let (scene, m) = medium(GLASS_SPHERE);
+    let (scene, m) = medium(&glass_sphere(64, ""));
     for l in 0..scene.lights.len() {
         let (_, s) = run(&scene, &m, l);
         let imbalance = s.energy_imbalance();
@@ -282,7 +109,7 @@ fn energy_is_accounted_for() {
 
 #[test]
 fn volumes_are_identical_whatever_the_thread_count() {
-    let (scene, m) = medium(GLASS_SPHERE);
+    let (scene, m) = medium(&glass_sphere(64, ""));
     let with = |threads| {
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -298,51 +125,8 @@ fn volumes_are_identical_whatever_the_thread_count() {
 }
 
 #[test]
-fn luneburg_lens_focuses_a_plane_wave_on_its_far_surface() {
-    let (scene, m) = medium(
-        "[grid]\nresolution = 64\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
-         [[object]]\nshape = { type = \"sphere\", center = [0, 0, 0], radius = 0.8 }\nindex = { type = \"luneburg\" }\n\
-         [[light]]\ntype = \"directional\"\ndirection = [0, 0, 1]\npower = [1, 1, 1]\n",
-    );
-    let (vol, _) = run(&scene, &m, 0);
-    let (mut best, mut at) = (0.0f32, (0, 0, 0));
-    for ((i, j, k), &e) in vol.fluence.slice(ndarray::s![.., .., .., 0]).indexed_iter() {
-        if e > best {
-            (best, at) = (e, (i, j, k));
-        }
-    }
-    let g = &m.geometry;
-    let c = g.voxel_center(at.0, at.1, at.2);
-    let focus = DVec3::new(0.0, 0.0, 0.8);
-    let miss = (c - focus).length() / g.voxel_size();
-    // The focus lies on the corner of four cells (x = y = 0 is a cell
-    // face): no cell centre is nearer than 0.71 voxel. The peak between
-    // the cells, by a parabola through the maximum and its two neighbours
-    // along each axis, finds it within half a voxel.
-    let e = |i: usize, j: usize, k: usize| vol.fluence[[i, j, k, 0]] as f64;
-    let idx = [at.0, at.1, at.2];
-    let mut peak = c;
-    for ax in 0..3 {
-        let (mut lo, mut hi) = (idx, idx);
-        lo[ax] -= 1;
-        hi[ax] += 1;
-        let (a, b, f) = (e(lo[0], lo[1], lo[2]), best as f64, e(hi[0], hi[1], hi[2]));
-        let curv = a - 2.0 * b + f;
-        if curv < 0.0 {
-            peak[ax] += 0.5 * (a - f) / curv * g.spacing()[ax];
-        }
-    }
-    let fitted = (peak - focus).length() / g.voxel_size();
-    println!(
-        "Luneburg: fluence peak {best:.1} W/m^2 in the cell at {c}, {miss:.2} voxel from the focus; fitted peak {fitted:.2} voxel from it"
-    );
-    assert!(miss <= 1.0, "peak {miss} voxels from the focus");
-    assert!(fitted <= 0.5, "fitted peak {fitted} voxels from the focus");
-}
-
-#[test]
 fn bad_settings_and_scenes_are_refused() {
-    let (scene, m) = medium(GLASS_SPHERE);
+    let (scene, m) = medium(&glass_sphere(64, ""));
     for (opts, what) in [
         (
             Options {
@@ -467,9 +251,10 @@ fn particles_stay_on_one_wavefront() {
     let lens = "[grid]\nresolution = 64\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
         [[object]]\nshape = { type = \"sphere\", center = [0, 0, 0], radius = 0.8 }\nindex = { type = \"luneburg\" }\n\
         [[light]]\ntype = \"directional\"\ndirection = [0.1, 0.05, 1]\npower = [1, 1, 1]\n";
+    let sphere = glass_sphere(64, "");
     for (name, text, length, bound) in [
         ("Luneburg lens", lens, 1.5625, 2e-3),
-        ("glass sphere", GLASS_SPHERE, 2.5, 2e-2),
+        ("glass sphere", sphere.as_str(), 2.5, 2e-2),
     ] {
         let (spread, off, bent) = wavefront_drift(text, length, 0.5);
         let (spread_half, off_half, _) = wavefront_drift(text, length, 0.25);

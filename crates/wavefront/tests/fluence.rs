@@ -6,11 +6,10 @@
 //! which uses none of the engine's code), and a glass ball against the
 //! photon baseline. Measured numbers are printed (`--nocapture`).
 
-mod common;
 #[path = "support/exact_sphere.rs"]
 mod exact_sphere;
 
-use common::medium;
+use eikon_testkit::scenes::medium;
 use eikon_wavefront::deposit::Counters;
 use eikon_wavefront::photons::simulate_photons;
 use eikon_wavefront::{simulate_light, DepositRule, LightVolume, Options, Summary};
@@ -20,58 +19,6 @@ fn wavefront(text: &str, opts: &Options) -> (eikon_grid::Medium, LightVolume, Su
     let (scene, m) = medium(text);
     let (v, s) = simulate_light(&scene.lights[0], &m, opts, &|_, _| {}).unwrap();
     (m, v, s)
-}
-
-/// Unpolarized Fresnel reflectance, written out here (not the engine's).
-fn reflectance(cos_i: f64, n1: f64, n2: f64) -> f64 {
-    let sin_t = n1 / n2 * (1.0 - cos_i * cos_i).sqrt();
-    if sin_t >= 1.0 {
-        return 1.0;
-    }
-    let cos_t = (1.0 - sin_t * sin_t).sqrt();
-    let rs = (n1 * cos_i - n2 * cos_t) / (n1 * cos_i + n2 * cos_t);
-    let rp = (n2 * cos_i - n1 * cos_t) / (n2 * cos_i + n1 * cos_t);
-    0.5 * (rs * rs + rp * rp)
-}
-
-#[test]
-fn a_slab_at_normal_incidence_transmits_one_minus_r_squared() {
-    // A clear glass slab filling the grid's width, a plane wave straight
-    // down: it enters through the top face only, crosses two interfaces
-    // and leaves through the bottom.
-    let text = r#"
-[grid]
-resolution = 32
-min = [-1, -1, -1]
-max = [1, 1, 1]
-
-[[object]]
-shape = { type = "box", center = [0.0, -0.05, 0.0], size = [4.0, 0.7, 4.0] }
-index = 1.5
-
-[[light]]
-type = "directional"
-direction = [0.0, -1.0, 0.0]
-power = [1, 1, 1]
-"#;
-    let (_, _, s) = wavefront(text, &Options::default());
-    let r = reflectance(1.0, 1.0, 1.5);
-    let want = (1.0 - r) * (1.0 - r);
-    let got = s.exited_power[0] / s.entered[0];
-    println!(
-        "slab: transmitted {got:.6} of the entered power, (1 - R)^2 = {want:.6}; reflected {:.6}",
-        s.reflected_power[0] / s.entered[0]
-    );
-    assert!((got / want - 1.0).abs() < 0.005, "{got} vs {want}");
-    assert!(s.energy_imbalance() < 1e-9, "{}", s.energy_imbalance());
-    // Without Fresnel (the paper's eq 18) nothing is reflected.
-    let paper = Options {
-        fresnel: false,
-        ..Options::default()
-    };
-    let (_, _, s) = wavefront(text, &paper);
-    assert_eq!(s.reflected_power, [0.0; 3]);
-    assert!((s.exited_power[0] / s.entered[0] - 1.0).abs() < 1e-9);
 }
 
 /// The paper's Fig. 7: a clear glass sphere above the plane y = 0 (the

@@ -2,10 +2,8 @@
 //! whatever the extinction, with either deposit; overflowing inputs are
 //! refused with their place; trapped light is accounted for.
 
-mod common;
-
-use common::medium;
 use eikon_grid::{Medium, Scene};
+use eikon_testkit::scenes::medium;
 use eikon_wavefront::{simulate_light, DepositRule, LightVolume, Options, Summary};
 use glam::DVec3;
 

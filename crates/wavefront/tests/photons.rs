@@ -3,10 +3,8 @@
 //! justified where they are set; the measured numbers are printed (run
 //! with `--nocapture`).
 
-mod common;
-
-use common::{medium, GLASS_SPHERE};
 use eikon_grid::{Light, Medium};
+use eikon_testkit::scenes::{glass_sphere, medium};
 use eikon_wavefront::photons::simulate_photons;
 use eikon_wavefront::LightVolume;
 use eikon_wavefront::{simulate_light, Options, Summary};
@@ -138,7 +136,7 @@ fn photons_decay_by_beer_lambert() {
 
 #[test]
 fn photon_energy_balances_and_is_deterministic() {
-    let (scene, m) = medium(GLASS_SPHERE);
+    let (scene, m) = medium(&glass_sphere(64, ""));
     let with = |threads, light: &Light| {
         rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
