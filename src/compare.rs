@@ -23,15 +23,11 @@ pub struct Args {
     /// `compare.json`; the eikonal method's light volumes go to `light/`.
     #[arg(short, long)]
     output: PathBuf,
-    /// Methods to render, in order (add `wyman`, the image-space method on
-    /// the GPU, for its row).
-    #[arg(
-        long,
-        value_enum,
-        value_delimiter = ',',
-        default_value = "eikonal,walter,holzschuch,straight"
-    )]
-    methods: Vec<RenderMethod>,
+    /// Methods to render, in order [default: eikonal, walter, holzschuch,
+    /// straight, and wyman, the image-space method, when the eikonal method
+    /// runs on a GPU and the scene is one wyman renders].
+    #[arg(long, value_enum, value_delimiter = ',')]
+    methods: Option<Vec<RenderMethod>>,
     /// The method the others are measured against.
     #[arg(long, value_enum, default_value = "holzschuch")]
     reference: RenderMethod,
@@ -134,10 +130,18 @@ fn panel_label(method: &str, l1: Option<f64>) -> String {
 
 /// Run `eikon compare`.
 pub fn run(args: Args) -> Result<()> {
-    if args.methods.is_empty() {
+    let asked = args.methods.is_some();
+    let mut methods = args.methods.clone().unwrap_or_else(|| {
+        vec![
+            RenderMethod::Eikonal,
+            RenderMethod::Walter,
+            RenderMethod::Holzschuch,
+            RenderMethod::Straight,
+        ]
+    });
+    if methods.is_empty() {
         bail!("--methods: name at least one method");
     }
-    let mut methods = args.methods.clone();
     methods.dedup();
     if !methods.contains(&args.reference) {
         bail!(
@@ -152,6 +156,18 @@ pub fn run(args: Args) -> Result<()> {
     if args.output.exists() && !args.output.is_dir() {
         bail!("{}: exists and is not a directory", args.output.display());
     }
+    let backend = if methods.contains(&RenderMethod::Eikonal) {
+        args.overrides.backend.select(args.json)?
+    } else {
+        crate::backend::Backend::Cpu
+    };
+    if !asked && backend.name() == "gpu" {
+        // The image-space method's row where a GPU renders anyway.
+        match crate::wyman::check(&scene) {
+            Ok(()) => methods.push(RenderMethod::Wyman),
+            Err(e) => eprintln!("compare: no wyman row: {e:#}"),
+        }
+    }
     let files: Vec<PathBuf> = methods
         .iter()
         .flat_map(|m| ["exr", "png"].map(|e| args.output.join(format!("{}.{e}", m.name()))))
@@ -160,13 +176,10 @@ pub fn run(args: Args) -> Result<()> {
     let camera = render::camera(&scene, &args.overrides)?;
     let seed = args.overrides.seed.unwrap_or(scene.render.seed);
 
-    let backend = if methods.contains(&RenderMethod::Eikonal) {
-        args.overrides.backend.select(args.json)?
-    } else {
-        crate::backend::Backend::Cpu
-    };
     let wyman = if methods.contains(&RenderMethod::Wyman) {
-        crate::wyman::check(&scene)?;
+        if asked {
+            crate::wyman::check(&scene)?;
+        }
         Some(crate::wyman::device()?)
     } else {
         None
