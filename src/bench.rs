@@ -31,7 +31,7 @@ fn standard() -> Vec<(&'static str, String)> {
 #[derive(clap::Args)]
 pub struct Args {
     /// Scene files to run instead of the standard scenes (the 128^3 and
-    /// 256^3 glass sphere of Ihrke et al. Fig. 7).
+    /// 256^3 glass sphere of [Ihrke07 fig 7]).
     #[arg(long)]
     scene: Vec<PathBuf>,
     /// Backends to run (default: the CPU, and the GPU when an adapter

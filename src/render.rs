@@ -17,7 +17,7 @@ use std::time::Instant;
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 enum Integrator {
-    /// Forward Euler (eqs 11-12), the paper's choice.
+    /// Forward Euler [Ihrke07 eqs 11-12], the paper's choice.
     Euler,
     /// Classical fourth-order Runge-Kutta.
     Rk4,

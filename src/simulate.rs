@@ -33,8 +33,8 @@ enum DepositArg {
     /// Track-length fluence and net flux of every patch; light passes
     /// through caustics.
     Fluence,
-    /// The paper's rule (5.2.2): the highest-energy ray per cell, patches
-    /// culled at caustics. With --no-fresnel it reproduces the paper.
+    /// The paper's rule [Ihrke07 sec 5.2.2]: the highest-energy ray per cell,
+    /// patches culled at caustics. With --no-fresnel it reproduces the paper.
     Paper,
 }
 
@@ -83,7 +83,7 @@ pub struct Args {
     /// How the wavefront becomes a light volume.
     #[arg(long, value_enum, default_value = "fluence")]
     deposit: DepositArg,
-    /// No Fresnel transmission at interfaces (the paper's eq 18 has none).
+    /// No Fresnel transmission at interfaces ([Ihrke07 eq 18] has none).
     #[arg(long)]
     no_fresnel: bool,
     /// Photons per light (per colour channel with dispersion), with

@@ -10,7 +10,7 @@ use std::path::PathBuf;
 
 #[derive(Clone, Copy, PartialEq, Eq, Debug, ValueEnum)]
 enum Integrator {
-    /// Forward Euler (eqs 11-12), first order.
+    /// Forward Euler [Ihrke07 eqs 11-12], first order.
     Euler,
     /// Classical fourth-order Runge-Kutta.
     Rk4,
@@ -20,9 +20,9 @@ enum Integrator {
 
 #[derive(Clone, Copy, PartialEq, Eq, Debug, ValueEnum)]
 enum FormArg {
-    /// Equal distance per step (eqs 9-10), as for eye rays.
+    /// Equal distance per step [Ihrke07 eqs 9-10], as for eye rays.
     Distance,
-    /// Equal optical path per step (eqs 14-15), as for light.
+    /// Equal optical path per step [Ihrke07 eqs 14-15], as for light.
     Time,
 }
 

@@ -1,30 +1,32 @@
 //! Per-triangle integration of single scattering along a refracted camera
 //! segment, after Holzschuch 2015, "Accurate computation of single
-//! scattering in participating media with refractive boundaries" (§3.2).
+//! scattering in participating media with refractive boundaries"
+//! [Holzschuch15 sec 3.2].
 //!
-//! Along the segment `V(t) = A + t ĉ`, `t ∈ [0, len]` (eq 13), the points
-//! `P` of one triangle's plane that connect `V(t)` to the light by Snell's
-//! law form a curve `f(t, a, b) = 0`. The contribution of one triangle is
-//! smooth in `t` except where that curve crosses the triangle's edges, so
+//! Along the segment `V(t) = A + t ĉ`, `t ∈ [0, len]` [Holzschuch15 eq 13], the
+//! points `P` of one triangle's plane that connect `V(t)` to the light by
+//! Snell's law form a curve `f(t, a, b) = 0`. The contribution of one triangle
+//! is smooth in `t` except where that curve crosses the triangle's edges, so
 //! the integral is split at the edge crossings and each piece is sampled
-//! regularly (eq 18) and summed with weight `(t_max − t_min)/K` (eq 19).
+//! regularly [Holzschuch15 eq 18] and summed with weight `(t_max − t_min)/K`
+//! [Holzschuch15 eq 19].
 //!
 //! # How the edge crossings are found
 //!
 //! The paper runs Newton on `f` restricted to each edge with a 3×2
-//! pseudo-inverse (eqs 14-15) and classifies each crossing as an upper or
-//! lower bound from the curve's tangent (eqs 16-17). Here the crossing
-//! on an edge is found as a root in the edge parameter `s` instead: for a
-//! fixed `P(s)` on the edge the light's refracted direction `d(s)` inside is
-//! fixed (Snell at the interpolated shading normal), and `P(s)` lies on the
-//! curve exactly when the ray `P(s) + u d(s)` meets the camera line. The
-//! signed distance between the two lines, `(P(s) − A)·(d(s) × ĉ)`, is
-//! scanned at [`EDGE_SCAN`] points and bracketed roots are refined by
-//! bisection, which needs no start values and cannot wander off the edge.
-//! Instead of the tangent test, each piece between consecutive crossings
-//! is kept or skipped by solving at its midpoint (the paper's `K = 1`
-//! sample is that same solve), so a curve entering and leaving through
-//! the same edge needs no second loop.
+//! pseudo-inverse [Holzschuch15 eqs 14-15] and classifies each crossing as an
+//! upper or lower bound from the curve's tangent [Holzschuch15 eqs 16-17]. Here
+//! the crossing on an edge is found as a root in the edge parameter `s`
+//! instead: for a fixed `P(s)` on the edge the light's refracted direction
+//! `d(s)` inside is fixed (Snell at the interpolated shading normal), and
+//! `P(s)` lies on the curve exactly when the ray `P(s) + u d(s)` meets the
+//! camera line. The signed distance between the two lines,
+//! `(P(s) − A)·(d(s) × ĉ)`, is scanned at [`EDGE_SCAN`] points and bracketed
+//! roots are refined by bisection, which needs no start values and cannot
+//! wander off the edge. Instead of the tangent test, each piece between
+//! consecutive crossings is kept or skipped by solving at its midpoint (the
+//! paper's `K = 1` sample is that same solve), so a curve entering and leaving
+//! through the same edge needs no second loop.
 //!
 //! The camera segment's crossing of the triangle's plane is a breakpoint
 //! too (on the far side `V` cannot scatter light through the triangle).
@@ -143,8 +145,9 @@ pub fn edge_crossings(
 
 /// Integrates one triangle's contribution along the segment `a + t c`,
 /// `t ∈ [0, len]`: calls `weigh(t, solution)` for every path at the `k`
-/// regular samples (eq 18) of every live piece between breakpoints, and
-/// returns `Σ (piece length / k) · weigh(…)` (eq 19).
+/// regular samples [Holzschuch15 eq 18] of every live piece between
+/// breakpoints, and returns `Σ (piece length / k) · weigh(…)`
+/// [Holzschuch15 eq 19].
 #[allow(clippy::too_many_arguments)]
 pub fn integrate_triangle<W: std::ops::Add<Output = W> + std::ops::Mul<f64, Output = W> + Copy>(
     tri: &Triangle,

@@ -14,7 +14,7 @@
 //!
 //! `L_ss = T_in ∫₀ˢ σ_s e^{−σ_t t} Σ_lights Σ_paths I F e^{−σ_t d_V} ρ / D dt`
 //!
-//! where the inner sum is eq 17 of Walter et al. over the refracted paths
+//! where the inner sum is [Walter09 eq 17] over the refracted paths
 //! `L → P → V(t)`. The `η²` of radiance inside and the `1/η²` of leaving it
 //! towards the eye cancel (see [`crate::walter`]). At the exit point the
 //! segment refracts out (Fresnel `T_out`, total internal reflection drops

@@ -3,16 +3,16 @@
 //! priority (Schmidt & Budge 2002, "Simple nested dielectrics in ray traced
 //! images").
 //!
-//! Every ray carries an *interior list*: the bodies it is inside (paper,
-//! section 2). Where bodies overlap, only the one of highest priority is
-//! considered to exist. A hit on a body whose priority is lower than the
-//! highest priority in the list is a *false intersection* (section 2.1): the
-//! ray passes straight through and only the list changes. Any other hit is a
-//! *true intersection* (section 2.2): the ray splits into a reflected branch,
-//! which keeps the parent's list, and a refracted branch, whose list gains or
-//! loses the body hit. The refractive indices on either side (the paper's
-//! "from-index" and "to-index") come from the highest-priority bodies of the
-//! lists on either side of the interface.
+//! Every ray carries an *interior list*: the bodies it is inside
+//! ([SchmidtBudge02 sec 2]). Where bodies overlap, only the one of highest
+//! priority is considered to exist. A hit on a body whose priority is lower
+//! than the highest priority in the list is a *false intersection*
+//! [SchmidtBudge02 sec 2.1]: the ray passes straight through and only the list
+//! changes. Any other hit is a *true intersection* [SchmidtBudge02 sec 2.2]:
+//! the ray splits into a reflected branch, which keeps the parent's list, and a
+//! refracted branch, whose list gains or loses the body hit. The refractive
+//! indices on either side (the paper's "from-index" and "to-index") come from
+//! the highest-priority bodies of the lists on either side of the interface.
 //!
 //! Each straight segment is attenuated by Beer–Lambert extinction of the
 //! medium it runs through (the highest-priority body of its list; outside
@@ -37,7 +37,8 @@ pub struct Body {
     /// Extinction coefficient per unit length, per colour channel.
     pub extinction: DVec3,
     /// Priority: where bodies overlap, the highest priority one is the medium
-    /// (section 2). Equal priorities resolve to the body entered last.
+    /// [SchmidtBudge02 sec 2]. Equal priorities resolve to the body entered
+    /// last.
     pub priority: i32,
 }
 
@@ -123,13 +124,13 @@ pub struct Exit {
     pub weight: DVec3,
     /// Reflections along its path (0: transmitted at every true hit).
     pub reflections: u32,
-    /// True intersections along its path (section 2.2).
+    /// True intersections along its path [SchmidtBudge02 sec 2.2].
     pub true_hits: u32,
-    /// False intersections along its path (section 2.1).
+    /// False intersections along its path [SchmidtBudge02 sec 2.1].
     pub false_hits: u32,
 }
 
-/// What happened at one true intersection (section 2.2).
+/// What happened at one true intersection [SchmidtBudge02 sec 2.2].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Interaction {
     /// The hit point.
@@ -188,7 +189,7 @@ struct Branch {
 
 impl Scene {
     /// The body that is the medium for an interior list: highest priority,
-    /// ties to the one entered last (section 2).
+    /// ties to the one entered last [SchmidtBudge02 sec 2].
     fn top(&self, interior: &[usize]) -> Option<usize> {
         let mut best: Option<usize> = None;
         for &b in interior {
@@ -201,7 +202,7 @@ impl Scene {
     }
 
     /// Refractive index of the medium for an interior list; the ambient
-    /// index for an empty list (section 2.2, from/to indices).
+    /// index for an empty list ([SchmidtBudge02 sec 2.2], from/to indices).
     fn index_of(&self, interior: &[usize]) -> f64 {
         self.top(interior)
             .map_or(self.ambient, |b| self.bodies[b].index)
@@ -284,7 +285,8 @@ pub fn trace_from(
                 break;
             };
             // Beer–Lambert over the segment, in the current medium (the
-            // highest-priority body of the interior list, section 2).
+            // highest-priority body of the interior list,
+            // [SchmidtBudge02 sec 2]).
             if let Some(m) = scene.top(&br.interior) {
                 let k = scene.bodies[m].extinction * hit.t;
                 br.weight *= DVec3::new((-k.x).exp(), (-k.y).exp(), (-k.z).exp());
@@ -298,8 +300,8 @@ pub fn trace_from(
             let before = scene.top(&br.interior);
             let after = scene.top(&inside);
             if before == after {
-                // Section 2.1: a false intersection only updates the list
-                // (the medium on both sides is the same body).
+                // [SchmidtBudge02 sec 2.1]: a false intersection only updates
+                // the list (the medium on both sides is the same body).
                 br.interior = inside;
                 br.origin = hit.point;
                 br.false_hits += 1;
@@ -311,8 +313,8 @@ pub fn trace_from(
                 }
                 continue;
             }
-            // Section 2.2: a true intersection. The body reported is the
-            // one whose boundary it is: the medium entered, else the one
+            // [SchmidtBudge02 sec 2.2]: a true intersection. The body reported
+            // is the one whose boundary it is: the medium entered, else the one
             // left.
             if br.depth >= opts.max_depth {
                 path.lost += br.weight;
@@ -326,8 +328,8 @@ pub fn trace_from(
             };
             let hit = hits.iter().find(|(x, _)| *x == b).map_or(hit, |(_, h)| *h);
             let entering = hit.entering(br.dir);
-            // From/to indices (section 2.2): the media of the lists on
-            // either side.
+            // From/to indices [SchmidtBudge02 sec 2.2]: the media of the lists
+            // on either side.
             let (n1, n2) = (scene.index_of(&br.interior), scene.index_of(&inside));
             let normal = if opts.shading_normals {
                 hit.normal
@@ -386,10 +388,11 @@ pub fn trace_from(
     path
 }
 
-/// Adds `b` to the list on entering, removes it on leaving (section 2.1).
-/// The side is taken from the triangle's orientation, not by toggling
-/// membership as the paper's implementation does (section 3), so a list that
-/// has gone inconsistent at a silhouette does not stay inverted.
+/// Adds `b` to the list on entering, removes it on leaving
+/// [SchmidtBudge02 sec 2.1]. The side is taken from the triangle's orientation,
+/// not by toggling membership as the paper's implementation does
+/// [SchmidtBudge02 sec 3], so a list that has gone inconsistent at a silhouette
+/// does not stay inverted.
 fn toggle(interior: &mut Vec<usize>, b: usize, entering: bool) {
     if entering {
         if !interior.contains(&b) {
@@ -582,8 +585,9 @@ mod tests {
         let a = trace(&glass_of_water(1.9), origin, d, &opts);
         let b = trace(&glass_of_water(1.95), origin, d, &opts);
         // Hand computation over the planes z = -2, -1.8, -0.5, 0.5, 1.8, 2
-        // with the from/to indices the priorities imply (section 2.2):
-        // the water face at z = -1.9 or -1.95 inside the glass wall is false.
+        // with the from/to indices the priorities imply
+        // [SchmidtBudge02 sec 2.2]: the water face at z = -1.9 or -1.95 inside
+        // the glass wall is false.
         let layers = [
             (-2.0, 1.0, GLASS, DVec3::new(0.01, 0.02, 0.03)),
             (-1.8, GLASS, WATER, DVec3::new(0.05, 0.02, 0.01)),
@@ -622,7 +626,8 @@ mod tests {
         assert!(ew < 1e-12 && ed < 1e-12 && eo < 1e-12);
         assert_eq!((exact.true_hits, exact.false_hits), (6, 2));
         // The water's own boundary lies inside the glass wall, where the
-        // glass outranks it: it is never a true intersection (section 2.1).
+        // glass outranks it: it is never a true intersection
+        // [SchmidtBudge02 sec 2.1].
         assert!(a.interactions.iter().all(|i| i.body != 0));
         assert!(b.interactions.iter().all(|i| i.body != 0));
         // Where water reaches into the wall does not matter.

@@ -25,7 +25,7 @@
 //! Lengths are world units (the scene's). `extinction` is sigma_t per world
 //! unit, so a path of length d keeps `exp(-sigma_t d)`. The gradient is per
 //! world unit. The boundary indicator is per world unit and integrates to
-//! one across an interface (eq 2's Dirac delta).
+//! one across an interface ([Ihrke07 eq 2]'s Dirac delta).
 
 use crate::blocks::BlockGrid;
 use crate::error::Result;
@@ -212,7 +212,7 @@ impl Medium {
         // Boundary indicator: half the summed gradient magnitudes of every
         // material's smoothed coverage. Across an interface between two
         // materials each coverage goes 0 -> 1 or 1 -> 0, so the sum
-        // integrates to exactly one along the normal (eq 2's delta).
+        // integrates to exactly one along the normal ([Ihrke07 eq 2]'s delta).
         let mut boundary = Array3::<f32>::zeros((nx, ny, nz));
         let materials = scene.objects.len() as u64 + 1;
         for m in 0..=scene.objects.len() {

@@ -4,14 +4,14 @@
 //! The smoothing spreads an interface over a band a few voxels wide, and
 //! the ray equation refracts (or totally reflects) a ray through that band
 //! by itself. What it cannot do is split the light: Fresnel's partial
-//! reflection (eqs 2 and 5, `rho` and `tau`) needs the two indices the
-//! interface separates, which no point inside the band holds. They are read
+//! reflection ([Ihrke07 eqs 2 and 5], `rho` and `tau`) needs the two indices
+//! the interface separates, which no point inside the band holds. They are read
 //! once per boundary voxel, beyond the band ([`Interfaces::new`]).
 //!
 //! # Crossing a band
-//! The boundary indicator `delta` (eq 2) integrates to 1 along the normal
-//! across an interface, so a displacement `dx` inside the band covers the
-//! fraction `w = delta |dx . normal|` of one crossing. Light keeps the
+//! The boundary indicator `delta` [Ihrke07 eq 2] integrates to 1 along the
+//! normal across an interface, so a displacement `dx` inside the band covers
+//! the fraction `w = delta |dx . normal|` of one crossing. Light keeps the
 //! power fraction `(1 - R)^w` over it: over a whole crossing the fractions
 //! add up to 1 and the product to `1 - R`, however the band is cut into
 //! steps. `R` is the unpolarized Fresnel reflectance between the two side

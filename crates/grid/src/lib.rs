@@ -1,7 +1,7 @@
 //! # eikon-grid
 //!
 //! The refractive medium on a voxel grid and the ray equation of geometric
-//! optics (Ihrke et al. 2007, sections 3-4 and the Appendix).
+//! optics ([Ihrke07 secs 3-4] and its appendix).
 //!
 //! * [`scene`]: TOML scene files (grid, ambient medium, objects, lights).
 //! * [`shape`] and [`object`]: solids with materials and priorities; overlaps
@@ -9,7 +9,7 @@
 //! * [`voxelize`](crate::field::Medium::build) and [`field`]: supersampled
 //!   rasterization, Gaussian smoothing, gradient, boundary indicator, and
 //!   trilinear or exact analytic sampling.
-//! * [`ray`]: eqs 9-10 and 14-15 with Euler, RK4 and Dormand-Prince.
+//! * [`ray`]: [Ihrke07 eqs 9-10 and 14-15] with Euler, RK4 and Dormand-Prince.
 //! * [`vdb`]: OpenVDB export (our own writer) and import of float grids.
 
 pub mod animation;

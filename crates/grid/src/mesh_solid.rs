@@ -298,8 +298,7 @@ fn crossing_x(t: &[DVec3; 3], y: f64, z: f64) -> Option<f64> {
     Some(x.clamp(x0, x1))
 }
 
-/// The point of triangle `t` closest to `p` (Ericson, Real-Time Collision
-/// Detection, 5.1.5).
+/// The point of triangle `t` closest to `p` [Ericson05 sec 5.1.5].
 fn closest_point(t: &[DVec3; 3], p: DVec3) -> DVec3 {
     let [a, b, c] = *t;
     let (ab, ac, ap) = (b - a, c - a, p - a);

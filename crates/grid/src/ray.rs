@@ -1,20 +1,20 @@
-//! The ray equation of geometric optics, `d/ds (n dx/ds) = grad n` (eq 8),
-//! in the two first-order forms of Ihrke et al. 2007:
+//! The ray equation of geometric optics, `d/ds (n dx/ds) = grad n`
+//! [Ihrke07 eq 8], in the two first-order forms of Ihrke et al. 2007:
 //!
-//! * **equal distance** (eqs 9-10): `dx/ds = v / n`, `dv/ds = grad n`, where
-//!   `s` is arc length, so every step covers the same distance. Used for eye
-//!   rays.
-//! * **equal time** (eqs 14-15): `dx/dt = v / n^2`, `dv/dt = grad n / n`,
-//!   where `dt = n ds` is optical path, so all particles launched together
-//!   stay on one wavefront. Used for light.
+//! * **equal distance** [Ihrke07 eqs 9-10]: `dx/ds = v / n`, `dv/ds = grad n`,
+//!   where `s` is arc length, so every step covers the same distance. Used for
+//!   eye rays.
+//! * **equal time** [Ihrke07 eqs 14-15]: `dx/dt = v / n^2`,
+//!   `dv/dt = grad n / n`, where `dt = n ds` is optical path, so all particles
+//!   launched together stay on one wavefront. Used for light.
 //!
 //! In both, `v = grad S` is the gradient of the eikonal, of length `n`.
 //! The state also carries the optical path length `L = int n ds`
 //! (`dL/ds = n`; in the equal-time form `dL/dt = 1`), integrated by the
 //! same scheme.
 //!
-//! Integrators: forward Euler (eqs 11-12 and their equal-time analogue),
-//! classical RK4, and adaptive Dormand-Prince 5(4). Total internal
+//! Integrators: forward Euler ([Ihrke07 eqs 11-12] and their equal-time
+//! analogue), classical RK4, and adaptive Dormand-Prince 5(4). Total internal
 //! reflection needs no special case: the ray turns inside the smoothed
 //! interface because `v` keeps integrating `grad n`.
 
@@ -31,16 +31,17 @@ pub trait IndexField: Sync {
 /// Which parameterization of the ray equation to integrate.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Form {
-    /// Eqs 9-10: the step is a fixed distance (world units).
+    /// [Ihrke07 eqs 9-10]: the step is a fixed distance (world units).
     EqualDistance,
-    /// Eqs 14-15: the step is a fixed optical path (world units times n).
+    /// [Ihrke07 eqs 14-15]: the step is a fixed optical path (world units times
+    /// n).
     EqualTime,
 }
 
 /// Numerical integration scheme.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Integrator {
-    /// Forward Euler, first order (eqs 11-12).
+    /// Forward Euler, first order [Ihrke07 eqs 11-12].
     Euler,
     /// Classical Runge-Kutta, fourth order.
     Rk4,
@@ -97,7 +98,7 @@ impl RayState {
     }
 }
 
-/// Derivative of the state, the right-hand side of eqs 9-10 or 14-15.
+/// Derivative of the state, the right-hand side of [Ihrke07 eqs 9-10 or 14-15].
 #[derive(Clone, Copy)]
 struct Deriv {
     x: DVec3,
@@ -116,13 +117,14 @@ fn deriv<F: IndexField + ?Sized>(f: &F, form: Form, x: DVec3, v: DVec3) -> Deriv
 fn rhs(form: Form, n: f64, g: DVec3, v: DVec3) -> Deriv {
     let inv = 1.0 / n;
     match form {
-        // eq 9, eq 10; dL/ds = n by definition of optical path.
+        // [Ihrke07 eqs 9, 10]; dL/ds = n by definition of optical path.
         Form::EqualDistance => Deriv {
             x: v * inv,
             v: g,
             opl: n,
         },
-        // eq 14, eq 15; t is optical path itself (Appendix, eq 24: ds/dt = 1/n).
+        // [Ihrke07 eqs 14, 15]; t is optical path itself ([Ihrke07 eq 24] in
+        // the appendix: ds/dt = 1/n).
         Form::EqualTime => Deriv {
             x: v * (inv * inv),
             v: g * inv,
@@ -148,19 +150,19 @@ fn apply(s: &RayState, d: &Deriv, h: f64) -> RayState {
     }
 }
 
-/// One forward-Euler step of size `h` (eqs 11-12 in the equal-distance form).
-/// Always inlined: since `deriv` was split in two the compiler kept it out
-/// of line, which cost a call per step (+15% instructions per Euler step,
-/// docs/PERFORMANCE.md, "Ray steps per second").
+/// One forward-Euler step of size `h` ([Ihrke07 eqs 11-12] in the
+/// equal-distance form). Always inlined: since `deriv` was split in two the
+/// compiler kept it out of line, which cost a call per step (+15% instructions
+/// per Euler step, docs/PERFORMANCE.md, "Ray steps per second").
 #[inline(always)]
 pub fn step_euler<F: IndexField + ?Sized>(f: &F, form: Form, s: &mut RayState, h: f64) {
     let k = deriv(f, form, s.x, s.v);
     *s = apply(s, &k, h);
 }
 
-/// One forward-Euler step of size `h` in the equal-distance form [Ihrke07
-/// eqs 11-12] from the index sample `(n, grad)` already taken at `s.x`
-/// (the eye rays', which gather eq 1 from that sample first).
+/// One forward-Euler step of size `h` in the equal-distance form
+/// [Ihrke07 eqs 11-12] from the index sample `(n, grad)` already taken at
+/// `s.x` (the eye rays', which gather [Ihrke07 eq 1] from that sample first).
 #[inline(always)]
 pub fn step_euler_sampled(s: &mut RayState, (n, grad): (f64, DVec3), h: f64) {
     s.x += s.v * (h / n);
@@ -196,7 +198,7 @@ fn onto_shell(s: &mut RayState, n: f64) {
 /// One RK4 step that starts by putting the state on the eikonal shell
 /// `|v| = n`, reusing the index sample of its first stage (no extra cost).
 /// Particles of one wavefront stepped with it in the equal-time form
-/// (eqs 14-15) all travel exactly `h` of optical path per step.
+/// [Ihrke07 eqs 14-15] all travel exactly `h` of optical path per step.
 #[inline]
 pub fn step_rk4_on_shell<F: IndexField + ?Sized>(f: &F, form: Form, s: &mut RayState, h: f64) {
     let (n, g) = f.sample(s.x);

@@ -1,8 +1,8 @@
 // The ray equation (`ray.rs`) in both first-order forms [Ihrke07 eq 8]:
-// equal distance, dx/ds = v / n, dv/ds = grad n, dL/ds = n [Ihrke07 eqs
-// 9-10], for eye rays; equal time, dx/dt = v / n^2, dv/dt = grad n / n,
-// dL/dt = 1 [Ihrke07 eqs 14-15], for light. Forward Euler [Ihrke07 eqs
-// 11-12] and classical RK4.
+// equal distance, dx/ds = v / n, dv/ds = grad n, dL/ds = n
+// [Ihrke07 eqs 9-10], for eye rays; equal time, dx/dt = v / n^2,
+// dv/dt = grad n / n, dL/dt = 1 [Ihrke07 eqs 14-15], for light. Forward
+// Euler [Ihrke07 eqs 11-12] and classical RK4.
 //
 // Steps return their increments, not the new state: the light simulator
 // keeps corners 1-3 relative to corner 0 and moves them by differences of

@@ -228,7 +228,7 @@ pub struct Bump {
     pub weight: f64,
 }
 
-/// The papers' hardest case (Walter et al. 2009, Fig. 7): a star-shaped
+/// The papers' hardest case ([Walter09 fig 7]): a star-shaped
 /// solid whose radius in unit direction `u` is
 /// `radius * (1 + amplitude * sum_k weight_k sin(frequency_k (u . d_k) + phase_k))`.
 ///

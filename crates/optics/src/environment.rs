@@ -1,4 +1,4 @@
-//! Distant background radiance `L_bg` (Ihrke et al. 2007, eq. 1 and §5.3):
+//! Distant background radiance `L_bg` ([Ihrke07 eq 1] and [Ihrke07 sec 5.3]):
 //! after a view ray leaves the volume, its exit direction looks up an
 //! environment map.
 //!

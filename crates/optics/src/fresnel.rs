@@ -1,6 +1,6 @@
 //! Fresnel reflection and transmission at a dielectric interface for
-//! unpolarized light (Born & Wolf 1999, §1.5), the factors ρ and τ of Ihrke
-//! et al. 2007, eqs. 2 and 5.
+//! unpolarized light [BornWolf99 sec 1.5], the factors ρ and τ of
+//! [Ihrke07 eqs 2 and 5].
 //!
 //! `n1` is always the refractive index on the side the light comes from and
 //! `n2` the index on the far side. Incidence angles are measured from the

@@ -1,12 +1,13 @@
 //! HDR images, OpenEXR output and tone mapping to 8-bit sRGB PNG.
 //!
-//! The renderer works in linear, scene-referred RGB radiance (Ihrke et al.
-//! 2007, §5.3: "all lighting computations are performed in high dynamic
-//! range"). [`encode_exr`] stores that verbatim; [`encode_png`] maps it to a
-//! display image with the operator described at [`ToneMap`]. The paper uses
-//! the temporally adaptive operator of Krawczyk et al. 2005 for interactive
-//! display; for still images its global part reduces to Reinhard et al.'s
-//! 2002 photographic operator, which is what is implemented here.
+//! The renderer works in linear, scene-referred RGB radiance
+//! ([Ihrke07 sec 5.3]: "all lighting computations are performed in high
+//! dynamic range"). [`encode_exr`] stores that verbatim; [`encode_png`] maps it
+//! to a display image with the operator described at [`ToneMap`]. The paper
+//! uses the temporally adaptive operator of Krawczyk et al. 2005 for
+//! interactive display; for still images its global part reduces to
+//! Reinhard et al.'s 2002 photographic operator, which is what is implemented
+//! here.
 //!
 //! Both encoders return bytes; writing them to disk (atomically) is the
 //! caller's business.
@@ -120,8 +121,9 @@ pub fn luminance(rgb: [f32; 3]) -> f64 {
 /// Offset δ in the log-average luminance; keeps `ln` finite on black pixels.
 pub const LOG_AVERAGE_DELTA: f64 = 1e-6;
 
-/// Log-average ("geometric mean") luminance of the image (Reinhard et al.
-/// 2002, eq. 1), `exp(mean(ln(δ + L))) − δ` with δ = [`LOG_AVERAGE_DELTA`].
+/// Log-average ("geometric mean") luminance of the image
+/// ([Reinhard02 eq 1]), `exp(mean(ln(δ + L))) − δ` with δ =
+/// [`LOG_AVERAGE_DELTA`].
 ///
 /// Pixels with a non-finite channel are **ignored**: one NaN or inf (a
 /// diverged ray) would otherwise turn the mean into NaN/inf and the whole

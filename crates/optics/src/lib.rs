@@ -4,8 +4,8 @@
 //! none of which needs a voxel grid:
 //!
 //! * [`fresnel`]: reflection, transmission and refraction at a dielectric
-//!   interface (Ihrke et al. 2007, eqs 2 and 5);
-//! * [`phase`]: the Henyey-Greenstein phase function (eqs 3 and 6);
+//!   interface ([Ihrke07 eqs 2 and 5]);
+//! * [`phase`]: the Henyey-Greenstein phase function [Ihrke07 eqs 3 and 6];
 //! * [`camera`]: the look-at pinhole camera and its stratified sampling;
 //! * [`environment`]: latitude-longitude environment maps and the sky;
 //! * [`spot`]: a spot light's cone weight;

@@ -1,5 +1,5 @@
 //! The Henyey-Greenstein scattering phase function (Henyey & Greenstein
-//! 1941), the anisotropic phase function of Ihrke et al. 2007, eqs. 3 and 6.
+//! 1941), the anisotropic phase function of [Ihrke07 eqs 3 and 6].
 //!
 //! # Convention
 //!
@@ -16,7 +16,7 @@
 //! *towards* the light), `g < 0` back scattering, `g = 0` isotropic.
 //!
 //! The phase function is normalized over the sphere of scattered directions,
-//! `∫ p dω = 1`, so its unit is 1/sr; eq. 6 then multiplies it by the
+//! `∫ p dω = 1`, so its unit is 1/sr; [Ihrke07 eq 6] then multiplies it by the
 //! differential irradiance `ΔE` to give radiance.
 
 use eikon_shader::{Consts, Module};

@@ -1,6 +1,6 @@
-//! What a ray sees once it leaves the volume: `L_bg` of eq 1, and the
+//! What a ray sees once it leaves the volume: `L_bg` of [Ihrke07 eq 1], and the
 //! diffuse receiver plane (the table a caustic falls on, the paper's
-//! Fig. 7, where it replaces the environment lookup by a ray-plane
+//! [Ihrke07 fig 7], where it replaces the environment lookup by a ray-plane
 //! intersection).
 //!
 //! The receiver is lit by the light volumes where it lies inside the

@@ -1,4 +1,4 @@
-//! The view renderer (Ihrke et al. 2007, sections 3 and 5.3): curved eye
+//! The view renderer ([Ihrke07 secs 3 and 5.3]): curved eye
 //! rays through the voxelized medium, lit by the light volumes.
 
 pub mod background;

@@ -5,7 +5,7 @@
 //! nothing scatters or emits, no boundary reflects, and the extinction is
 //! one constant per channel. Any trilinear sample taken inside the block
 //! sees exactly those values, so an eye ray crosses it in one straight
-//! step and eq 5's attenuation over that step is exactly
+//! step and [Ihrke07 eq 5]'s attenuation over that step is exactly
 //! `exp(-sigma_t length)`.
 //!
 //! Clear air is the common case; the homogeneous interior of a glass

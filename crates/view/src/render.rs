@@ -1,25 +1,26 @@
-//! The view renderer (paper 5.3): curved eye rays through the volume,
-//! radiance by the simplified image formation model (eqs 1-7).
+//! The view renderer [Ihrke07 sec 5.3]: curved eye rays through the volume,
+//! radiance by the simplified image formation model [Ihrke07 eqs 1-7].
 //!
 //! Each eye ray enters the volume bounds and is marched with the
-//! equal-distance ray equation (eqs 9-10; Euler's eqs 11-12 by default,
-//! RK4 as an option). Over each step of length `ds` the medium is taken as
-//! constant at the step's start, and eq 1 is integrated exactly for that
-//! piece:
+//! equal-distance ray equation ([Ihrke07 eqs 9-10]; Euler's [Ihrke07 eqs 11-12]
+//! by default, RK4 as an option). Over each step of length `ds` the medium is
+//! taken as constant at the step's start, and [Ihrke07 eq 1] is integrated
+//! exactly for that piece:
 //!
 //! * the source `S = albedo sigma_t sum_j p(l_j . -d, g mu_j) phi_j + L_e`
-//!   (eqs 2, 3, 6): in-scatter from every light volume `j` (fluence rate
-//!   `phi_j`, net flux direction `l_j` and mean cosine `mu_j`, see
+//!   [Ihrke07 eqs 2, 3, 6]: in-scatter from every light volume `j` (fluence
+//!   rate `phi_j`, net flux direction `l_j` and mean cosine `mu_j`, see
 //!   [`eikon_wavefront::volume`]) through the Henyey-Greenstein phase, plus
 //!   emission; it adds `alpha S (1 - exp(-sigma_t ds)) / sigma_t`;
-//! * the attenuation `alpha` (eq 5) is multiplied by `exp(-sigma_t ds)`;
-//! * at a boundary (the indicator `delta`, eq 2) a fraction
+//! * the attenuation `alpha` [Ihrke07 eq 5] is multiplied by
+//!   `exp(-sigma_t ds)`;
+//! * at a boundary (the indicator `delta`, [Ihrke07 eq 2]) a fraction
 //!   `w = delta ds |cos i|` of one crossing is taken in this step (over a
 //!   whole crossing `w` sums to 1): it adds `alpha w rho L_r`, with
 //!   `rho` the Fresnel reflectance between the index on either side of the
 //!   interface and `L_r` the surroundings seen in the mirror direction
 //!   (the paper's environment mapping), and multiplies `alpha` by
-//!   `(1 - rho)^w`, the Fresnel transmission `tau` of eq 5's `T(t)`.
+//!   `(1 - rho)^w`, the Fresnel transmission `tau` of [Ihrke07 eq 5]'s `T(t)`.
 //!   Refraction and total internal reflection need no such term: the
 //!   ray equation bends the ray through the smoothed interface itself, so
 //!   where the interface reflects totally `rho` is taken as 0.
@@ -54,7 +55,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 pub struct Options {
     /// Step length, voxels.
     pub step: f64,
-    /// Integrator: Euler (eqs 11-12) or RK4.
+    /// Integrator: Euler [Ihrke07 eqs 11-12] or RK4.
     pub integrator: Integrator,
     /// Cross empty blocks in one straight step.
     pub skip_empty: bool,
@@ -398,8 +399,8 @@ impl<'a> Renderer<'a> {
         (walk.radiance, walk.stats)
     }
 
-    /// Eq 1 over one step of length `step` from `x` along the unit `d`:
-    /// in-scatter, emission, attenuation and Fresnel at boundaries (see
+    /// [Ihrke07 eq 1] over one step of length `step` from `x` along the unit
+    /// `d`: in-scatter, emission, attenuation and Fresnel at boundaries (see
     /// the module docs).
     #[allow(clippy::too_many_arguments)]
     fn gather(
@@ -420,7 +421,7 @@ impl<'a> Renderer<'a> {
                 let Some(light) = LightSample::at(v, &tri, ch) else {
                     continue;
                 };
-                // Eq 6 with the first angular moment of the light: HG
+                // [Ihrke07 eq 6] with the first angular moment of the light: HG
                 // about the net flux direction with g scaled by the mean
                 // cosine (exact for one ray family, mu = 1), between the
                 // light's direction of travel and the direction towards
@@ -430,8 +431,8 @@ impl<'a> Renderer<'a> {
                     * hg(light.direction.dot(-d), here.g * light.mean_cosine);
             }
         }
-        // The radiance law: L / n^2 is what a ray carries unchanged (the
-        // paper's eq 1 leaves it out), so radiance arising where the index
+        // The radiance law: L / n^2 is what a ray carries unchanged
+        // ([Ihrke07 eq 1] leaves it out), so radiance arising where the index
         // is n reaches an eye in index n_eye scaled by (n_eye / n)^2.
         // Without it matter in glass would look n^2 too bright.
         source *= (self.eye_index[ch] / n).powi(2);

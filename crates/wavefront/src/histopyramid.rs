@@ -1,5 +1,5 @@
 //! HistoPyramid stream compaction and expansion (Ziegler et al. 2006, as
-//! extended in Ihrke et al. 2007, section 5.2.3).
+//! extended in [Ihrke07 sec 5.2.3]).
 //!
 //! Every input entry (a wavefront patch) asks for 0 (eliminate), 1
 //! (retain) or 4 (tessellate) slots in the next list. The pyramid's base

@@ -1,22 +1,23 @@
 //! # eikon-wavefront
 //!
-//! Light simulation by adaptive wavefront tracing (Ihrke et al. 2007,
-//! sections 4.2 and 5.2). Each light emits a wavefront of four-particle
+//! Light simulation by adaptive wavefront tracing
+//! ([Ihrke07 secs 4.2 and 5.2]). Each light emits a wavefront of four-particle
 //! patches where it meets the volume ([`light`]); then every step runs
 //! the steps of the paper as a few calls in [`simulate_light`]:
 //!
-//! 1. [`propagate`](propagate::propagate): corners move with eqs 14-15; the tube each patch
-//!    sweeps is deposited into the light volume as track-length fluence and net flux
-//!    ([`deposit`], beyond the paper: every ray family adds, through caustics too); flux is
-//!    attenuated with eq 18 and by Fresnel transmission at interfaces (beyond the paper);
+//! 1. [`propagate`](propagate::propagate): corners move with [Ihrke07 eqs 14-15]; the tube
+//!    each patch sweeps is deposited into the light volume as track-length fluence and net
+//!    flux ([`deposit`], beyond the paper: every ray family adds, through caustics too);
+//!    flux is attenuated with [Ihrke07 eq 18] and by Fresnel transmission at interfaces
+//!    (beyond the paper);
 //! 2. [`refine`](refine::refine): tessellation analysis (eliminate, retain, tessellate)
 //!    and the new patch list through a [`HistoPyramid`].
 //!
 //! With `--deposit paper` ([`DepositRule::Paper`]) the paper's own steps run instead of
-//! the deposit in step 1: [`irradiance`](propagate::irradiance) (eq 17, flux over area),
-//! patches culled where they flip at a caustic, and
+//! the deposit in step 1: [`irradiance`](propagate::irradiance) ([Ihrke07 eq 17], flux over
+//! area), patches culled where they flip at a caustic, and
 //! [`PaperVolume::deposit`](deposit::paper::PaperVolume::deposit) keeping the highest-energy
-//! ray per cell (5.2.2).
+//! ray per cell [Ihrke07 sec 5.2.2].
 //!
 //! [`photons`] is the brute-force baseline: photons with the same track-length deposit.
 //!
@@ -52,8 +53,9 @@ pub enum DepositRule {
     /// ([`deposit`]); light passes through caustics.
     #[default]
     Fluence,
-    /// The paper's rule (5.2.2, 5.2.3): the highest-energy ray per cell as
-    /// a point value, patches culled at caustic flips ([`deposit::paper`]).
+    /// The paper's rule [Ihrke07 secs 5.2.2, 5.2.3]: the highest-energy ray per
+    /// cell as a point value, patches culled at caustic flips
+    /// ([`deposit::paper`]).
     Paper,
 }
 
@@ -135,9 +137,9 @@ pub struct Options {
     pub max_steps: Option<usize>,
     /// How the wavefront becomes a light volume.
     pub deposit: DepositRule,
-    /// Fresnel transmission at interfaces (beyond the paper, whose eq 18
-    /// has none): the reflected part leaves the beam and is counted as
-    /// reflected.
+    /// Fresnel transmission at interfaces (beyond the paper, whose
+    /// [Ihrke07 eq 18] has none): the reflected part leaves the beam and is
+    /// counted as reflected.
     pub fresnel: bool,
 }
 
@@ -578,8 +580,9 @@ pub(crate) fn start_wavefront(
     let entered = light::emit(light, grid, field, opts.patch_size * h, mask, p);
     add(&mut summary.entered, &entered);
     // A light inside the volume emits from a sphere one voxel across
-    // (a patch needs an area): what the medium absorbs within it, eq 18
-    // over that radius at the light's extinction, never reaches it.
+    // (a patch needs an area): what the medium absorbs within it,
+    // [Ihrke07 eq 18] over that radius at the light's extinction, never reaches
+    // it.
     if let Light::Point { position, .. } | Light::Spot { position, .. } = light {
         if grid.contains(*position) {
             let sigma = medium.sample_rgb(&medium.extinction, *position);

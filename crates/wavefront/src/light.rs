@@ -1,4 +1,4 @@
-//! Initial wavefronts of the light sources (paper 5.2).
+//! Initial wavefronts of the light sources [Ihrke07 sec 5.2].
 //!
 //! Every patch starts where its central ray first meets the volume bounds
 //! (a short margin before it), which skips the empty space between the

@@ -29,11 +29,11 @@
 //!
 //! # Transport
 //! Exactly as [`propagate`](crate::propagate::propagate) moves a patch
-//! corner: the equal-time ray equation (eqs 14-15) with the same
+//! corner: the equal-time ray equation [Ihrke07 eqs 14-15] with the same
 //! integrator and step in the [`Bounded`] field, on the eikonal shell
-//! `|v| = n`, straight through empty space ([`EmptySpace`]), and eq 18's
-//! attenuation by the trapezoid of `sigma_t / n` before and after each step
-//! times `dt`. A photon ends when
+//! `|v| = n`, straight through empty space ([`EmptySpace`]), and
+//! [Ihrke07 eq 18]'s attenuation by the trapezoid of `sigma_t / n` before and
+//! after each step times `dt`. A photon ends when
 //! it has left the bounds (it is outside and its forward line misses the
 //! box), when its transmittance is below the threshold in every channel,
 //! or at the wavefront's step limit.
@@ -468,8 +468,8 @@ fn clear_cells(medium: &Medium) -> Vec<bool> {
 
 impl Tracer<'_> {
     /// `sigma_t / n` per channel at `p`, zero outside the bounds: the
-    /// integrand of eq 18 exactly as `propagate` samples it (bitwise: in a
-    /// clear cell `sample_rgb` adds up exact zeros).
+    /// integrand of [Ihrke07 eq 18] exactly as `propagate` samples it (bitwise:
+    /// in a clear cell `sample_rgb` adds up exact zeros).
     #[inline]
     fn extinction_per_index(&self, p: DVec3) -> DVec3 {
         if !self.grid.contains(p) || self.empty.index_at(p).is_some() {
@@ -538,7 +538,7 @@ impl Tracer<'_> {
                 }
                 let after = self.extinction_per_index(s.x);
                 before = Some(after);
-                // Eq 18 over one step, exactly as for a patch.
+                // [Ihrke07 eq 18] over one step, exactly as for a patch.
                 let depth = step_depth(&self.medium.geometry, x0, s.x, b, after, self.dt);
                 self.tally.chord(x0, s.x, &flux, depth, self.group);
                 for c in 0..3 {

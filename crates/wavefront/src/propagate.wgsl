@@ -1,4 +1,4 @@
-// Eq 18's optical depth over one step (`propagate::step_depth`).
+// [Ihrke07 eq 18]'s optical depth over one step (`propagate::step_depth`).
 //
 // Needs: the `grid` module.
 

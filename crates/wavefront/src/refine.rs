@@ -1,4 +1,5 @@
-//! Step 3: tessellation analysis and the rebuilt patch list (5.2.3).
+//! Step 3: tessellation analysis and the rebuilt patch list
+//! [Ihrke07 sec 5.2.3].
 //!
 //! Each patch becomes Eliminate (0), Retain (1) or Tessellate (4):
 //! * eliminated when its transmittance `flux / flux0` has fallen below the

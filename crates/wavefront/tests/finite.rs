@@ -159,7 +159,7 @@ fn an_absorbing_slab_never_gains_light_and_decays_by_beer_lambert() {
                 // corner's) flips once the threshold ends the patch whose
                 // midpoint reached the cell (sigma 100 there): a corner
                 // deposit then fills the cell from a patch whose midpoint
-                // is still outside the grid, unattenuated (eq 18 runs
+                // is still outside the grid, unattenuated ([Ihrke07 eq 18] runs
                 // along a patch's central path), and the cell reads up to
                 // the incident (a limit of one flux per patch at the
                 // bounds, not a gain from absorption).

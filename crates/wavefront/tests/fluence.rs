@@ -1,7 +1,7 @@
 //! The track-length fluence deposit (the default light volume) against
 //! physics: Fresnel at a slab, the energy account with light carried
 //! through caustics, a plane wave's uniformity and direction, additivity of
-//! crossing beams, the caustic under the paper's Fig. 7 glass sphere
+//! crossing beams, the caustic under the [Ihrke07 fig 7] glass sphere
 //! against an independent ray-optics integration (`support/exact_sphere.rs`,
 //! which uses none of the engine's code), and a glass ball against the
 //! photon baseline. Measured numbers are printed (`--nocapture`).
@@ -21,7 +21,7 @@ fn wavefront(text: &str, opts: &Options) -> (eikon_grid::Medium, LightVolume, Su
     (m, v, s)
 }
 
-/// The paper's Fig. 7: a clear glass sphere above the plane y = 0 (the
+/// [Ihrke07 fig 7]: a clear glass sphere above the plane y = 0 (the
 /// grid's floor) under a directional light.
 fn fig7(resolution: usize) -> String {
     format!(

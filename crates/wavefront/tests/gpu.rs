@@ -21,8 +21,8 @@ fn fluence() -> Options {
     Options::default()
 }
 
-/// The paper's deposit (5.2.2, the highest-energy ray per cell, patches
-/// culled at caustics) without Fresnel.
+/// The paper's deposit ([Ihrke07 sec 5.2.2], the highest-energy ray per cell,
+/// patches culled at caustics) without Fresnel.
 fn paper() -> Options {
     Options {
         deposit: DepositRule::Paper,

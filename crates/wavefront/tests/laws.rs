@@ -239,7 +239,7 @@ fn reflectance(cos_i: f64, n1: f64, n2: f64) -> f64 {
 /// A clear glass slab filling the grid's width, a plane wave straight down:
 /// it enters through the top face only, crosses two interfaces and keeps
 /// `(1 - R)^2` of its power within 0.5%, the rest counted as reflected (the
-/// balance holds); without Fresnel (the paper's eq 18) nothing is
+/// balance holds); without Fresnel ([Ihrke07 eq 18]) nothing is
 /// reflected.
 const SLAB: &str = r#"
 [grid]

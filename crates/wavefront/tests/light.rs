@@ -241,8 +241,8 @@ fn wavefront_drift(text: &str, length: f64, step: f64) -> (f64, f64, usize) {
 
 #[test]
 fn particles_stay_on_one_wavefront() {
-    // Corners move with the equal-time equations (14-15) on the shell
-    // |v| = n, so after time t every one has travelled optical path t,
+    // Corners move with the equal-time equations [Ihrke07 eqs 14-15] on
+    // the shell |v| = n, so after time t every one has travelled optical path t,
     // however differently the medium bent them. What remains is the
     // stepping error: it must shrink with the step (here about 2x per
     // halving), and at the default half-voxel step stay within a

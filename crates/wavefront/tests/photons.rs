@@ -30,8 +30,8 @@ fn photons_decay_by_beer_lambert() {
     // An oblique plane wave through an absorbing cube (index 1, as the
     // ambient): photons enter the volume through three faces at random
     // places and cross the cells at every phase. The cube keeps a quarter
-    // unit from the bounds: eq 18's trapezoid, taken across the jump of
-    // sigma_t at the bounds (zero outside), would charge a photon that
+    // unit from the bounds: [Ihrke07 eq 18]'s trapezoid, taken across the jump
+    // of sigma_t at the bounds (zero outside), would charge a photon that
     // lands on the bounds after its first step half a step of absorption it
     // never crossed; inside, the cube's faces lie on cell faces, so the
     // trilinear sigma_t ramps across them with the integral of the sharp
@@ -186,7 +186,7 @@ fn photon_energy_balances_and_is_deterministic() {
     assert_ne!(a.fluence, b.fluence);
 }
 
-/// The glass sphere of Fig. 7 (configs/glass-sphere.toml) at 64^3.
+/// The glass sphere of [Ihrke07 fig 7] (configs/glass-sphere.toml) at 64^3.
 const FIG7: &str = r#"
 [grid]
 resolution = 64

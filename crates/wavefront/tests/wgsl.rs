@@ -542,7 +542,7 @@ fn chord(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
 }
 
 // ---------------------------------------------------------------------
-// Eq 18's step depth and the spot cone.
+// [Ihrke07 eq 18]'s step depth and the spot cone.
 
 fn step_depth_and_the_spot_cone_match_the_cpu(gpu: &Gpu) {
     let main = format!(

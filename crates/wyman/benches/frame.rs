@@ -1,5 +1,5 @@
 //! Frame time of Wyman's image-space method against the eikonal renderer,
-//! in one run: `configs/glass-sphere.toml` (the paper's Fig. 7), 800x600
+//! in one run: `configs/glass-sphere.toml` ([Ihrke07 fig 7]), 800x600
 //! at one sample per pixel (the camera of the scene).
 //!
 //! ```sh

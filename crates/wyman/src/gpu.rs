@@ -136,7 +136,7 @@ const WORDS: usize = 6;
 pub mod status {
     /// The refractor covers the pixel.
     pub const COVERED: u32 = 1;
-    /// No back normal where the exit point projects: [Wyman eq 6.3.2].
+    /// No back normal where the exit point projects: [Wyman06 eq 6.3.2].
     pub const FALLBACK_NORMAL: u32 = 2;
     /// Total internal reflection at the back ([`crate::Tir`]).
     pub const TIR_BACK: u32 = 4;

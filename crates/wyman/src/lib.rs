@@ -40,11 +40,11 @@
 //!
 //! * The distance to the back surface along the refracted ray is the
 //!   paper's interpolation between the view-ray thickness `d_V` and the
-//!   thickness along the inward normal `d_N` [Wyman eq 6.3.1]; `d_N` is
+//!   thickness along the inward normal `d_N` [Wyman06 eq 6.3.1]; `d_N` is
 //!   ray cast once per vertex ([`Refractor::corners`]) and interpolated.
 //! * The back normal N2 is read where the estimated exit point projects in
 //!   the back-face image (nearest texel); where no back face is there, the
-//!   normal perpendicular to the view [Wyman eq 6.3.2].
+//!   normal perpendicular to the view [Wyman06 eq 6.3.2].
 //! * Exactly two refractions: no internal reflections beyond what the
 //!   [`Tir`] choice does where the back refraction is total, the front
 //!   surface's reflection sees the background without meeting the object

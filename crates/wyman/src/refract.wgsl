@@ -7,7 +7,7 @@
 //   front_fs    front faces (back faces culled, the nearest kept): the
 //               G-buffer p1, d_N, N1 and p1's view distance
 //   refract_fs  a full-screen triangle: per front pixel refract at N1,
-//               estimate the distance to the back [Wyman eq 6.3.1], fetch
+//               estimate the distance to the back [Wyman06 eq 6.3.1], fetch
 //               N2 where p2 projects, refract again; the exit ray
 //
 // The mesh is pulled from a storage buffer (three corners per triangle:
@@ -147,7 +147,7 @@ fn exit_ray(px: vec2<i32>) -> Exit {
     }
     // Step 4: d_V between the front and back surfaces along the view ray,
     // d_N along the inward normal, interpolated by the angles of incidence
-    // and refraction [Wyman eq 6.3.1]; at normal incidence the ratio's
+    // and refraction [Wyman06 eq 6.3.1]; at normal incidence the ratio's
     // limit, sin(theta_t) / sin(theta_i) = n_out / n_in.
     let b = textureLoad(back_tex, px, 0);
     var d_v = 0.0;
@@ -165,7 +165,7 @@ fn exit_ray(px: vec2<i32>) -> Exit {
     let d = w * d_v + (1.0 - w) * d_n;
     let p2 = p1 + d * t1;
     // Step 5: N2 from the back-face normals where p2 projects; where none
-    // is there, the normal perpendicular to the view [Wyman eq 6.3.2].
+    // is there, the normal perpendicular to the view [Wyman06 eq 6.3.2].
     var n2v = vec3<f32>(0.0);
     let c = view.view_proj * vec4<f32>(p2, 1.0);
     if (c.w > 0.0) {

@@ -1,6 +1,6 @@
 //! The refractor: a scene's one object as a closed triangle mesh, with the
 //! shading normals the raster passes interpolate and the per-vertex
-//! distance `d_N` of [Wyman eq 6.3.1], its index and extinction.
+//! distance `d_N` of [Wyman06 eq 6.3.1], its index and extinction.
 //!
 //! Mesh objects (`mesh`, `bumpy_sphere`, `cuboctahedron`) are taken as
 //! they are, shaded smooth or faceted as the scene says. Constant-index

@@ -21,7 +21,7 @@ pub struct Stats {
     /// Pixel samples the refractor covers.
     pub covered: usize,
     /// Of those, samples whose estimated exit point found no back normal
-    /// ([Wyman eq 6.3.2] stood in).
+    /// ([Wyman06 eq 6.3.2] stood in).
     pub fallback_normal: usize,
     /// Samples with total internal reflection at the back surface.
     pub tir_back: usize,

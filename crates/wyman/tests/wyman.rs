@@ -46,10 +46,10 @@ fn percentile(v: &[f64], p: f64) -> f64 {
 
 /// The paper's method on the exact unit sphere, in f64, for the eye ray
 /// `(o, d)`: exact p1 and N1, d_V the exact chord along the view ray, d_N
-/// the diameter (the inward normal runs through the centre), [Wyman eq
-/// 6.3.1], N2 the normal where the eye ray through p2 leaves the sphere
-/// ([Wyman eq 6.3.2] where it misses), total internal reflection
-/// reflected. Returns the exit direction and whether TIR came in.
+/// the diameter (the inward normal runs through the centre),
+/// [Wyman06 eq 6.3.1], N2 the normal where the eye ray through p2 leaves
+/// the sphere ([Wyman06 eq 6.3.2] where it misses), total internal
+/// reflection reflected. Returns the exit direction and whether TIR came in.
 fn paper_on_sphere(o: DVec3, d: DVec3, n: f64) -> Option<(DVec3, bool)> {
     let (t0, t1) = sphere_hits(o, d)?;
     let p1 = o + d * t0;
@@ -177,9 +177,9 @@ fn sphere_exit_directions_against_snell(gpu: &Gpu) {
     );
     assert!(percentile(&agree, 0.5) < 0.5 && percentile(&agree, 0.99) < 3.0);
     assert!(flips * 100 < rows.len(), "{flips}");
-    // The method's own error grows with the incidence (eq 6.3.1 drifts
-    // from the true chord). Where it is designed to work, below 45 deg of
-    // incidence on this convex object with one back surface, the bound is
+    // The method's own error grows with the incidence ([Wyman06 eq 6.3.1]
+    // drifts from the true chord). Where it is designed to work, below 45 deg
+    // of incidence on this convex object with one back surface, the bound is
     // the f64 method's own worst error there plus 1 deg for the image-space
     // lookup (half a texel of back normal is 0.44 deg here); over the whole
     // sphere the median stays below 2 deg.
@@ -196,7 +196,7 @@ fn slab_is_exact_where_the_back_distance_is(gpu: &Gpu) {
     // parallel to the front, so the back normal read anywhere on it is the
     // exact one and the exit direction is exact whatever the distance
     // estimate; the exit point is off by exactly |d~ - d| along T1, and
-    // exact where eq 6.3.1 is (normal incidence).
+    // exact where [Wyman06 eq 6.3.1] is (normal incidence).
     let half = DVec3::new(1.5, 1.5, 0.25);
     let mesh = eikon_mesh::cuboid(half).unwrap();
     let n = 1.5;
@@ -238,8 +238,8 @@ fn slab_is_exact_where_the_back_distance_is(gpu: &Gpu) {
             }
             count += 1;
             assert_eq!(e.status, status::COVERED, "({x}, {y})");
-            // Eq 6.3.1 evaluated here: d_V the chord along the view ray,
-            // d_N the thickness.
+            // [Wyman06 eq 6.3.1] evaluated here: d_V the chord along the view
+            // ray, d_N the thickness.
             let th_i = (-d.z).acos();
             let th_t = (-t1.z).acos();
             let w = if th_i > 1e-3 { th_t / th_i } else { 1.0 / n };
@@ -357,7 +357,7 @@ fn an_index_matched_object_neither_shadows_nor_focuses(gpu: &Gpu) {
 }
 
 fn caustic_of_a_glass_sphere_against_the_eikonal_light_simulation(gpu: &Gpu) {
-    // Ihrke et al. Fig. 7 (configs/glass-sphere.toml) at 64^3 for the
+    // [Ihrke07 fig 7] (configs/glass-sphere.toml) at 64^3 for the
     // eikonal light simulation (EIKON_CAUSTIC_RESOLUTION=128 for the
     // config's own, a minute more).
     let res = std::env::var("EIKON_CAUSTIC_RESOLUTION").unwrap_or_else(|_| "64".into());
@@ -432,8 +432,8 @@ fn caustic_of_a_glass_sphere_against_the_eikonal_light_simulation(gpu: &Gpu) {
     // Independently, in f64 through the exact sphere: parallel rays 1/1500
     // of its diameter apart, Fresnel and Beer-Lambert; both the exact
     // paths (two refractions, and the few with internal reflections) and
-    // the paper's method (eq 6.3.1, N2 read along the light where p2
-    // projects, eq 6.3.2 beside the sphere, TIR reflected).
+    // the paper's method ([Wyman06 eq 6.3.1], N2 read along the light where p2
+    // projects, [Wyman06 eq 6.3.2] beside the sphere, TIR reflected).
     let u = l.cross(DVec3::X).normalize();
     let v = l.cross(u);
     let m = 1500;
@@ -522,7 +522,7 @@ fn caustic_of_a_glass_sphere_against_the_eikonal_light_simulation(gpu: &Gpu) {
     // The flux: the GPU's caustic map is the paper's method (within 2% of
     // its f64 evaluation). Against the eikonal renderer it falls short by
     // more than 10%: the method itself lands 11% less light here than the
-    // exact paths do (eq 6.3.1 shortens the chord through the outer
+    // exact paths do ([Wyman06 eq 6.3.1] shortens the chord through the outer
     // sphere, bending light out of the region), and the eikonal volumes
     // at 64^3 hold 15% more than the exact paths (7% at 128^3): see
     // docs/PERFORMANCE.md.

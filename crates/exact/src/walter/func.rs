@@ -1,19 +1,20 @@
-//! The target function of eq 8, `f(u, v) = Ĥ(u, v) + σ N̂_s(u, v)`, and its
-//! 3×2 Jacobian (via eq 10), written once over [`Scalar`] so that the same
-//! code is evaluated at points (Newton, eq 9) and over boxes of barycentric
-//! coordinates in interval arithmetic (Krawczyk, eqs 11-15).
+//! The target function of [Walter09 eq 8], `f(u, v) = Ĥ(u, v) + σ N̂_s(u, v)`,
+//! and its 3×2 Jacobian (via [Walter09 eq 10]), written once over [`Scalar`] so
+//! that the same code is evaluated at points (Newton, [Walter09 eq 9]) and over
+//! boxes of barycentric coordinates in interval arithmetic (Krawczyk,
+//! [Walter09 eqs 11-15]).
 //!
-//! `σ = +1` for `η > 1` (the paper's case: `Ĥ = −N̂_s` at a solution, eq 4)
-//! and `σ = −1` for `η < 1`, where `Ĥ` still points into the denser medium,
-//! now the outside, so that `Ĥ = +N̂_s`.
+//! `σ = +1` for `η > 1` (the paper's case: `Ĥ = −N̂_s` at a solution,
+//! [Walter09 eq 4]) and `σ = −1` for `η < 1`, where `Ĥ` still points into the
+//! denser medium, now the outside, so that `Ĥ = +N̂_s`.
 
 use super::interval::{Scalar, V3};
 use super::Triangle;
 use glam::DVec3;
 
-/// The per-query constants of eq 8 in the scalar type `T`. Differences of
-/// input points are formed in `T`, so for intervals they enclose the exact
-/// differences of the `f64` inputs.
+/// The per-query constants of [Walter09 eq 8] in the scalar type `T`.
+/// Differences of input points are formed in `T`, so for intervals they enclose
+/// the exact differences of the `f64` inputs.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Problem<T> {
     /// `V − p0`.
@@ -63,19 +64,19 @@ impl<T: Scalar> Problem<T> {
         self.e1.scale(u).add(self.e2.scale(v))
     }
 
-    /// `Ĥ` of eq 3 and the unnormalized `η ω̂_V + ω̂_L`, its length, and the
-    /// unit vectors of eqs 1-2 with their lengths.
+    /// `Ĥ` of [Walter09 eq 3] and the unnormalized `η ω̂_V + ω̂_L`, its length,
+    /// and the unit vectors of [Walter09 eqs 1-2] with their lengths.
     fn half_vector(&self, u: T, v: T) -> HalfVector<T> {
         let d = self.offset(u, v);
         let a = self.v0.sub(d); // V − P
         let b = self.l0.sub(d); // L − P
         let da = a.norm();
         let db = b.norm();
-        let wv = a.div(da).unit_clamp(); // eq 1
-        let wl = b.div(db).unit_clamp(); // eq 2
+        let wv = a.div(da).unit_clamp(); // [Walter09 eq 1]
+        let wl = b.div(db).unit_clamp(); // [Walter09 eq 2]
         let h = wv.scale(self.eta).add(wl);
         let dh = h.norm();
-        let hn = h.div(dh).unit_clamp(); // eq 3
+        let hn = h.div(dh).unit_clamp(); // [Walter09 eq 3]
         HalfVector {
             wv,
             wl,
@@ -93,7 +94,7 @@ impl<T: Scalar> Problem<T> {
         (n.div(len).unit_clamp(), len)
     }
 
-    /// `f(u, v)` of eq 8.
+    /// `f(u, v)` of [Walter09 eq 8].
     pub fn f(&self, u: T, v: T) -> V3<T> {
         let hv = self.half_vector(u, v);
         let (ns, _) = self.normal(u, v);
@@ -101,7 +102,8 @@ impl<T: Scalar> Problem<T> {
     }
 
     /// `f` and its Jacobian columns. Every derivative of a normalized vector
-    /// uses eq 10 in the equivalent form `n̂' = (u' − (n̂·u') n̂) / ‖u‖`.
+    /// uses [Walter09 eq 10] in the equivalent form
+    /// `n̂' = (u' − (n̂·u') n̂) / ‖u‖`.
     pub fn eval(&self, u: T, v: T) -> Eval<T> {
         let hv = self.half_vector(u, v);
         let (ns, nlen) = self.normal(u, v);
@@ -131,9 +133,9 @@ impl<T: Scalar> Problem<T> {
 impl<T: Scalar> Problem<T> {
     /// The square system that certifies a root ([`super::search::certify_root`]):
     /// `c(u, v) = h × n` with the unnormalized half-vector
-    /// `h = η ω̂_V + ω̂_L` (eq 3 before normalizing) and the unnormalized
-    /// interpolated normal `n`, its partial derivatives, `h·n` and `n`.
-    /// `c = 0` with `sign(h·n) = −σ` is exactly `Ĥ = −σ N̂_s`, i.e. `f = 0`.
+    /// `h = η ω̂_V + ω̂_L` ([Walter09 eq 3] before normalizing) and the
+    /// unnormalized interpolated normal `n`, its partial derivatives, `h·n` and
+    /// `n`. `c = 0` with `sign(h·n) = −σ` is exactly `Ĥ = −σ N̂_s`, i.e. `f = 0`.
     pub fn cross_eval(&self, u: T, v: T) -> CrossEval<T> {
         let hv = self.half_vector(u, v);
         let h = hv.wv.scale(self.eta).add(hv.wl);
@@ -174,11 +176,12 @@ impl Problem<f64> {
     ///
     /// * `V − P = v0 − (u e1 + v e2)` is formed with an error of at most
     ///   `3 u_r S_V`, `S_V = ‖v0‖ + |u| ‖e1‖ + |v| ‖e2‖`; normalizing it
-    ///   (eq 1) divides that by `d_V = ‖V − P‖` (the projection onto the
-    ///   unit sphere does not enlarge it; a factor 2 and `4 u_r` for the
-    ///   norm and the division are added). Likewise `ω̂_L` (eq 2) and
+    ///   [Walter09 eq 1] divides that by `d_V = ‖V − P‖` (the projection onto
+    ///   the unit sphere does not enlarge it; a factor 2 and `4 u_r` for the
+    ///   norm and the division are added). Likewise `ω̂_L` [Walter09 eq 2] and
     ///   `N̂_s` (with `S_N = ‖n0‖ + |u| ‖n1 − n0‖ + |v| ‖n2 − n0‖`).
-    /// * `Ĥ` (eq 3) sums `η ω̂_V + ω̂_L` and divides by its length `d_H`.
+    /// * `Ĥ` [Walter09 eq 3] sums `η ω̂_V + ω̂_L` and divides by its length
+    ///   `d_H`.
     /// * The root itself lies between representable `(u, v)`: at the
     ///   nearest one `‖f‖` is up to `u_r (|u| ‖f_u‖ + |v| ‖f_v‖)`.
     ///
@@ -258,8 +261,8 @@ mod tests {
     }
 
     /// Interval evaluation over a box encloses the point values of `f` and of
-    /// its Jacobian at the corners and at interior samples (eq 12 and the
-    /// `F'(X)` of eq 11 depend on this).
+    /// its Jacobian at the corners and at interior samples ([Walter09 eq 12]
+    /// and the `F'(X)` of [Walter09 eq 11] depend on this).
     #[test]
     fn interval_extension_encloses_point_values() {
         let t = tri();

@@ -1,5 +1,5 @@
 //! Interval arithmetic with outward rounding, for the Krawczyk test of
-//! Walter et al. 2009, §3.3.2 (eqs 11-15).
+//! [Walter09 sec 3.3.2] ([Walter09 eqs 11-15]).
 //!
 //! An [`Interval`] `[lo, hi]` stands for every real number between its
 //! bounds. Each arithmetic operation computes its bounds in ordinary
@@ -97,8 +97,8 @@ impl Interval {
     }
 
     /// The midpoint, a float inside the interval (the operator `m(·)` of
-    /// eq 11). Infinite bounds give a finite or infinite float; callers use
-    /// it only on bounded intervals.
+    /// [Walter09 eq 11]). Infinite bounds give a finite or infinite float;
+    /// callers use it only on bounded intervals.
     pub fn mid(self) -> f64 {
         let m = 0.5 * self.lo + 0.5 * self.hi;
         m.clamp(self.lo, self.hi)
@@ -124,7 +124,7 @@ impl Interval {
         other.lo <= self.lo && self.hi <= other.hi
     }
 
-    /// The intersection, `None` when empty (used by eqs 13 and 14).
+    /// The intersection, `None` when empty (used by [Walter09 eqs 13 and 14]).
     pub fn intersect(self, other: Interval) -> Option<Interval> {
         let lo = self.lo.max(other.lo);
         let hi = self.hi.min(other.hi);
@@ -265,8 +265,9 @@ impl Mul<f64> for Interval {
 }
 
 /// Arithmetic shared by `f64` and [`Interval`], so that the solver's target
-/// function (eq 8) and its Jacobian are written once and evaluated either at
-/// a point (Newton, eq 9) or over a box (Krawczyk, eqs 11-15).
+/// function [Walter09 eq 8] and its Jacobian are written once and evaluated
+/// either at a point (Newton, [Walter09 eq 9]) or over a box (Krawczyk,
+/// [Walter09 eqs 11-15]).
 pub(crate) trait Scalar:
     Copy
     + Add<Output = Self>

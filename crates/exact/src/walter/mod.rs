@@ -1,36 +1,38 @@
 //! Refracted connecting paths through one triangle of a medium's boundary,
 //! after Walter, Zhao, Holzschuch & Bala 2009, "Single scattering in
 //! refractive media with triangle mesh boundaries" (ACM TOG 28(3), 2009,
-//! DOI 10.1145/1531326.1531398; sections 3.1-3.3 and 4; `[Walter09 eq N]`).
+//! DOI 10.1145/1531326.1531398; cited as `Walter09`:
+//! [Walter09 secs 3.1-3.3 and 4]).
 //!
 //! Given a scatter point `V` inside a medium of relative index
 //! `η = η_in / η_out`, a point light `L` outside, and one boundary triangle,
 //! [`solve`] finds every point `P` on the triangle where light from `L`
 //! refracts towards `V` (Snell's law relative to the shading normal), and
-//! [`contribution`] weighs such a path by eq 17 with the distance factor `D`
-//! of eq 18 (flat triangles) or eqs 21-26 (interpolated normals).
+//! [`contribution`] weighs such a path by [Walter09 eq 17] with the distance
+//! factor `D` of [Walter09 eq 18] (flat triangles) or [Walter09 eqs 21-26]
+//! (interpolated normals).
 //!
-//! # Conventions (the paper's, §3.1)
+//! # Conventions (the paper's, [Walter09 sec 3.1])
 //!
 //! * Normals (vertex normals `n0, n1, n2`, the shading normal `N̂_s`, the
 //!   geometric normal `N̂_g`) point **out of** the refractive medium. The
 //!   geometric normal is the face normal oriented to agree with the vertex
 //!   normals ([`Triangle::geometric_normal`]).
-//! * `ω̂_V = (V − P)/‖V − P‖` and `ω̂_L = (L − P)/‖L − P‖` (eqs 1-2) both
-//!   point away from `P`. Light travels `L → P → V`, so its direction of
+//! * `ω̂_V = (V − P)/‖V − P‖` and `ω̂_L = (L − P)/‖L − P‖` [Walter09 eqs 1-2]
+//!   both point away from `P`. Light travels `L → P → V`, so its direction of
 //!   travel inside the medium is `ω̂_V`.
 //! * The generalized half-vector is `Ĥ = (η ω̂_V + ω̂_L)/‖η ω̂_V + ω̂_L‖`
-//!   (eq 3). Its component tangent to the normal vanishes exactly when the
-//!   tangential components obey `η sin θ_V = sin θ_L` in a common plane of
+//!   [Walter09 eq 3]. Its component tangent to the normal vanishes exactly when
+//!   the tangential components obey `η sin θ_V = sin θ_L` in a common plane of
 //!   incidence (Snell's law), and it points into the denser medium: for
-//!   `η > 1` a solution has `Ĥ = −N̂_s` (eq 4), for `η < 1` it has
+//!   `η > 1` a solution has `Ĥ = −N̂_s` [Walter09 eq 4], for `η < 1` it has
 //!   `Ĥ = +N̂_s`.
 //! * A solution must also have `V` and `L` on opposite sides of the
-//!   triangle's plane, `V·N̂_g < P·N̂_g < L·N̂_g` (eq 4, strict here), and
-//!   `ω̂_L·N̂_s > 0 > ω̂_V·N̂_s`: light arrives from the outside of the
-//!   shading frame too. (With strongly tilted shading normals eq 8 has a
-//!   second, non-physical root family with both directions inside; it is
-//!   discarded.)
+//!   triangle's plane, `V·N̂_g < P·N̂_g < L·N̂_g` ([Walter09 eq 4], strict
+//!   here), and `ω̂_L·N̂_s > 0 > ω̂_V·N̂_s`: light arrives from the outside of
+//!   the shading frame too. (With strongly tilted shading normals
+//!   [Walter09 eq 8] has a second, non-physical root family with both
+//!   directions inside; it is discarded.)
 //! * Positions on the triangle are barycentric `(u, v)`:
 //!   `P = (1 − u − v) p0 + u p1 + v p2` (the paper's `(a, b)`), and the
 //!   shading normal is the normalized linear interpolation
@@ -42,64 +44,67 @@
 //! # Methods
 //!
 //! * Flat triangles (all vertex normals equal to the geometric normal):
-//!   the 1-D Newton iteration of eqs 5-7 in the plane of incidence, with the
-//!   start value of eq 6 and clamping to `[0, L_x]`, safeguarded by a
-//!   bracket (`f` is strictly decreasing there, so the root is unique).
-//! * Interpolated normals: 2-D Newton on `f(u, v) = Ĥ + σ N̂_s` (eq 8) with
-//!   the pseudo-inverse `J⁺ = (JᵀJ)⁻¹Jᵀ` (eq 9), steps limited to length
-//!   1/2 and halved until `‖f‖` decreases, started from several points of
-//!   each sub-region. Where to start is decided by one of two [`Mode`]s:
+//!   the 1-D Newton iteration of [Walter09 eqs 5-7] in the plane of incidence,
+//!   with the start value of [Walter09 eq 6] and clamping to `[0, L_x]`,
+//!   safeguarded by a bracket (`f` is strictly decreasing there, so the root is
+//!   unique).
+//! * Interpolated normals: 2-D Newton on `f(u, v) = Ĥ + σ N̂_s` [Walter09 eq 8]
+//!   with the pseudo-inverse `J⁺ = (JᵀJ)⁻¹Jᵀ` [Walter09 eq 9], steps limited to
+//!   length 1/2 and halved until `‖f‖` decreases, started from several points
+//!   of each sub-region. Where to start is decided by one of two [`Mode`]s:
 //!   [`Mode::Heuristic`] (split-and-prune with bounding cones, stop when the
-//!   `Ĥ` and `N̂_s` cones together span less than 30°, §3.3.1) or
+//!   `Ĥ` and `N̂_s` cones together span less than 30°, [Walter09 sec 3.3.1]) or
 //!   [`Mode::Guaranteed`] (split-and-prune on barycentric boxes with the
-//!   interval Krawczyk test, eqs 11-15, §3.3.2). A run is accepted at
-//!   `‖f‖ <= 1e-10`, or, where doubles cannot reach that (`V` or `L` very
-//!   close to the plane), at the residual they can reach with the root
+//!   interval Krawczyk test, [Walter09 eqs 11-15], [Walter09 sec 3.3.2]). A run
+//!   is accepted at `‖f‖ <= 1e-10`, or, where doubles cannot reach that (`V` or
+//!   `L` very close to the plane), at the residual they can reach with the root
 //!   proven by an interval test (`newton::NewtonOut::converged`).
 //!
-//! # The distance factor and eq 17
+//! # The distance factor and [Walter09 eq 17]
 //!
 //! `D = dA_L / dω_V`: perturb the direction `ω̂_V` at `V` over a small solid
 //! angle `dω_V`, follow the path through the interface (refracting about
 //! the shading normal at the moved point `P`), and measure the area `dA_L`
 //! it sweeps at the light's distance, in the plane perpendicular to `ω̂_L`
-//! (eqs 21-26). Without refraction `D = ‖L − V‖²`; at normal incidence on
-//! a flat face `D = (d_V + η d_L)²`.
+//! [Walter09 eqs 21-26]. Without refraction `D = ‖L − V‖²`; at normal incidence
+//! on a flat face `D = (d_V + η d_L)²`.
 //!
 //! For a flat face, reciprocity (conservation of étendue `n² dA dω`) relates
 //! it to the spread of a beam leaving the light: `dA_V/dω_L = D/η²` (checked
-//! by finite differences in the tests). The irradiance at `V` from a point source of intensity `I_e` is
-//! therefore `η² I_e F / D` *inside* the medium; eq 17 omits that `η²`,
-//! which is exactly the `1/η²` that radiance loses when the scattered light
-//! leaves the medium towards an eye outside it (the `n²` law of radiance).
+//! by finite differences in the tests). The irradiance at `V` from a point
+//! source of intensity `I_e` is therefore `η² I_e F / D` *inside* the medium;
+//! [Walter09 eq 17] omits that `η²`, which is exactly the `1/η²` that
+//! radiance loses when the scattered light leaves the medium towards an eye
+//! outside it (the `n²` law of radiance).
 //! So use [`Contribution::value`] as is for an eye outside the medium whose
 //! exit refraction does not scale radiance, and multiply by `η²` for
 //! radiance inside the medium. With interpolated normals the two beam
 //! spreads are no longer reciprocal (shading normals break reciprocity);
 //! the paper's `D` is the `V`-side one, computed here.
 //!
-//! ## Sign conventions in eqs 21 and 24
+//! ## Sign conventions in [Walter09 eqs 21 and 24]
 //!
-//! As printed, eq 21 (`P' = d_V(ω̂'_V − …)`) and eq 24
+//! As printed, [Walter09 eq 21] (`P' = d_V(ω̂'_V − …)`) and [Walter09 eq 24]
 //! (`ω̂'_L = η ω̂'_V + …`) take `ω̂'_V` as the derivative of the *view-ray*
-//! direction `−ω̂_V` from `V` towards `P`, while eqs 22-23 use `ω̂_V` of
-//! eq 1 (from `P` to `V`). With one derivative `s = ω̂'_V` of eq 1's `ω̂_V`
-//! throughout, the consistent forms, derived from `P = V − d_V ω̂_V` on the
-//! plane and `ω̂_L = μ N̂_s − η ω̂_V` (eq 3 at a solution, `μ` of eq 22), are
+//! direction `−ω̂_V` from `V` towards `P`, while [Walter09 eqs 22-23] use
+//! `ω̂_V` of [Walter09 eq 1] (from `P` to `V`). With one derivative `s = ω̂'_V`
+//! of [Walter09 eq 1]'s `ω̂_V` throughout, the consistent forms, derived from
+//! `P = V − d_V ω̂_V` on the plane and `ω̂_L = μ N̂_s − η ω̂_V`
+//! ([Walter09 eq 3] at a solution, `μ` of [Walter09 eq 22]), are
 //! `P' = −d_V (s − (s·N̂_g)/(ω̂_V·N̂_g) ω̂_V)` and
-//! `ω̂'_L = −η s + μ' N̂_s + μ N̂'_s`; eqs 22, 23, 25 and 26 are used as
-//! printed. `D` does not depend on the sign of `s`; the finite-difference
-//! tests confirm these forms.
+//! `ω̂'_L = −η s + μ' N̂_s + μ N̂'_s`; [Walter09 eqs 22, 23, 25 and 26] are
+//! used as printed. `D` does not depend on the sign of `s`; the
+//! finite-difference tests confirm these forms.
 //!
-//! On a caustic `D = 0` and eq 17 is infinite; the paper clamps `D` from
-//! below for such scenes (§5). That is left to the caller.
+//! On a caustic `D = 0` and [Walter09 eq 17] is infinite; the paper clamps `D`
+//! from below for such scenes [Walter09 sec 5]. That is left to the caller.
 //!
 //! # Meshes
 //!
-//! [`PnTree`] is the position-normal tree of §3.4 with its spindle (eq 16),
-//! sidedness and cone-overlap tests; [`solve_mesh`] runs the solver on the
-//! triangles the tree keeps. Occlusion and lights are the renderer's
-//! business ([`crate::single`]).
+//! [`PnTree`] is the position-normal tree of [Walter09 sec 3.4] with its
+//! spindle [Walter09 eq 16], sidedness and cone-overlap tests; [`solve_mesh`]
+//! runs the solver on the triangles the tree keeps. Occlusion and lights are
+//! the renderer's business ([`crate::single`]).
 
 mod distance;
 mod func;
@@ -161,7 +166,8 @@ impl Triangle {
     }
 
     /// Whether every vertex normal is parallel to the geometric normal (to
-    /// 1e-12 rad), so that the closed-form methods of §3.2 and eq 18 apply.
+    /// 1e-12 rad), so that the closed-form methods of [Walter09 sec 3.2] and
+    /// [Walter09 eq 18] apply.
     pub fn is_flat(&self) -> bool {
         let g = self.geometric_normal();
         self.n.iter().all(|n| {
@@ -204,21 +210,22 @@ impl Triangle {
 }
 
 /// How [`solve`] searches a triangle with interpolated normals (flat
-/// triangles are always solved by the exact 1-D method of §3.2).
+/// triangles are always solved by the exact 1-D method of [Walter09 sec 3.2]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Mode {
-    /// Interval split-and-prune with the Krawczyk test (eqs 11-15): every
-    /// box is either proven free of solutions (eq 12 or 13) or proven to hold
-    /// at most one, which is then found by Newton iteration (eqs 14-15).
-    /// Solutions it reports carry `certified = true` unless a box shrank to
-    /// [`Options::min_box_width`] without being resolved (a near-double root
-    /// at a caustic), in which case plain Newton runs from it.
+    /// Interval split-and-prune with the Krawczyk test [Walter09 eqs 11-15]:
+    /// every box is either proven free of solutions [Walter09 eq 12 or 13] or
+    /// proven to hold at most one, which is then found by Newton iteration
+    /// [Walter09 eqs 14-15]. Solutions it reports carry `certified = true`
+    /// unless a box shrank to [`Options::min_box_width`] without being resolved
+    /// (a near-double root at a caustic), in which case plain Newton runs from
+    /// it.
     Guaranteed,
     /// Cone split-and-prune stopping once the `Ĥ` and `N̂_s` bounding cones
-    /// together span less than [`Options::cone_angle_deg`] (30°, §3.3.1),
-    /// then Newton from start points in each sub-triangle
-    /// ([`Options::paper_starts`]). Fast, but it may miss solutions (see the
-    /// tests for measured miss rates).
+    /// together span less than [`Options::cone_angle_deg`] (30°,
+    /// [Walter09 sec 3.3.1]), then Newton from start points in each
+    /// sub-triangle ([`Options::paper_starts`]). Fast, but it may miss
+    /// solutions (see the tests for measured miss rates).
     Heuristic,
 }
 
@@ -239,7 +246,7 @@ pub struct Options {
     /// normal). When `false` (the default), Newton runs from the centroid,
     /// the corners and the edge midpoints of every final sub-triangle, once
     /// from the projection of `V` and once from the root the triangle would
-    /// have if it were flat (§3.2), and duplicates are merged.
+    /// have if it were flat [Walter09 sec 3.2], and duplicates are merged.
     pub paper_starts: bool,
     /// Guaranteed mode: boxes narrower than this (in barycentric units) that
     /// are still unresolved fall back to uncertified Newton.
@@ -275,23 +282,23 @@ pub struct Solution {
     pub normal: DVec3,
     /// The unit geometric normal `N̂_g` (outward).
     pub geometric_normal: DVec3,
-    /// `ω̂_V`, unit direction from `P` to `V` (eq 1); the direction light
-    /// travels inside the medium.
+    /// `ω̂_V`, unit direction from `P` to `V` [Walter09 eq 1]; the direction
+    /// light travels inside the medium.
     pub omega_v: DVec3,
-    /// `ω̂_L`, unit direction from `P` to `L` (eq 2).
+    /// `ω̂_L`, unit direction from `P` to `L` [Walter09 eq 2].
     pub omega_l: DVec3,
-    /// `d_V = ‖V − P‖` (eq 19).
+    /// `d_V = ‖V − P‖` [Walter09 eq 19].
     pub d_v: f64,
-    /// `d_L = ‖L − P‖` (eq 20).
+    /// `d_L = ‖L − P‖` [Walter09 eq 20].
     pub d_l: f64,
-    /// `‖Ĥ + σ N̂_s‖` at the solution (eq 8; for flat triangles the same
-    /// quantity with `N̂_s = N̂_g`).
+    /// `‖Ĥ + σ N̂_s‖` at the solution ([Walter09 eq 8]; for flat triangles the
+    /// same quantity with `N̂_s = N̂_g`).
     pub residual: f64,
     /// Newton iterations used by the run that produced it.
     pub iterations: u32,
     /// Whether uniqueness in an enclosing region was proven: always for flat
-    /// triangles (eq 5 is strictly monotonic) and for Krawczyk-certified
-    /// boxes; never in heuristic mode.
+    /// triangles ([Walter09 eq 5] is strictly monotonic) and for
+    /// Krawczyk-certified boxes; never in heuristic mode.
     pub certified: bool,
 }
 
@@ -300,10 +307,10 @@ pub struct Solution {
 pub struct Stats {
     /// Sub-triangles (heuristic) or boxes (guaranteed) examined.
     pub regions: usize,
-    /// Regions discarded: cone test (heuristic) or eq 12 / eq 13.
+    /// Regions discarded: cone test (heuristic) or [Walter09 eq 12 or 13].
     pub pruned: usize,
-    /// Guaranteed mode: boxes proven to hold at most one solution (eqs
-    /// 14-15).
+    /// Guaranteed mode: boxes proven to hold at most one solution
+    /// [Walter09 eqs 14-15].
     pub certified: usize,
     /// Guaranteed mode: boxes that reached the size or count limit
     /// unresolved.
@@ -325,7 +332,7 @@ pub fn solve(tri: &Triangle, v: DVec3, l: DVec3, eta: f64, mode: Mode) -> Vec<So
 /// with work counters.
 ///
 /// Returns nothing if `V` and `L` are not strictly on the inner and outer
-/// sides of the triangle's plane (eq 4), if `eta` is not finite and
+/// sides of the triangle's plane [Walter09 eq 4], if `eta` is not finite and
 /// positive, or if the triangle is degenerate. For `eta == 1` the only path
 /// is the straight segment, reported if it crosses the triangle.
 pub fn solve_with(
@@ -341,7 +348,7 @@ pub fn solve_with(
     if !valid {
         return (Vec::new(), stats);
     }
-    // Sidedness of eq 4 against the triangle's plane.
+    // Sidedness of [Walter09 eq 4] against the triangle's plane.
     let plane = ng.dot(tri.p[0]);
     if !(v.dot(ng) < plane && plane < l.dot(ng)) {
         return (Vec::new(), stats);
@@ -431,8 +438,9 @@ pub fn mesh_triangles(mesh: &eikon_mesh::Mesh) -> Vec<Triangle> {
 }
 
 /// All refracted paths from `l` to `v` through the triangles of `tree`
-/// that survive its pruning (§3.4), as `(triangle index, solution)`, in
-/// triangle order. `scratch` is reused for the candidate list.
+/// that survive its pruning [Walter09 sec 3.4], as
+/// `(triangle index, solution)`, in triangle order. `scratch` is reused for the
+/// candidate list.
 pub fn solve_mesh(
     tree: &PnTree,
     v: DVec3,

@@ -1,6 +1,7 @@
 //! Newton-Raphson iterations: 1-D in the plane of incidence for flat
-//! triangles (§3.2, eqs 5-7) and 2-D on barycentric coordinates with the
-//! pseudo-inverse for interpolated normals (§3.3, eqs 8-10).
+//! triangles ([Walter09 sec 3.2], [Walter09 eqs 5-7]) and 2-D on barycentric
+//! coordinates with the pseudo-inverse for interpolated normals
+//! ([Walter09 sec 3.3], [Walter09 eqs 8-10]).
 
 use super::func::Problem;
 use super::interval::Interval;
@@ -8,10 +9,10 @@ use super::search::certify_root;
 use super::{finish, Solution, Stats, Triangle};
 use glam::{DVec2, DVec3};
 
-/// Residual `‖f‖` (eq 8) below which a 2-D Newton run counts as converged
-/// where doubles can resolve it (see [`NewtonOut::converged`]). Simple roots
-/// converge to ~1e-16; the slack admits near-double roots at caustics,
-/// where convergence is only linear.
+/// Residual `‖f‖` [Walter09 eq 8] below which a 2-D Newton run counts as
+/// converged where doubles can resolve it (see [`NewtonOut::converged`]).
+/// Simple roots converge to ~1e-16; the slack admits near-double roots at
+/// caustics, where convergence is only linear.
 pub(crate) const ACCEPT_RESIDUAL: f64 = 1e-10;
 
 /// Safety factor on [`Problem::residual_floor`], a first-order bound that
@@ -26,8 +27,9 @@ const FLOOR_FACTOR: f64 = 4.0;
 /// allows where `‖J⁺‖ ~ 1`; at the accepted runs it is a few ulps).
 const CERTIFY_RADIUS: f64 = 1e-10;
 
-/// The 1-D target of eq 5 and its derivative in the frame of Fig. 3:
-/// `V = (0, v_y)`, `P = (x, 0)`, `L = (l_x, l_y)`, `N̂ = (0, 1)`.
+/// The 1-D target of [Walter09 eq 5] and its derivative in the frame of
+/// [Walter09 fig 3]: `V = (0, v_y)`, `P = (x, 0)`, `L = (l_x, l_y)`,
+/// `N̂ = (0, 1)`.
 fn flat_f(x: f64, vy: f64, lx: f64, ly: f64, eta: f64) -> (f64, f64) {
     let rv2 = x * x + vy * vy;
     let dx = lx - x;
@@ -39,19 +41,19 @@ fn flat_f(x: f64, vy: f64, lx: f64, ly: f64, eta: f64) -> (f64, f64) {
     (f, df)
 }
 
-/// The root `x ∈ [0, l_x]` of eq 5 for `v_y < 0 < l_y`, `l_x >= 0`, and the
-/// number of Newton steps taken.
+/// The root `x ∈ [0, l_x]` of [Walter09 eq 5] for `v_y < 0 < l_y`, `l_x >= 0`,
+/// and the number of Newton steps taken.
 ///
-/// Starts from eq 6, iterates eq 7 and clamps to the bracket `[0, l_x]` as
-/// the paper does; since `f(0) >= 0 >= f(l_x)` and `f` is strictly
-/// decreasing, the bracket is also narrowed at every step and a step that
-/// would leave it is replaced by a secant step through the bracket's ends
+/// Starts from [Walter09 eq 6], iterates [Walter09 eq 7] and clamps to the
+/// bracket `[0, l_x]` as the paper does; since `f(0) >= 0 >= f(l_x)` and `f` is
+/// strictly decreasing, the bracket is also narrowed at every step and a step
+/// that would leave it is replaced by a secant step through the bracket's ends
 /// or by bisection, so the iteration cannot fail.
 pub(crate) fn flat_root(vy: f64, lx: f64, ly: f64, eta: f64) -> (f64, u32) {
     if lx <= 0.0 {
         return (0.0, 0);
     }
-    // Eq 6, the paper's empirical start value.
+    // [Walter09 eq 6], the paper's empirical start value.
     let x0 = -vy * lx / (eta * ly - vy) * 4.0 / (3.0 + eta);
     let (mut lo, mut hi) = (0.0, lx);
     // f at the bracket ends, once evaluated there.
@@ -65,13 +67,13 @@ pub(crate) fn flat_root(vy: f64, lx: f64, ly: f64, eta: f64) -> (f64, u32) {
         } else {
             (hi, fhi) = (x, Some(f));
         }
-        // Each term of eq 5 is at most max(η, 1) in size, so a residual at
-        // the level of their rounding errors is as good as it gets.
+        // Each term of [Walter09 eq 5] is at most max(η, 1) in size, so a
+        // residual at the level of their rounding errors is as good as it gets.
         if f.abs() <= 2.0 * f64::EPSILON * (1.0 + eta) {
             break;
         }
         iters += 1;
-        let mut xn = x - f / df; // eq 7
+        let mut xn = x - f / df; // [Walter09 eq 7]
         let inside = |y: f64| y > lo && y < hi;
         if !inside(xn) {
             // Out of the bracket: the secant through its ends if known and
@@ -93,9 +95,9 @@ pub(crate) fn flat_root(vy: f64, lx: f64, ly: f64, eta: f64) -> (f64, u32) {
     (x, iters)
 }
 
-/// §3.2: the unique refraction point in the plane of a flat triangle, if it
-/// lies on the triangle. `V` and `L` are assumed to be on the inner and
-/// outer sides of the plane (checked by the caller).
+/// [Walter09 sec 3.2]: the unique refraction point in the plane of a flat
+/// triangle, if it lies on the triangle. `V` and `L` are assumed to be on the
+/// inner and outer sides of the plane (checked by the caller).
 pub(crate) fn solve_flat(
     tri: &Triangle,
     v: DVec3,
@@ -109,15 +111,15 @@ pub(crate) fn solve_flat(
     finish(tri, v, l, eta, uv, iters, true)
 }
 
-/// The root of eq 5 in the plane of `tri`, about its geometric normal, in
-/// barycentric coordinates (on the triangle or not), and the Newton steps
-/// taken. `V` and `L` are on the inner and outer sides of the plane.
+/// The root of [Walter09 eq 5] in the plane of `tri`, about its geometric
+/// normal, in barycentric coordinates (on the triangle or not), and the Newton
+/// steps taken. `V` and `L` are on the inner and outer sides of the plane.
 pub(crate) fn plane_root(tri: &Triangle, v: DVec3, l: DVec3, eta: f64) -> (DVec2, u32) {
     let ng = tri.geometric_normal();
     let vy = (v - tri.p[0]).dot(ng);
     let ly = (l - tri.p[0]).dot(ng);
-    // Fig. 3 frame: the foot of V is the origin, the x axis runs towards the
-    // foot of L, the y axis is the normal.
+    // [Walter09 fig 3] frame: the foot of V is the origin, the x axis runs
+    // towards the foot of L, the y axis is the normal.
     let vfoot = v - vy * ng;
     let t = (l - ly * ng) - vfoot;
     let lx = t.length();
@@ -143,8 +145,8 @@ pub(crate) struct NewtonOut {
 }
 
 impl NewtonOut {
-    /// Whether the run ended at a root of eq 8 (`pi`: the same problem in
-    /// interval arithmetic).
+    /// Whether the run ended at a root of [Walter09 eq 8] (`pi`: the same
+    /// problem in interval arithmetic).
     ///
     /// Where doubles resolve [`ACCEPT_RESIDUAL`] (`floor` below it, the
     /// usual case), the run converged if `‖f‖ <= ACCEPT_RESIDUAL`, as
@@ -156,9 +158,9 @@ impl NewtonOut {
     /// Then the run must reach the noise, `‖f‖ <= floor`, and a root must be
     /// proven to exist within [`CERTIFY_RADIUS`] of `uv` by the interval test
     /// ([`certify_root`], Krawczyk's operator of [Walter09 eq 11] on a square
-    /// form of eq 8): the relaxed tolerance cannot admit a false root. (A
-    /// near-double root is not certified; there doubles cannot tell it from
-    /// a near miss.)
+    /// form of [Walter09 eq 8]): the relaxed tolerance cannot admit a false
+    /// root. (A near-double root is not certified; there doubles cannot tell it
+    /// from a near miss.)
     pub fn converged(&self, pi: &Problem<Interval>) -> bool {
         if self.floor <= ACCEPT_RESIDUAL {
             self.residual <= ACCEPT_RESIDUAL
@@ -168,8 +170,8 @@ impl NewtonOut {
     }
 }
 
-/// The Gauss-Newton step `J⁺ f = (JᵀJ)⁻¹ Jᵀ f` of eq 9 for a 3×2 Jacobian
-/// with columns `ju`, `jv`; `None` if `JᵀJ` is numerically singular.
+/// The Gauss-Newton step `J⁺ f = (JᵀJ)⁻¹ Jᵀ f` of [Walter09 eq 9] for a 3×2
+/// Jacobian with columns `ju`, `jv`; `None` if `JᵀJ` is numerically singular.
 pub(crate) fn pinv_apply(ju: DVec3, jv: DVec3, f: DVec3) -> Option<DVec2> {
     pinv(ju, jv).map(|m| DVec2::new(m[0].dot(f), m[1].dot(f)))
 }
@@ -184,11 +186,12 @@ pub(crate) fn pinv(ju: DVec3, jv: DVec3) -> Option<[DVec3; 2]> {
     regular.then(|| [(c * ju - b * jv) / det, (a * jv - b * ju) / det])
 }
 
-/// 2-D Newton iteration of eq 9 from `start`, at most `max_iter` steps.
+/// 2-D Newton iteration of [Walter09 eq 9] from `start`, at most `max_iter`
+/// steps.
 ///
 /// Each step is limited to length 1/2 in barycentric units and halved (up
-/// to 40 times) until `‖f‖` decreases (§3.3). The iterate may leave the
-/// triangle (the parametrization extends to the whole plane); the caller
+/// to 40 times) until `‖f‖` decreases [Walter09 sec 3.3]. The iterate may leave
+/// the triangle (the parametrization extends to the whole plane); the caller
 /// decides what to keep.
 pub(crate) fn newton2(prob: &Problem<f64>, start: DVec2, max_iter: u32) -> NewtonOut {
     let eval = |x: DVec2| {

@@ -1,5 +1,6 @@
 //! Split-and-prune searches over a triangle with interpolated normals
-//! (§3.3.1 and §3.3.2): where to start the 2-D Newton iteration.
+//! ([Walter09 sec 3.3.1] and [Walter09 sec 3.3.2]): where to start the 2-D
+//! Newton iteration.
 
 use super::func::Problem;
 use super::interval::{Interval, V3};
@@ -105,8 +106,8 @@ impl Cone {
     }
 
     /// Two cones overlap if the angle between their axes is at most the sum
-    /// of their semi-angles (§3.3.1): the sum is below `π`, so on cosines,
-    /// `cos ∠ >= cos(θ₁ + θ₂)` (with a little slack for rounding).
+    /// of their semi-angles [Walter09 sec 3.3.1]: the sum is below `π`, so on
+    /// cosines, `cos ∠ >= cos(θ₁ + θ₂)` (with a little slack for rounding).
     fn overlaps(&self, o: &Cone) -> bool {
         self.axis.dot(o.axis) >= self.cos * o.cos - self.sin * o.sin - 1e-12
     }
@@ -119,8 +120,8 @@ impl Cone {
 }
 
 /// Bounding cones on `−σ Ĥ` and `N̂_s` over the sub-triangle with
-/// barycentric corners `q` (§3.3.1): the directions to `V` and to `L` from
-/// the sub-triangle form spherical triangles; their boxes, the `V` one
+/// barycentric corners `q` [Walter09 sec 3.3.1]: the directions to `V` and to
+/// `L` from the sub-triangle form spherical triangles; their boxes, the `V` one
 /// scaled by `η`, are added (Minkowski sum) to bound the unnormalized
 /// half-vector, which is bounded in turn by a cone. A solution has
 /// `N̂_s = −σ Ĥ`. `None` stands for "anything".
@@ -174,7 +175,7 @@ fn try_start(
 }
 
 /// The projection of `V` onto the triangle's plane along the mean vertex
-/// normal, in barycentric coordinates (a start point of §3.3).
+/// normal, in barycentric coordinates (a start point of [Walter09 sec 3.3]).
 fn projected_v(tri: &Triangle, v: DVec3) -> Option<DVec2> {
     let navg = tri.n[0].normalize() + tri.n[1].normalize() + tri.n[2].normalize();
     let ng = tri.geometric_normal();
@@ -182,10 +183,10 @@ fn projected_v(tri: &Triangle, v: DVec3) -> Option<DVec2> {
     t.is_finite().then(|| tri.barycentric(v + t * navg))
 }
 
-/// §3.3.1 with the cone-angle stopping heuristic: split the triangle 4 ways
-/// while the cones of `−σĤ` and `N̂_s` overlap, until their semi-angles sum
-/// to less than `opts.cone_angle_deg`; then run Newton in each remaining
-/// sub-triangle. Start points: see [`Options::paper_starts`].
+/// [Walter09 sec 3.3.1] with the cone-angle stopping heuristic: split the
+/// triangle 4 ways while the cones of `−σĤ` and `N̂_s` overlap, until their
+/// semi-angles sum to less than `opts.cone_angle_deg`; then run Newton in each
+/// remaining sub-triangle. Start points: see [`Options::paper_starts`].
 pub(crate) fn heuristic(
     tri: &Triangle,
     v: DVec3,
@@ -272,10 +273,11 @@ pub(crate) fn heuristic(
         }
     }
     if any_leaf && !opts.paper_starts {
-        // The flat triangle's root (§3.2, about the geometric normal): for
-        // nearly flat normals it lies within about ‖J⁺‖ times their tilt of
-        // a root, where the other start points may all be outside Newton's
-        // basin (with V or L close to the plane the basin is that small).
+        // The flat triangle's root ([Walter09 sec 3.2], about the geometric
+        // normal): for nearly flat normals it lies within about ‖J⁺‖ times
+        // their tilt of a root, where the other start points may all be outside
+        // Newton's basin (with V or L close to the plane the basin is that
+        // small).
         let (flat, iters) = plane_root(tri, v, l, eta);
         stats.newton_iterations += iters as usize;
         for s in vproj.into_iter().chain([flat]) {
@@ -293,9 +295,9 @@ pub(crate) fn heuristic(
 /// the midpoint coefficients) and the coefficients' radii by `|x_j − c_j| <=
 /// 2/3`. Directions tried: the normal of the Jacobian's range (a residual
 /// that Gauss-Newton cannot remove) and the rows of `M⁺` and their sum (a
-/// linearized root beyond an edge of `T`, as in eq 13), and `f(c)` itself.
-/// Since `‖f(x)‖ >= |w·f(x)|`, a sign-definite interval beyond the margin
-/// means no Newton run can converge (`‖f‖ <= ACCEPT_RESIDUAL`) on `T`
+/// linearized root beyond an edge of `T`, as in [Walter09 eq 13]), and `f(c)`
+/// itself. Since `‖f(x)‖ >= |w·f(x)|`, a sign-definite interval beyond the
+/// margin means no Newton run can converge (`‖f‖ <= ACCEPT_RESIDUAL`) on `T`
 /// where doubles resolve that tolerance, and `T` holds no root that
 /// [`certify_root`] could certify where they do not.
 pub(crate) fn no_residual_below_accept(pi: &Problem<Interval>) -> bool {
@@ -366,8 +368,8 @@ fn excluded_on(pi: &Problem<Interval>, q: &[DVec2; 3], depth: u32) -> bool {
     .all(|sub| excluded_on(pi, sub, depth - 1))
 }
 
-/// Whether some component's interval excludes zero (eq 12 proves there is
-/// no solution then; the paper prints "∅ ∉ F(X)" for "0 ∉ F(X)").
+/// Whether some component's interval excludes zero ([Walter09 eq 12] proves
+/// there is no solution then; the paper prints "∅ ∉ F(X)" for "0 ∉ F(X)").
 fn excludes_zero(f: V3<Interval>) -> bool {
     !(f.x.contains(0.0) && f.y.contains(0.0) && f.z.contains(0.0))
 }
@@ -383,27 +385,27 @@ fn dot_fi(row: DVec3, col: V3<Interval>) -> Interval {
 
 /// Outcome of the Krawczyk test on one box.
 pub(crate) enum Krawczyk {
-    /// Eq 12 or eq 13: no solution in the box.
+    /// [Walter09 eq 12 or 13]: no solution in the box.
     Empty,
-    /// Eqs 14 and 15: at most one solution, the unique fixed point of
-    /// `g(x) = x − M⁺ f(x)`, reachable by the chord iteration with `M⁺`.
+    /// [Walter09 eqs 14 and 15]: at most one solution, the unique fixed point
+    /// of `g(x) = x − M⁺ f(x)`, reachable by the chord iteration with `M⁺`.
     Unique { m_plus: [DVec3; 2] },
     /// Undecided; a solution, if any, lies in the contracted box `K ∩ X`.
     Split([Interval; 2]),
 }
 
-/// The Krawczyk operator of eq 11 on the barycentric box `x`:
+/// The Krawczyk operator of [Walter09 eq 11] on the barycentric box `x`:
 /// `K(X) = m₀ − M⁺ f(m₀) + [I − M⁺ F'(X)](X − m₀)` with `m₀ = m(X)`,
 /// `M = m(F'(X))` and `M⁺` its pseudo-inverse.
 ///
 /// `g(x) = x − M⁺ f(x)` maps `X` into `K(X)` (mean-value form), and every
 /// zero of `f` is a fixed point of `g`. Hence `K ∩ X = ∅` excludes
-/// solutions (eq 13); `K ⊆ X` (Brouwer) with `‖I − M⁺F'(X)‖∞ < 1`
-/// (contraction, eq 15) gives a unique fixed point of `g` in `X`, so at most
-/// one zero of `f` (with a 3×2 Jacobian a fixed point of `g` need only make
-/// `f` orthogonal to the range of `M`; the caller checks `‖f‖` there).
+/// solutions [Walter09 eq 13]; `K ⊆ X` (Brouwer) with `‖I − M⁺F'(X)‖∞ < 1`
+/// (contraction, [Walter09 eq 15]) gives a unique fixed point of `g` in `X`, so
+/// at most one zero of `f` (with a 3×2 Jacobian a fixed point of `g` need only
+/// make `f` orthogonal to the range of `M`; the caller checks `‖f‖` there).
 pub(crate) fn krawczyk(pi: &Problem<Interval>, x: [Interval; 2]) -> Krawczyk {
-    // Eq 12, the cheaper test, first.
+    // [Walter09 eq 12], the cheaper test, first.
     if excludes_zero(pi.f(x[0], x[1])) {
         return Krawczyk::Empty;
     }
@@ -429,29 +431,29 @@ pub(crate) fn krawczyk(pi: &Problem<Interval>, x: [Interval; 2]) -> Krawczyk {
         k[i] = ki;
     }
     let (Some(c0), Some(c1)) = (k[0].intersect(x[0]), k[1].intersect(x[1])) else {
-        return Krawczyk::Empty; // eq 13
+        return Krawczyk::Empty; // [Walter09 eq 13]
     };
     if k[0].subset_of(x[0]) && k[1].subset_of(x[1]) && norm < 1.0 {
-        return Krawczyk::Unique { m_plus: mp }; // eqs 14-15
+        return Krawczyk::Unique { m_plus: mp }; // [Walter09 eqs 14-15]
     }
     Krawczyk::Split([c0, c1])
 }
 
-/// Proves that eq 8 has a root within `max_radius` (barycentric units) of
-/// the Newton iterate `x` (used where doubles cannot bring `‖f‖` below the
-/// fixed tolerance, [`super::newton::NewtonOut::converged`]).
+/// Proves that [Walter09 eq 8] has a root within `max_radius` (barycentric
+/// units) of the Newton iterate `x` (used where doubles cannot bring `‖f‖`
+/// below the fixed tolerance, [`super::newton::NewtonOut::converged`]).
 ///
 /// With a 3×2 Jacobian a fixed point of the paper's Krawczyk operator
-/// (eqs 11, 14-15) need only make `f` orthogonal to the range of `M`, so
-/// the test runs on a square form of eq 8 instead: `g = Tᵀ (h × n)`, with
-/// `h = η ω̂_V + ω̂_L`, `n` the interpolated normal ([`Problem::cross_eval`])
-/// and `T` two unit vectors across the shading normal `ν` at `x`. If
-/// `g = 0`, `h × n` is parallel to `ν` and orthogonal to `n`, hence zero
-/// wherever `ν·n ≠ 0`; with `sign(h·n) = −σ` that is `Ĥ = −σ N̂_s`, a root
-/// of eq 8. On the box `X` of half-width four times the enclosed Newton
-/// correction `|Y g(x)|` (plus 4 ulps) around `x`, with `Y` the inverse of
-/// the point Jacobian (refused if wider than `max_radius`), the Krawczyk
-/// operator
+/// [Walter09 eqs 11, 14-15] need only make `f` orthogonal to the range of `M`,
+/// so the test runs on a square form of [Walter09 eq 8] instead:
+/// `g = Tᵀ (h × n)`, with `h = η ω̂_V + ω̂_L`, `n` the interpolated normal
+/// ([`Problem::cross_eval`]) and `T` two unit vectors across the shading normal
+/// `ν` at `x`. If `g = 0`, `h × n` is parallel to `ν` and orthogonal to `n`,
+/// hence zero wherever `ν·n ≠ 0`; with `sign(h·n) = −σ` that is `Ĥ = −σ N̂_s`,
+/// a root of [Walter09 eq 8]. On the box `X` of half-width four times the
+/// enclosed Newton correction `|Y g(x)|` (plus 4 ulps) around `x`, with `Y` the
+/// inverse of the point Jacobian (refused if wider than `max_radius`), the
+/// Krawczyk operator
 /// `K = x − Y g(x) + (I − Y G'(X))(X − x)` maps `X` into its interior and
 /// `‖I − Y G'(X)‖∞ < 1` (R. Krawczyk 1969, "Newton-Algorithmen zur
 /// Bestimmung von Nullstellen mit Fehlerschranken", Computing 4): then `Y`
@@ -530,9 +532,9 @@ fn near_box(uv: DVec2, x: &[Interval; 2], tol: f64) -> bool {
         && uv.y <= x[1].hi() + tol
 }
 
-/// §3.3.2: split-and-prune on boxes of barycentric coordinates, starting
-/// from `[0, 1]²`, with the Krawczyk test deciding each box. Boxes entirely
-/// beyond the hypotenuse `u + v = 1` are dropped. Undecided boxes are
+/// [Walter09 sec 3.3.2]: split-and-prune on boxes of barycentric coordinates,
+/// starting from `[0, 1]²`, with the Krawczyk test deciding each box. Boxes
+/// entirely beyond the hypotenuse `u + v = 1` are dropped. Undecided boxes are
 /// contracted to `K ∩ X` (sound: every solution in `X` lies in `K(X)`),
 /// and bisected across their wider side unless that shrank their
 /// semi-perimeter by a quarter (either way it shrinks geometrically, so the

@@ -137,8 +137,8 @@ fn grid_roots(res: &dyn Fn(DVec2) -> DVec3, n: usize) -> Vec<DVec2> {
     roots
 }
 
-/// Eq 8 computed directly from the triangle (not through the solver's
-/// generic code): `Ĥ + σ N̂_s`.
+/// [Walter09 eq 8] computed directly from the triangle (not through the
+/// solver's generic code): `Ĥ + σ N̂_s`.
 fn direct_f(tri: &Triangle, v: DVec3, l: DVec3, eta: f64, uv: DVec2) -> DVec3 {
     let p = tri.point(uv);
     let h = (eta * (v - p).normalize() + (l - p).normalize()).normalize();
@@ -203,8 +203,9 @@ enum Placement {
     NearCaustic,
 }
 
-/// Positive distances along `ω̂_L` at which the beam of eq 25 collapses:
-/// `L'(t) = P'_⊥ + t ω̂'_L`, so `‖L'_⊥ × L'_∥‖` is `|c₀ + c₁t + c₂t²|`.
+/// Positive distances along `ω̂_L` at which the beam of [Walter09 eq 25]
+/// collapses: `L'(t) = P'_⊥ + t ω̂'_L`, so `‖L'_⊥ × L'_∥‖` is
+/// `|c₀ + c₁t + c₂t²|`.
 fn focal_distances(tri: &Triangle, sol: &Solution, eta: f64) -> Vec<f64> {
     let (s1, s2) = sol.omega_v.any_orthonormal_pair();
     let one = Solution { d_l: 0.0, ..*sol };
@@ -305,7 +306,8 @@ fn flat_solutions_obey_snell_and_match_brute_force() {
         assert_eq!(sols, solve(&tri, v, l, eta, Mode::Heuristic));
         assert!(sols.len() <= 1);
         // Brute force on the tangential part of ηω̂_V + ω̂_L (Fermat /
-        // Snell in the plane), a different residual from the solver's eq 5.
+        // Snell in the plane), a different residual from the solver's
+        // [Walter09 eq 5].
         let ng = tri.geometric_normal();
         let res = |uv: DVec2| {
             let p = tri.point(uv);
@@ -608,9 +610,10 @@ fn fd_distance_resolve(tri: &Triangle, v: DVec3, l: DVec3, eta: f64, sol: &Solut
     1.0 / fd_area(&resolve, t1, t2, 1e-6 * sol.d_l * fd_scale(sol))
 }
 
-/// `D` (eq 18 and eqs 21-26) against finite differences of the traced
-/// path (a) and of the solver's solutions (b); eq 18 against eqs 21-26 on
-/// flat triangles; and the reciprocity `dA_V/dω_L = D/η²` on flat ones.
+/// `D` ([Walter09 eq 18] and [Walter09 eqs 21-26]) against finite differences
+/// of the traced path (a) and of the solver's solutions (b); [Walter09 eq 18]
+/// against [Walter09 eqs 21-26] on flat triangles; and the reciprocity
+/// `dA_V/dω_L = D/η²` on flat ones.
 #[test]
 fn distance_factor_matches_finite_differences() {
     let mut rng = Rng::new(17);
@@ -729,7 +732,7 @@ fn contribution_is_eq17() {
     assert!(back.value < c.value);
 }
 
-/// The Krawczyk test (eqs 11-15) on single boxes: a small box around a
+/// The Krawczyk test [Walter09 eqs 11-15] on single boxes: a small box around a
 /// simple solution is certified unique, a box away from every solution is
 /// excluded, and a box holding two solutions is never certified.
 #[test]
@@ -893,7 +896,7 @@ fn rotate(n: DVec3, axis: DVec3, angle: f64) -> DVec3 {
     n * angle.cos() + axis.cross(n) * angle.sin() + axis * axis.dot(n) * (1.0 - angle.cos())
 }
 
-/// The 2-D search of `opts.mode` run directly (§3.3), whatever
+/// The 2-D search of `opts.mode` run directly [Walter09 sec 3.3], whatever
 /// [`Triangle::is_flat`] says, sorted as [`solve_with`] sorts.
 fn solve_2d(tri: &Triangle, v: DVec3, l: DVec3, eta: f64, opts: &Options) -> Vec<Solution> {
     let mut stats = Stats::default();
@@ -905,8 +908,8 @@ fn solve_2d(tri: &Triangle, v: DVec3, l: DVec3, eta: f64, opts: &Options) -> Vec
     sols
 }
 
-/// The root of eq 5 in the whole plane of the flat triangle `tri` (on it or
-/// not), in `tri`'s barycentric coordinates.
+/// The root of [Walter09 eq 5] in the whole plane of the flat triangle `tri`
+/// (on it or not), in `tri`'s barycentric coordinates.
 fn plane_root(tri: &Triangle, v: DVec3, l: DVec3, eta: f64) -> DVec2 {
     let c = (tri.p[0] + tri.p[1] + tri.p[2]) / 3.0;
     let big = Triangle::new(tri.p.map(|p| c + 1e4 * (p - c)), tri.n);
@@ -916,15 +919,15 @@ fn plane_root(tri: &Triangle, v: DVec3, l: DVec3, eta: f64) -> DVec2 {
 
 /// Issue 17: nearly flat smooth triangles behave like flat ones. Flat cases
 /// (random ones, and `V` 1e-6 below the plane, where `ω̂_V` is computed from
-/// a difference of order-one coordinates that is 1e-6 long, so `f` of eq 8
-/// cannot get much below 1e-10 in doubles) are solved by the 1-D method
-/// ([Walter09 eqs 5-7]); then every vertex normal is turned by `θ` (0 and
-/// 1e-12 to 1e-6 rad) about a fixed random axis across it, and the 2-D
+/// a difference of order-one coordinates that is 1e-6 long, so `f` of
+/// [Walter09 eq 8] cannot get much below 1e-10 in doubles) are solved by the
+/// 1-D method [Walter09 eqs 5-7]; then every vertex normal is turned by `θ` (0
+/// and 1e-12 to 1e-6 rad) about a fixed random axis across it, and the 2-D
 /// searches ([Walter09 eqs 8-10], both modes and the paper's start points)
 /// must find the same number of paths, at the same point to within
 /// `1e-9 + 4 ‖J⁺‖ θ` barycentric units: the shading normal turns by at most
 /// `θ`, so `f` changes by at most `θ` and the root moves by about `‖J⁺‖ θ`
-/// (eq 9's pseudo-inverse at the flat root, Frobenius norm).
+/// ([Walter09 eq 9]'s pseudo-inverse at the flat root, Frobenius norm).
 #[test]
 fn nearly_flat_smooth_triangles_find_the_flat_roots() {
     let tilts = [0.0, 1e-12, 1e-11, 1e-10, 1e-9, 1e-8, 1e-7, 1e-6];

@@ -1,8 +1,9 @@
-//! The position-normal tree of Walter et al. 2009, §3.4, and the pruning
-//! tests that walk it: the spindle test (eq 16), the sidedness test and the
-//! cone-overlap test on the generalized half-vector. The same tree serves
-//! Holzschuch 2015's segment queries (§3.2.4): a sweeping cone for `ω̂_V`
-//! over the refracted camera segment, bounding spheres for the nodes.
+//! The position-normal tree of [Walter09 sec 3.4], and the pruning tests
+//! that walk it: the spindle test [Walter09 eq 16], the sidedness test and
+//! the cone-overlap test on the generalized half-vector. The same tree serves
+//! Holzschuch 2015's segment queries [Holzschuch15 sec 3.2.4]: a sweeping cone
+//! for `ω̂_V` over the refracted camera segment, bounding spheres for the
+//! nodes.
 //!
 //! Each node bounds the positions of its triangles (an axis-aligned box and
 //! the sphere around it) and every normal that can occur on them (a cone
@@ -115,8 +116,8 @@ struct Node {
 pub struct TreeStats {
     /// Nodes visited (tested).
     pub visited: usize,
-    /// Nodes pruned by the spindle test (eq 16, or Holzschuch's sphere
-    /// variant for segments).
+    /// Nodes pruned by the spindle test ([Walter09 eq 16], or Holzschuch's
+    /// sphere variant for segments).
     pub spindle: usize,
     /// Nodes pruned by the sidedness test.
     pub sidedness: usize,
@@ -136,7 +137,7 @@ impl std::ops::AddAssign for TreeStats {
     }
 }
 
-/// The position-normal tree over a set of [`Triangle`]s (§3.4).
+/// The position-normal tree over a set of [`Triangle`]s [Walter09 sec 3.4].
 #[derive(Debug, Clone)]
 pub struct PnTree {
     nodes: Vec<Node>,
@@ -278,7 +279,8 @@ impl PnTree {
 
     /// Appends to `out` every triangle that may hold a refracted path from
     /// `l` (outside) to `v` (inside) for relative index `eta`, pruning with
-    /// the spindle (eq 16), sidedness and cone-overlap tests of §3.4.
+    /// the spindle [Walter09 eq 16], sidedness and cone-overlap tests of
+    /// [Walter09 sec 3.4].
     pub fn query_point(&self, v: DVec3, l: DVec3, eta: f64, out: &mut Vec<u32>) -> TreeStats {
         let mut stats = TreeStats::default();
         if self.root == u32::MAX || !(eta > 0.0 && eta.is_finite()) {
@@ -291,7 +293,7 @@ impl PnTree {
         // most `γ = π/2 − asin(1/η)`, so the angle V P L is at least
         // `π − γ`; by the inscribed-angle theorem `P` lies in the lens
         // `|P − M|² + |LV| cot(γ) r <= |LV|²/4`, `cot γ = 1/sqrt(η² − 1)`
-        // (eq 16 uses the smaller, looser `1/η`).
+        // ([Walter09 eq 16] uses the smaller, looser `1/η`).
         let spindle_k = if eta > 1.0 {
             dist_vl / (eta * eta - 1.0).sqrt()
         } else {
@@ -367,9 +369,9 @@ impl PnTree {
     }
 
     /// Appends to `out` every triangle that may hold a refracted path from
-    /// `l` to some point of the segment `[a, b]` (Holzschuch 2015,
-    /// §3.2.4): the bounding-sphere spindle test with a sweeping cone for
-    /// `ω̂_V`, sidedness at both ends, and the half-vector cone test.
+    /// `l` to some point of the segment `[a, b]` ([Holzschuch15 sec 3.2.4]):
+    /// the bounding-sphere spindle test with a sweeping cone for `ω̂_V`,
+    /// sidedness at both ends, and the half-vector cone test.
     pub fn query_segment(
         &self,
         a: DVec3,

@@ -147,7 +147,7 @@ pub enum Background {
 pub struct RenderSettings {
     /// Step length, voxels.
     pub step: f64,
-    /// Integrator of the eye rays: Euler (eqs 11-12) or RK4.
+    /// Integrator of the eye rays: Euler [Ihrke07 eqs 11-12] or RK4.
     pub integrator: crate::ray::Integrator,
     /// Exposure in stops, or `None` for automatic exposure.
     pub exposure: Option<f64>,

@@ -1,6 +1,6 @@
 //! The `gpu` backend of the view renderer: the CPU renderer's image
-//! formation ([`crate::render`], paper 5.3, eqs 1-12) as a wgpu compute
-//! shader (`render.wgsl`), in f32.
+//! formation ([`crate::render`], [Ihrke07 sec 5.3], [Ihrke07 eqs 1-12]) as a
+//! wgpu compute shader (`render.wgsl`), in f32.
 //!
 //! * The medium, its packed properties ([`Properties`], with the same
 //!   probe for the interface sides), and the light volumes are 3D textures

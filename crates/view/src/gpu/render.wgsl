@@ -326,7 +326,7 @@ fn surroundings(o: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
 
 struct Walk {
     x: vec3<f32>,
-    // v = n dx/ds (eqs 9-10).
+    // v = n dx/ds [Ihrke07 eqs 9-10].
     v: vec3<f32>,
     radiance: vec3<f32>,
     alpha: vec3<f32>,
@@ -340,8 +340,9 @@ struct Walk {
     n_eye: f32,
 }
 
-// Eq 1 over one step of length `stp` from x along the unit d: in-scatter
-// (eqs 2, 3, 6), emission, attenuation (eq 5) and Fresnel at boundaries.
+// [Ihrke07 eq 1] over one step of length `stp` from x along the unit d:
+// in-scatter [Ihrke07 eqs 2, 3, 6], emission, attenuation [Ihrke07 eq 5] and
+// Fresnel at boundaries.
 fn gather(x: vec3<f32>, n: f32, grad: vec3<f32>, d: vec3<f32>, stp: f32, ch: u32, w: ptr<function, Walk>) {
     let t = grid_trilinear(P.grid, x);
     let a = tri_sum(propa, t);
@@ -360,8 +361,8 @@ fn gather(x: vec3<f32>, n: f32, grad: vec3<f32>, d: vec3<f32>, stp: f32, ch: u32
     if max3(scatter) > 0.0 && PASS.lit != 0u {
         let s = light_at(ch, t);
         if max3(s.fluence) > 0.0 {
-            // Eq 6 with the light's first angular moment: HG about the net
-            // flux direction, g scaled by the mean cosine.
+            // [Ihrke07 eq 6] with the light's first angular moment: HG about
+            // the net flux direction, g scaled by the mean cosine.
             source += scatter * s.fluence * hg(dot(s.dir, -d), b.w * s.mu);
         }
     }

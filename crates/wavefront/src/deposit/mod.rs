@@ -3,8 +3,8 @@
 //!
 //! A straight chord from `a` to `b` that carries the RGB flux `P` at `a`
 //! and loses the optical depth `tau` over its length (spread evenly along
-//! it, eq 18 over one step) is cut exactly among the cells it crosses (a 3D
-//! DDA). Each piece `[t_a, t_b]` of the chord (`t` from 0 at `a` to 1 at
+//! it, [Ihrke07 eq 18] over one step) is cut exactly among the cells it crosses
+//! (a 3D DDA). Each piece `[t_a, t_b]` of the chord (`t` from 0 at `a` to 1 at
 //! `b`) adds `P |b - a| int exp(-tau t) dt` watt-units to the cell's
 //! fluence (divided by the cell volume at the end, a fluence rate) and the
 //! same times the chord's unit direction to its flux vector (see
@@ -20,7 +20,7 @@
 //! over one voxel length; rounding each piece to a unit then costs at most
 //! half a unit.
 //!
-//! The paper's own rule, the highest-energy ray per cell (5.2.2,
+//! The paper's own rule, the highest-energy ray per cell ([Ihrke07 sec 5.2.2],
 //! `--deposit paper`), is [`paper`].
 
 pub mod paper;

@@ -1,6 +1,6 @@
-//! The paper's deposit: its voxelization of the wavefront (5.2.2), kept as
-//! `--deposit paper` so its results can be reproduced; the default is the
-//! track-length fluence of [`deposit`](super).
+//! The paper's deposit: its voxelization of the wavefront [Ihrke07 sec 5.2.2],
+//! kept as `--deposit paper` so its results can be reproduced; the default is
+//! the track-length fluence of [`deposit`](super).
 //!
 //! After every step each patch deposits into the cell that contains its
 //! midpoint; the cells under its corners are filled too where no midpoint
@@ -12,13 +12,13 @@
 //! The value deposited is the patch's irradiance carried to the cell
 //! centre, a signed distance `s` (under one cell) along its direction:
 //! `flux * exp(-sigma_t max(s, 0)) / area(corners + s * corner directions)`,
-//! the intensity law over the corners' straight rays and eq 18 with the
-//! local extinction. Without it the kept value would be that of wherever in
+//! the intensity law over the corners' straight rays and [Ihrke07 eq 18] with
+//! the local extinction. Without it the kept value would be that of wherever in
 //! the cell the patch happened to be, biased towards the side the light
 //! comes from (by up to `2 h / r` for a point light at distance r).
 //!
 //! Attenuation is carried forwards only: a patch that has already passed
-//! the centre (`s < 0`) keeps its own flux. Undoing eq 18 backwards,
+//! the centre (`s < 0`) keeps its own flux. Undoing [Ihrke07 eq 18] backwards,
 //! `exp(+sigma_t |s|)` with the extinction read at the patch, is unbounded
 //! wherever the patch's own path met less extinction than that: in an
 //! absorbing slab lit obliquely (direction (1, 0.3, 0.2), 64^3) the peak
@@ -48,8 +48,8 @@
 //! once it flips (`refine`); the cell keeps the next best ray.
 //!
 //! # What is stored
-//! The kept ray's differential irradiance Delta E of eqs 17-18 (the power
-//! per unit area crossing a surface normal to its direction) and that
+//! The kept ray's differential irradiance Delta E of [Ihrke07 eqs 17-18] (the
+//! power per unit area crossing a surface normal to its direction) and that
 //! direction. [`PaperVolume::into_volume`] hands them on as a
 //! [`LightVolume`] of one ray family per cell: fluence `Delta E`, flux
 //! vector `Delta E` times the direction.

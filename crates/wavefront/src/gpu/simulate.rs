@@ -4,7 +4,7 @@
 //! ([`DepositRule`]) and with or without Fresnel transmission. The kernel
 //! source is composed ([`source`]) from the WGSL modules it shares with
 //! the CPU code and the view renderer (the grid, the ray equation, Fresnel,
-//! the spot cone, patch and deposit geometry, eq 18's step depth, the
+//! the spot cone, patch and deposit geometry, [Ihrke07 eq 18]'s step depth, the
 //! HistoPyramid), its uniform block [`SimParams`] and its constants
 //! generated from their Rust definitions.
 //!
@@ -12,7 +12,7 @@
 //! point light's start sphere (and, with the fluence deposit, the chords
 //! from the light to its start sphere) and the pre-step tessellation run on
 //! the CPU exactly as there; the patches are then uploaded and every step
-//! runs on the GPU: propagate (eqs 14-15, 18, Fresnel at interfaces) with,
+//! runs on the GPU: propagate ([Ihrke07 eqs 14-15, 18], Fresnel at interfaces) with,
 //! for the fluence deposit, the tube each patch sweeps deposited in the
 //! same kernel (`deposit::tube`: sub-patches, box footprints, chords cut
 //! among the cells by a 3D DDA, summed per cell in a small per-thread
@@ -24,7 +24,7 @@
 //! pass; both pyramids live in one buffer and are built by the shared
 //! `histopyramid` module), and, with the paper's deposit, the highest-energy rule (atomics
 //! on packed keys, ties to the lowest patch index as the CPU's in-order
-//! apply) and the irradiance of eq 17. The only read-back per step is the
+//! apply) and the irradiance of [Ihrke07 eq 17]. The only read-back per step is the
 //! new list's length.
 //!
 //! The fluence deposit adds to 64-bit fixed-point counters as

@@ -331,7 +331,7 @@ fn propagate_patch(i: u32) -> Swept {
         out.x1[c] = corner_x(i, c);
     }
     if P.fluence == 0u {
-        // Eq 17: flux over the current area.
+        // [Ihrke07 eq 17]: flux over the current area.
         let ar = patch_area(vec3<f32>(0.0), rel(i, 1u), rel(i, 2u), rel(i, 3u));
         var e = vec3<f32>(0.0);
         if ar > 0.0 {

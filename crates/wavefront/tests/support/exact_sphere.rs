@@ -1,6 +1,6 @@
 //! Independent ray-optics reference for a clear glass sphere lit by a
 //! directional light above a diffuse plane (the scene of Ihrke et al. 2007,
-//! "Eikonal Rendering", Fig. 7).
+//! "Eikonal Rendering", [Ihrke07 fig 7]).
 //!
 //! This is an **independent check**: it does not use any engine code (no
 //! `eikon_*` crate, no refractive-index field, no ODE integrator). Rays are
@@ -70,8 +70,8 @@ pub struct SphereScene {
     pub plane_y: f64,
 }
 
-/// The Fig. 7 scene: centre (0, 0.6, 0), radius 0.5, index 1.5, plane y = 0,
-/// light travelling along normalize(0.3, -1, 0.2).
+/// The [Ihrke07 fig 7] scene: centre (0, 0.6, 0), radius 0.5, index 1.5, plane
+/// y = 0, light travelling along normalize(0.3, -1, 0.2).
 pub fn fig7() -> SphereScene {
     SphereScene {
         centre: [0.0, 0.6, 0.0],
