@@ -53,7 +53,8 @@ const SKY_Z: f64 = 0.3;
 const SQUARE: f64 = 0.6;
 
 fn scene() -> Scene {
-    Scene::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/gradient-slab.toml")).unwrap()
+    Scene::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/gradient-slab.toml"))
+        .unwrap()
 }
 
 /// What an eye ray meets, by the closed form.
