@@ -15,42 +15,9 @@ use eikon_grid::ray::{
 use eikon_grid::{interface, ray, Form, IndexField, Medium, RayState, Scene};
 use eikon_optics::fresnel;
 use eikon_shader::{compose, VECTOR};
+use eikon_testkit::parity::{v4, xyz, Cases, IO};
 use eikon_testkit::Tests;
 use glam::DVec3;
-
-/// A seeded xorshift: the same cases on every run.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-    /// Uniform in [lo, hi), rounded to f32 (what the GPU is given).
-    fn f(&mut self, lo: f64, hi: f64) -> f64 {
-        let u = (self.next() >> 11) as f64 / (1u64 << 53) as f64;
-        (lo + (hi - lo) * u) as f32 as f64
-    }
-    fn v(&mut self, lo: f64, hi: f64) -> DVec3 {
-        DVec3::new(self.f(lo, hi), self.f(lo, hi), self.f(lo, hi))
-    }
-}
-
-fn v4(v: DVec3, w: f64) -> [f32; 4] {
-    [v.x as f32, v.y as f32, v.z as f32, w as f32]
-}
-
-fn dv(a: [f32; 4]) -> DVec3 {
-    DVec3::new(a[0] as f64, a[1] as f64, a[2] as f64)
-}
-
-/// The bindings every parity kernel starts with.
-const IO: &str = "
-@group(0) @binding(0) var<storage, read> input: array<vec4<f32>>;
-@group(0) @binding(1) var<storage, read_write> output: array<vec4<f32>>;
-";
 
 /// A Luneburg lens in glass with an absorbing shell: graded, jumping and
 /// constant regions, on a grid that is not a cube.
@@ -132,7 +99,7 @@ fn geometry(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
     }
     let ext = texture(gpu, g.dims, &rgba);
     let grid = gpu.uniform("grid", &[GridGpu::new(g)]);
-    let mut r = Rng(3);
+    let mut r = Cases::new(3);
     let cases: Vec<(DVec3, DVec3)> = (0..5000)
         .map(|k| {
             let p = r.v(-1.6, 1.6);
@@ -190,7 +157,7 @@ fn geometry(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
                 inside += 1;
                 assert_eq!(o[1][3] as usize, g.flat_index(i, j, kk), "cell of {p}");
                 let c = g.voxel_center(i, j, kk);
-                assert!((dv(o[1]) - c).length() < 1e-6, "centre of {p}");
+                assert!((xyz(o[1]) - c).length() < 1e-6, "centre of {p}");
             }
             None => assert_eq!(o[1][3], -1.0, "cell of {p}"),
         }
@@ -211,7 +178,7 @@ fn geometry(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
         // Trilinear weights, as Medium::sample_rgb.
         let sigma = m.sample_rgb(&m.extinction, p);
         assert!(
-            (dv(o[3]) - sigma).length() < 1e-5 * (1.0 + sigma.length()),
+            (xyz(o[3]) - sigma).length() < 1e-5 * (1.0 + sigma.length()),
             "sigma at {p}"
         );
     }
@@ -267,7 +234,7 @@ fn step(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
     let tex = texture(gpu, g.dims, m.index[0].as_slice().unwrap());
     let grid = gpu.uniform("grid", &[GridGpu::new(g)]);
     let f = m.field(0);
-    let mut r = Rng(17);
+    let mut r = Cases::new(17);
     // Form, integrator (0 Euler, 1 RK4, 2 the eye rays' Euler from their
     // sample), on the shell.
     let kinds = [
@@ -328,8 +295,8 @@ fn step(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
         }
         let o = &out[3 * k..3 * k + 3];
         let (dx, dvel, dl) = (s.x - x, s.v - dv_of(o[2], v, shell), s.opl);
-        let got_dx = dv(o[0]);
-        let got_dv = dv(o[1]);
+        let got_dx = xyz(o[0]);
+        let got_dv = xyz(o[1]);
         // f32 rounding of the stages' positions (about 1e-7 of x) moves
         // the samples; the increments agree to that over a step.
         let tol_x = 2e-5 * dx.length() + 1e-6 * h;
@@ -352,7 +319,7 @@ fn dv_of(gpu_v: [f32; 4], v: DVec3, shell: bool) -> DVec3 {
     if !shell {
         return v;
     }
-    let got = dv(gpu_v);
+    let got = xyz(gpu_v);
     assert!((got.length() / v.length() - 1.0).abs() < 0.03);
     // The CPU starts from v rescaled to |v| = n in f64; the GPU's, in
     // f32, differs by rounding only.
@@ -387,7 +354,7 @@ fn fresnel(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups
         &[&DISPATCH, &VECTOR, &fresnel::WGSL, &interface::WGSL],
         &main,
     );
-    let mut r = Rng(29);
+    let mut r = Cases::new(29);
     let indices = [1.0f64, 1.0, 1.333, 1.5, 2.42];
     let mut cases = Vec::new();
     for k in 0..6000 {

@@ -13,9 +13,12 @@
 //!   a GPU, one call each.
 //! * [`metrics`]: agreement measures (median, PSNR after a tone curve,
 //!   relative difference of counts).
-//! * [`scenes`]: the scenes several test files use.
+//! * [`scenes`]: the scenes and options several test files use.
+//! * [`parity`]: what the function-level parity tests of the WGSL modules
+//!   share.
 
 pub mod metrics;
+pub mod parity;
 pub mod scenes;
 
 use eikon_gpu::Gpu;

@@ -1,12 +1,52 @@
 //! Scenes several test files use.
 
 use eikon_grid::{Medium, Scene};
+use eikon_optics::Camera;
+use eikon_wavefront::{DepositRule, LightVolume, Options};
 
 /// Parse a scene and build its medium.
 pub fn medium(text: &str) -> (Scene, Medium) {
     let scene = Scene::parse(text, "test").unwrap();
     let m = Medium::build(&scene).unwrap();
     (scene, m)
+}
+
+/// Parse a scene, build its medium and simulate its lights on the CPU
+/// with default options: what a render test lights its scene with.
+pub fn lit(text: &str) -> (Scene, Medium, Vec<LightVolume>) {
+    let (scene, medium) = medium(text);
+    let volumes = scene
+        .lights
+        .iter()
+        .map(|l| {
+            eikon_wavefront::simulate_light(l, &medium, &Options::default(), &|_, _| {})
+                .unwrap()
+                .0
+        })
+        .collect();
+    (scene, medium, volumes)
+}
+
+/// The camera of a scene's `[camera]`.
+pub fn camera(scene: &Scene) -> Camera {
+    eikon_view::render::camera(&eikon_view::render::camera_settings(scene)).unwrap()
+}
+
+/// The default light simulation: the track-length fluence deposit with
+/// Fresnel transmission.
+pub fn fluence() -> Options {
+    Options::default()
+}
+
+/// The paper's deposit ([Ihrke07 sec 5.2.2], the highest-energy ray per
+/// cell, patches culled at caustics) without Fresnel, as the CLI's
+/// `--deposit paper --no-fresnel`.
+pub fn paper() -> Options {
+    Options {
+        deposit: DepositRule::Paper,
+        fresnel: false,
+        ..Options::default()
+    }
 }
 
 /// A glass sphere (n = 1.5, absorbing, scattering) in a `res`^3 grid over

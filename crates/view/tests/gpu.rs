@@ -11,35 +11,15 @@
 //! eikon-view --bench gpu_frame` times the 800x600 glass sphere.
 
 use eikon_gpu::Gpu;
-use eikon_grid::{Integrator, Medium, Scene};
-use eikon_optics::{Camera, Image};
+use eikon_grid::Integrator;
+use eikon_optics::Image;
 use eikon_testkit::metrics::{count_difference, psnr};
+use eikon_testkit::scenes::{camera, lit};
 use eikon_testkit::Tests;
 use eikon_view::background::load_environment;
 use eikon_view::gpu::GpuRenderer;
-use eikon_view::render::camera_settings;
 use eikon_view::{Options, Renderer, Stats, Surroundings};
-use eikon_wavefront::{simulate_light, LightVolume};
-
-/// Scene, medium and light volumes (simulated with default options).
-fn setup(text: &str) -> (Scene, Medium, Vec<LightVolume>) {
-    let scene = Scene::parse(text, "test").unwrap();
-    let medium = Medium::build(&scene).unwrap();
-    let volumes = scene
-        .lights
-        .iter()
-        .map(|l| {
-            simulate_light(l, &medium, &eikon_wavefront::Options::default(), &|_, _| {})
-                .unwrap()
-                .0
-        })
-        .collect();
-    (scene, medium, volumes)
-}
-
-fn camera(scene: &Scene) -> Camera {
-    eikon_view::render::camera(&camera_settings(scene)).unwrap()
-}
+use eikon_wavefront::LightVolume;
 
 /// The CPU and the GPU image of `text` with `opts`.
 fn both(gpu: &Gpu, text: &str, opts: Options) -> (Image, Image) {
@@ -49,7 +29,7 @@ fn both(gpu: &Gpu, text: &str, opts: Options) -> (Image, Image) {
 
 /// The CPU and the GPU image of `text` with `opts`, with their counters.
 fn both_with_stats(gpu: &Gpu, text: &str, opts: Options) -> ((Image, Stats), (Image, Stats)) {
-    let (scene, medium, volumes) = setup(text);
+    let (scene, medium, volumes) = lit(text);
     let env = load_environment(&scene.background).unwrap();
     let s = Surroundings::new(&scene, env, &volumes, &medium.geometry);
     let cam = camera(&scene);
@@ -348,7 +328,7 @@ fn two_light_volumes_match_the_cpu(gpu: &Gpu) {
 /// renders differ through refraction; here the volumes are in-scattered
 /// and lit on the receiver only).
 fn gpu_simulated_volumes_render_as_the_cpu_ones(gpu: &Gpu) {
-    let (scene, medium, cpu_volumes) = setup(TWO_LIGHTS);
+    let (scene, medium, cpu_volumes) = lit(TWO_LIGHTS);
     let sim = eikon_wavefront::gpu::GpuSimulator::new(gpu, &medium).unwrap();
     let gpu_volumes: Vec<LightVolume> = scene
         .lights
@@ -418,7 +398,7 @@ color = [0.02, 0.02, 0.02]
 
 /// The same inputs give bitwise the same image, frame after frame.
 fn repeated_gpu_renders_are_bitwise_equal(gpu: &Gpu) {
-    let (scene, medium, volumes) = setup(SLAB);
+    let (scene, medium, volumes) = lit(SLAB);
     let env = load_environment(&scene.background).unwrap();
     let s = Surroundings::new(&scene, env, &volumes, &medium.geometry);
     let cam = camera(&scene);
@@ -536,7 +516,7 @@ type = "sky"
         ),
     ];
     for (text, opts) in cases {
-        let (scene, medium, volumes) = setup(&text);
+        let (scene, medium, volumes) = lit(&text);
         let env = load_environment(&scene.background).unwrap();
         let cam = camera(&scene);
         let size = eikon_view::gpu::DeviceSize::of(&medium, &volumes, &env, &cam, &opts);

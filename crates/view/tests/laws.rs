@@ -5,41 +5,16 @@
 //! transmits Fresnel's `(1 - R)^2`. f32 tolerances are stated where they
 //! differ. Measured numbers are printed (`--nocapture`).
 
-use eikon_grid::{Medium, Scene};
-use eikon_optics::Camera;
+use eikon_testkit::scenes::{camera, lit};
 use eikon_testkit::{Backend, Tests};
 use eikon_view::background::load_environment;
-use eikon_view::render::camera_settings;
 use eikon_view::{Options, Surroundings};
-use eikon_wavefront::LightVolume;
-
-/// Scene, medium and light volumes (simulated on the CPU with default
-/// options).
-fn setup(text: &str) -> (Scene, Medium, Vec<LightVolume>) {
-    let scene = Scene::parse(text, "test").unwrap();
-    let medium = Medium::build(&scene).unwrap();
-    let volumes = scene
-        .lights
-        .iter()
-        .map(|l| {
-            eikon_wavefront::simulate_light(l, &medium, &Default::default(), &|_, _| {})
-                .unwrap()
-                .0
-        })
-        .collect();
-    (scene, medium, volumes)
-}
-
-fn camera(scene: &Scene) -> Camera {
-    eikon_view::render::camera(&camera_settings(scene)).unwrap()
-}
 
 /// Each pixel of an empty volume is the sky looked up along its ray, with
 /// and without empty-space skipping (the GPU's f32 lookups of the sun's
 /// steep lobe: measured worst relative difference 1.6e-4).
 fn an_empty_volume_shows_the_environment(b: &Backend) {
-    let (scene, medium, volumes) = setup(
-        r#"
+    let (scene, medium, volumes) = lit(r#"
 [grid]
 resolution = 24
 min = [-1, -1, -1]
@@ -53,8 +28,7 @@ resolution = [48, 36]
 
 [background]
 type = "sky"
-"#,
-    );
+"#);
     let env = load_environment(&scene.background).unwrap();
     let s = Surroundings::new(&scene, env.clone(), &volumes, &medium.geometry);
     let cam = camera(&scene);
@@ -113,7 +87,7 @@ square = 100
 colors = [[1, 1, 1], [1, 1, 1]]
 "#;
     let render = |text: &str| {
-        let (scene, medium, volumes) = setup(text);
+        let (scene, medium, volumes) = lit(text);
         let env = load_environment(&scene.background).unwrap();
         let s = Surroundings::new(&scene, env, &volumes, &medium.geometry);
         b.render(&medium, &volumes, &s, &camera(&scene), Options::default())

@@ -6,31 +6,11 @@
 use eikon_grid::ray::{trace, TraceOptions};
 use eikon_grid::{AnalyticField, Form, Integrator, Medium, Scene};
 use eikon_optics::{hg, Camera, Image};
+use eikon_testkit::scenes::{camera, lit};
 use eikon_view::background::load_environment;
-use eikon_view::render::camera_settings;
 use eikon_view::{Options, Renderer, Surroundings};
-use eikon_wavefront::{simulate_light, LightVolume};
+use eikon_wavefront::LightVolume;
 use glam::DVec3;
-
-/// Scene, medium and light volumes (simulated with default options).
-fn setup(text: &str) -> (Scene, Medium, Vec<LightVolume>) {
-    let scene = Scene::parse(text, "test").unwrap();
-    let medium = Medium::build(&scene).unwrap();
-    let volumes = scene
-        .lights
-        .iter()
-        .map(|l| {
-            simulate_light(l, &medium, &eikon_wavefront::Options::default(), &|_, _| {})
-                .unwrap()
-                .0
-        })
-        .collect();
-    (scene, medium, volumes)
-}
-
-fn camera(scene: &Scene) -> Camera {
-    eikon_view::render::camera(&camera_settings(scene)).unwrap()
-}
 
 /// Render with `opts`; also returns the camera.
 fn render(
@@ -78,7 +58,7 @@ type = "constant"
 color = [0, 0, 0]
 "#;
     let got = |t: &str| {
-        let (scene, medium, volumes) = setup(t);
+        let (scene, medium, volumes) = lit(t);
         let (img, _) = render(&scene, &medium, &volumes, Options::default());
         img.pixel(2, 2).unwrap()[1] as f64
     };
@@ -123,7 +103,7 @@ normal = [0, -1, 0]
 square = 100
 colors = [[1, 1, 1], [1, 1, 1]]
 "#;
-    let (scene, medium, volumes) = setup(text);
+    let (scene, medium, volumes) = lit(text);
     let (img, _) = render(&scene, &medium, &volumes, Options::default());
     let want = eikon_optics::fresnel::reflectance(45f64.to_radians().cos(), 1.0, 1.5);
     let got = img.pixel(2, 2).unwrap()[1] as f64;
@@ -164,7 +144,7 @@ resolution = [21, 21]
 type = "constant"
 color = [0, 0, 0]
 "#;
-    let (scene, medium, _) = setup(text);
+    let (scene, medium, _) = lit(text);
     // The light volume of the plane wave exactly (the simulation's own
     // accuracy is tested in tests/fluence.rs): fluence 2, flux 2 l.
     let l = DVec3::new(0.3, -1.0, 0.2).normalize();
@@ -231,7 +211,7 @@ type = "constant"
 color = [0, 0, 0]
 "#
     );
-    let (scene, medium, volumes) = setup(&text);
+    let (scene, medium, volumes) = lit(&text);
     let (img, cam) = render(&scene, &medium, &volumes, Options::default());
     let l = DVec3::new(0.0, -1.0, 0.0);
     let mut worst: f64 = 0.0;
@@ -290,7 +270,7 @@ colors = [[1, 0, 0], [0, 0, 1]]
 /// judged.
 #[test]
 fn a_luneburg_lens_images_the_checkerboard_as_the_ray_map_predicts() {
-    let (scene, medium, volumes) = setup(LUNEBURG);
+    let (scene, medium, volumes) = lit(LUNEBURG);
     let (img, cam) = render(&scene, &medium, &volumes, Options::default());
     let field = AnalyticField::new(&scene, 0);
     let opts =
@@ -366,7 +346,7 @@ normal = [0, 0, 1]
 square = 100
 colors = [[1, 1, 1], [0, 0, 0]]
 "#;
-    let (scene, medium, volumes) = setup(text);
+    let (scene, medium, volumes) = lit(text);
     // RK4, so that what is compared is dispersion, not Euler's error.
     let opts = Options {
         integrator: Integrator::Rk4,
@@ -451,7 +431,7 @@ fov = 45
 resolution = [40, 30]
 samples = 3
 "#;
-    let (scene, medium, volumes) = setup(text);
+    let (scene, medium, volumes) = lit(text);
     let pool = |n| {
         rayon::ThreadPoolBuilder::new()
             .num_threads(n)
@@ -492,7 +472,7 @@ normal = [-1.0, 0.0, 0.0]
 square = 0.1
 colors = [[0.9, 0.55, 0.12], [0.1, 0.18, 0.45]]
 "#;
-    let (scene, medium, volumes) = setup(text);
+    let (scene, medium, volumes) = lit(text);
     let opts = |skip_empty| Options {
         skip_empty,
         ..Options::default()

@@ -9,27 +9,11 @@
 use eikon_gpu::Gpu;
 use eikon_grid::{Medium, Scene};
 use eikon_testkit::metrics::agreement;
-use eikon_testkit::scenes::{glass_sphere, medium};
+use eikon_testkit::scenes::{fluence, glass_sphere, medium, paper};
 use eikon_testkit::Tests;
 use eikon_wavefront::gpu::GpuSimulator;
 use eikon_wavefront::{DepositRule, LightVolume, Options, Summary};
 use glam::DVec3;
-
-/// The default options: the track-length fluence deposit with Fresnel
-/// transmission.
-fn fluence() -> Options {
-    Options::default()
-}
-
-/// The paper's deposit ([Ihrke07 sec 5.2.2], the highest-energy ray per cell,
-/// patches culled at caustics) without Fresnel.
-fn paper() -> Options {
-    Options {
-        deposit: DepositRule::Paper,
-        fresnel: false,
-        ..Options::default()
-    }
-}
 
 fn run_gpu(
     gpu: &Gpu,

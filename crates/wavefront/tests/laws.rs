@@ -9,24 +9,11 @@
 
 use eikon_grid::{GridGeometry, Medium};
 use eikon_testkit::metrics::median;
-use eikon_testkit::scenes::medium;
+use eikon_testkit::scenes::{fluence, medium, paper};
 use eikon_testkit::{Backend, Tests};
 use eikon_wavefront::{DepositRule, LightVolume, Options};
 use glam::DVec3;
 use std::f64::consts::PI;
-
-fn fluence() -> Options {
-    Options::default()
-}
-
-/// The paper's deposit, as the CLI's `--deposit paper --no-fresnel`.
-fn paper() -> Options {
-    Options {
-        deposit: DepositRule::Paper,
-        fresnel: false,
-        ..Options::default()
-    }
-}
 
 /// The average of `f` over cell `c` of `g`: 4-point Gauss-Legendre per
 /// axis (exact for polynomials of degree 7; the cells compared keep three

@@ -11,50 +11,13 @@ use eikon_gpu::DISPATCH;
 use eikon_grid::geometry::{GridGpu, WGSL as GRID};
 use eikon_grid::GridGeometry;
 use eikon_shader::compose;
+use eikon_testkit::parity::{bits, v4, xyz, Cases, IO};
 use eikon_testkit::Tests;
 use eikon_wavefront::deposit::{self, Counters};
 use eikon_wavefront::patch::{area, normal, span, Split};
 use eikon_wavefront::propagate::step_depth;
 use eikon_wavefront::{histopyramid, patch, propagate, HistoPyramid};
 use glam::DVec3;
-
-/// A seeded xorshift: the same cases on every run.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-    /// Uniform in [lo, hi), rounded to f32 (what the GPU is given).
-    fn f(&mut self, lo: f64, hi: f64) -> f64 {
-        let u = (self.next() >> 11) as f64 / (1u64 << 53) as f64;
-        (lo + (hi - lo) * u) as f32 as f64
-    }
-    fn v(&mut self, lo: f64, hi: f64) -> DVec3 {
-        DVec3::new(self.f(lo, hi), self.f(lo, hi), self.f(lo, hi))
-    }
-}
-
-fn v4(v: DVec3, w: f64) -> [f32; 4] {
-    [v.x as f32, v.y as f32, v.z as f32, w as f32]
-}
-
-fn dv(a: [f32; 4]) -> DVec3 {
-    DVec3::new(a[0] as f64, a[1] as f64, a[2] as f64)
-}
-
-fn bits(v: [u32; 4]) -> [f32; 4] {
-    v.map(f32::from_bits)
-}
-
-/// The bindings every parity kernel starts with.
-const IO: &str = "
-@group(0) @binding(0) var<storage, read> input: array<vec4<f32>>;
-@group(0) @binding(1) var<storage, read_write> output: array<vec4<f32>>;
-";
 
 // ---------------------------------------------------------------------
 // The HistoPyramid: the module the simulator runs, against the CPU's.
@@ -101,10 +64,10 @@ fn walk(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
 
 /// Counts from {0, 1, 4} in the proportions `mix`.
 fn counts(n: usize, seed: u64, mix: [u64; 3]) -> Vec<u8> {
-    let mut r = Rng(seed.max(1));
+    let mut r = Cases::new(seed.max(1));
     (0..n)
         .map(|_| {
-            let x = r.next() % (mix[0] + mix[1] + mix[2]);
+            let x = r.next_u64() % (mix[0] + mix[1] + mix[2]);
             if x < mix[0] {
                 0
             } else if x < mix[0] + mix[1] {
@@ -210,7 +173,7 @@ fn geometry(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
 "
     );
     let source = compose("", &[&DISPATCH, &patch::WGSL], &main);
-    let mut r = Rng(11);
+    let mut r = Cases::new(11);
     let mut quads = Vec::new();
     for k in 0..2000 {
         // Near-squares, slivers both ways, and twisted quads.
@@ -235,7 +198,7 @@ fn geometry(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
         let o = &out[6 * k..];
         let n = normal(p);
         assert!(
-            (dv(o[0]) - n).length() < 1e-5 * (1.0 + n.length()),
+            (xyz(o[0]) - n).length() < 1e-5 * (1.0 + n.length()),
             "normal {k}"
         );
         assert!(
@@ -311,7 +274,7 @@ fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>) {{}}
 "
     );
     let source = compose("", &[&DISPATCH, &GRID, &patch::WGSL, &deposit::WGSL], &main);
-    let mut r = Rng(5);
+    let mut r = Cases::new(5);
     let voxel = 0.25;
     let mut tubes = Vec::new();
     let mut inputs = Vec::new();
@@ -445,7 +408,7 @@ fn chord(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
         let s = g.spacing();
         s.x * s.y * s.z
     };
-    let mut r = Rng(23);
+    let mut r = Cases::new(23);
     let mut chords = Vec::new();
     for k in 0..400 {
         // Inside, through the bounds, along an axis, within one cell.
@@ -515,7 +478,7 @@ fn chord(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
             for c in 0..3 {
                 fl[cell as usize][c] += got[2 * p][1 + c] as f64 / scale[c] / volume;
             }
-            fx[cell as usize] += dv(got[2 * p + 1]) / flux_scale / volume;
+            fx[cell as usize] += xyz(got[2 * p + 1]) / flux_scale / volume;
         }
         let total: f64 = f.iter().sum::<f64>() * (b - a).length() / volume;
         for (cell, (fl, fx)) in fl.iter().zip(&fx).enumerate() {
@@ -585,7 +548,7 @@ fn cone(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
     );
     let g = grid();
     let grid_buf = gpu.uniform("grid", &[GridGpu::new(&g)]);
-    let mut r = Rng(31);
+    let mut r = Cases::new(31);
     let steps: Vec<_> = (0..3000)
         .map(|_| {
             let x0 = r.v(-1.5, 2.5);
@@ -611,7 +574,7 @@ fn cone(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
     for (k, &(x0, x1, b, a, dt)) in steps.iter().enumerate() {
         let want = step_depth(&g, x0, x1, b, a, dt);
         crossing += usize::from(g.contains(x0) != g.contains(x1));
-        let got = dv(out[4 * k]);
+        let got = xyz(out[4 * k]);
         assert!(
             (got - want).length() < 1e-5 * (1.0 + want.length()),
             "step {k}: {got} vs {want}"
