@@ -38,7 +38,7 @@
 //! * `absorbing`: ambient extinction 0.5 per unit and the light outside the
 //!   volume, in front of its -x face, so that every ray enters through
 //!   that face (`l` is smooth across the volume). Both methods take the
-//!   general path: RK4 steps and eq 18's attenuation. The light sits
+//!   general path: RK4 steps and [Ihrke07 eq 18]'s attenuation. The light sits
 //!   outside because, at the time of writing, both methods start a light's
 //!   rays on the sphere of one voxel around it with the full power: a
 //!   light *inside* absorbing matter then reads `exp(sigma h) - 1` (1.6%

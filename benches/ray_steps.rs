@@ -6,7 +6,7 @@
 //! grad n, the integrator, and the exit test, exactly as users run it.
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion, Throughput};
-use eikon_grid::{trace, trace_many, Form, Medium, Method, Scene, TraceOptions};
+use eikon_grid::{trace, trace_many, Form, Integrator, Medium, Scene, TraceOptions};
 use glam::DVec3;
 
 #[path = "common/ray_steps_workload.rs"]
@@ -21,7 +21,7 @@ fn bench(c: &mut Criterion) {
     // A 16 x 16 fan of parallel rays across the lens.
     let origins = origins();
     let mut group = c.benchmark_group("ray_steps_128");
-    for method in [Method::Euler, Method::Rk4] {
+    for method in [Integrator::Euler, Integrator::Rk4] {
         let opts = TraceOptions::in_voxels(geom, Form::EqualDistance, method, 0.5);
         let steps: usize = origins
             .iter()

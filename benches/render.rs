@@ -8,8 +8,9 @@
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use eikon_grid::{Medium, Scene};
+use eikon_optics::Camera;
 use eikon_view::background::load_environment;
-use eikon_view::{Camera, Options, Renderer, Surroundings};
+use eikon_view::{Options, Renderer, Surroundings};
 use eikon_wavefront::simulate_light;
 use glam::DVec3;
 use std::path::Path;

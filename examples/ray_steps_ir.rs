@@ -8,7 +8,7 @@
 //! Arguments: `euler|rk4` and `one|many` (one ray at a time with `trace`,
 //! or eight lanes with `trace_many`); optional repetitions (default 2).
 
-use eikon_grid::{trace, trace_many, Form, Medium, Method, Scene, TraceOptions};
+use eikon_grid::{trace, trace_many, Form, Integrator, Medium, Scene, TraceOptions};
 use glam::DVec3;
 
 /// The bench's scene: a 128^3 voxelized Luneburg lens.
@@ -41,8 +41,8 @@ fn fan_many(
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let method = match args.get(1).map(String::as_str) {
-        Some("rk4") => Method::Rk4,
-        _ => Method::Euler,
+        Some("rk4") => Integrator::Rk4,
+        _ => Integrator::Euler,
     };
     let many = args.get(2).map(String::as_str) == Some("many");
     let reps: usize = args.get(3).and_then(|s| s.parse().ok()).unwrap_or(2);

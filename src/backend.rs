@@ -5,10 +5,18 @@
 //! wgpu's `DeviceType::Cpu`) is never chosen by default: it emulates the
 //! GPU on the same cores the CPU backend uses, more slowly; `--backend gpu`
 //! forces it (the CI parity tests do).
+//!
+//! An eikon built without the `gpu` feature (`--no-default-features`) has
+//! the CPU only: `--backend gpu` is then an error that says so, and the
+//! default is the CPU.
 
 use anyhow::Result;
 use clap::ValueEnum;
+#[cfg(feature = "gpu")]
 use eikon_gpu::{Gpu, GpuError};
+use eikon_grid::{Light, Medium, Progress};
+use eikon_optics::{Camera, Environment};
+use eikon_wavefront::{LightVolume, Summary};
 use std::sync::Mutex;
 
 /// The `--backend` values.
@@ -35,6 +43,7 @@ pub enum Backend {
     /// The CPU (rayon).
     Cpu,
     /// A GPU device.
+    #[cfg(feature = "gpu")]
     Gpu(Box<Gpu>),
 }
 
@@ -43,6 +52,7 @@ impl Backend {
     pub fn name(&self) -> &'static str {
         match self {
             Backend::Cpu => "cpu",
+            #[cfg(feature = "gpu")]
             Backend::Gpu(_) => "gpu",
         }
     }
@@ -51,19 +61,154 @@ impl Backend {
     pub fn describe(&self) -> String {
         match self {
             Backend::Cpu => format!("cpu ({} threads)", rayon::current_num_threads()),
+            #[cfg(feature = "gpu")]
             Backend::Gpu(g) => format!("gpu: {}", g.describe()),
         }
     }
 }
 
+impl Backend {
+    /// The light simulator of this backend for `medium`: on the GPU the
+    /// medium is uploaded here, once for every light.
+    pub fn simulator<'a>(&'a self, medium: &'a Medium) -> Result<Simulator<'a>> {
+        Ok(match self {
+            Backend::Cpu => Simulator::Cpu(medium),
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => Simulator::Gpu(Box::new(eikon_wavefront::gpu::GpuSimulator::new(
+                g, medium,
+            )?)),
+        })
+    }
+
+    /// Host memory the GPU light simulator's buffers take, for the memory
+    /// check (`None` on the CPU or a discrete GPU: see [`host_bytes`]).
+    pub fn simulator_host_bytes(
+        &self,
+        dims: [usize; 3],
+        channels: usize,
+        opts: &eikon_wavefront::Options,
+    ) -> Option<u64> {
+        match self {
+            Backend::Cpu => {
+                let _ = (dims, channels, opts);
+                None
+            }
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => host_bytes(
+                g,
+                eikon_wavefront::gpu::GpuSimulator::device_bytes(dims, channels, opts),
+            ),
+        }
+    }
+
+    /// Host memory the GPU renderer's buffers and textures take, for the
+    /// memory check (`None` on the CPU or a discrete GPU: see
+    /// [`host_bytes`]).
+    pub fn renderer_host_bytes(
+        &self,
+        medium: &Medium,
+        volumes: &[LightVolume],
+        env: &Environment,
+        camera: &Camera,
+        opts: &eikon_view::Options,
+    ) -> Option<u64> {
+        match self {
+            Backend::Cpu => {
+                let _ = (medium, volumes, env, camera, opts);
+                None
+            }
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => {
+                let size = eikon_view::gpu::DeviceSize::of(medium, volumes, env, camera, opts);
+                host_bytes(g, eikon_view::gpu::GpuRenderer::device_bytes(&size))
+            }
+        }
+    }
+}
+
+/// Where each light of a run is simulated.
+pub enum Simulator<'a> {
+    /// [`eikon_wavefront::simulate_light`] on the CPU cores.
+    Cpu(&'a Medium),
+    /// The wgpu compute simulation, the medium uploaded.
+    #[cfg(feature = "gpu")]
+    Gpu(Box<eikon_wavefront::gpu::GpuSimulator<'a>>),
+}
+
+impl Simulator<'_> {
+    /// Simulate `light`.
+    pub fn simulate(
+        &self,
+        light: &Light,
+        opts: &eikon_wavefront::Options,
+        progress: Progress,
+    ) -> Result<(LightVolume, Summary), eikon_wavefront::Error> {
+        match self {
+            Simulator::Cpu(medium) => {
+                eikon_wavefront::simulate_light(light, medium, opts, progress)
+            }
+            #[cfg(feature = "gpu")]
+            Simulator::Gpu(sim) => sim.simulate(light, opts, progress),
+        }
+    }
+}
+
+/// `bytes` of GPU buffers and textures as host memory: on a software
+/// adapter (lavapipe) or an integrated GPU they are host memory and count
+/// against the limit; a discrete GPU's own memory does not (its driver
+/// refuses what does not fit, and `Gpu::checked` reports that).
+#[cfg(feature = "gpu")]
+fn host_bytes(gpu: &Gpu, bytes: u64) -> Option<u64> {
+    matches!(
+        gpu.info.device_type,
+        wgpu::DeviceType::Cpu | wgpu::DeviceType::IntegratedGpu
+    )
+    .then_some(bytes)
+}
+
+/// Every backend this machine can run, the GPU adapter (or why there is
+/// none) said on stderr: what `eikon bench` runs without `--backends`.
+pub fn available() -> Vec<BackendArg> {
+    #[cfg(feature = "gpu")]
+    match Gpu::new() {
+        Ok(g) => {
+            eprintln!(
+                "GPU adapter: {}{}",
+                g.describe(),
+                if is_software(&g) {
+                    " (software: the CPU-emulated baseline)"
+                } else {
+                    ""
+                }
+            );
+            vec![BackendArg::Cpu, BackendArg::Gpu]
+        }
+        Err(e) => {
+            eprintln!("no GPU backend: {e}");
+            vec![BackendArg::Cpu]
+        }
+    }
+    #[cfg(not(feature = "gpu"))]
+    {
+        eprintln!("no GPU backend: built without the `gpu` feature");
+        vec![BackendArg::Cpu]
+    }
+}
+
 /// Whether an adapter is a software emulation of a GPU.
+#[cfg(feature = "gpu")]
 pub fn is_software(gpu: &Gpu) -> bool {
     gpu.info.device_type == wgpu::DeviceType::Cpu
 }
 
 /// Why the CPU, when no GPU adapter exists: what would change that, and
 /// why a software Vulkan would not help.
+#[cfg(feature = "gpu")]
 const NO_ADAPTER: &str = " (no GPU adapter: a hardware GPU's Vulkan, Metal or DX12 driver would enable the GPU backend; a software Vulkan such as lavapipe is for testing only, slower than the CPU)";
+
+/// Why `--backend gpu` fails in an eikon built without the `gpu` feature.
+#[cfg(not(feature = "gpu"))]
+pub const NO_GPU_FEATURE: &str = "--backend gpu: this eikon was built without the `gpu` feature; rebuild with default features (`cargo build --release`) to use the GPU";
 
 /// What [`BackendFlag::select`] chose and why, said by [`announce`] once
 /// the work starts (so that bad input is reported first, alone).
@@ -93,11 +238,21 @@ impl BackendFlag {
                 say(&b, "");
                 Ok(b)
             }
+            #[cfg(not(feature = "gpu"))]
+            Some(BackendArg::Gpu) => anyhow::bail!(NO_GPU_FEATURE),
+            #[cfg(not(feature = "gpu"))]
+            None => {
+                let b = Backend::Cpu;
+                say(&b, "");
+                Ok(b)
+            }
+            #[cfg(feature = "gpu")]
             Some(BackendArg::Gpu) => {
                 let b = Backend::Gpu(Box::new(Gpu::new()?));
                 say(&b, "");
                 Ok(b)
             }
+            #[cfg(feature = "gpu")]
             None => match Gpu::new() {
                 Ok(g) if !is_software(&g) => {
                     let b = Backend::Gpu(Box::new(g));
@@ -127,5 +282,21 @@ impl BackendFlag {
                 }
             },
         }
+    }
+}
+
+#[cfg(all(test, not(feature = "gpu")))]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn without_the_gpu_feature_gpu_is_an_error_and_the_default_is_the_cpu() {
+        let gpu = BackendFlag {
+            backend: Some(BackendArg::Gpu),
+        };
+        let e = gpu.select(true).err().expect("--backend gpu must fail");
+        assert!(e.to_string().contains("without the `gpu` feature"), "{e}");
+        let auto = BackendFlag::default().select(true).unwrap();
+        assert_eq!(auto.name(), "cpu");
     }
 }

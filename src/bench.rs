@@ -7,10 +7,10 @@
 //! one untimed warm-up frame; building the grid, uploading it to the GPU
 //! and compiling kernels are not timed.
 
-use crate::backend::{is_software, Backend, BackendArg, BackendFlag};
+use crate::backend::{Backend, BackendArg, BackendFlag};
 use anyhow::{bail, Context, Result};
 use eikon_grid::{Medium, Scene};
-use eikon_view::{Camera, Options, Renderer, Surroundings};
+use eikon_view::{Options, Renderer, Surroundings};
 use serde_json::{json, Value};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -31,7 +31,7 @@ fn standard() -> Vec<(&'static str, String)> {
 #[derive(clap::Args)]
 pub struct Args {
     /// Scene files to run instead of the standard scenes (the 128^3 and
-    /// 256^3 glass sphere of Ihrke et al. Fig. 7).
+    /// 256^3 glass sphere of [Ihrke07 fig 7]).
     #[arg(long)]
     scene: Vec<PathBuf>,
     /// Backends to run (default: the CPU, and the GPU when an adapter
@@ -93,20 +93,14 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
     let mut volumes = Vec::new();
     let mut patches = 0;
     // The GPU uploads the medium once, untimed.
-    let gpu_sim = match &backend {
-        Backend::Gpu(gpu) => Some(eikon_wavefront::gpu::GpuSimulator::new(gpu, &medium)?),
-        Backend::Cpu => None,
-    };
+    let sim = backend.simulator(&medium)?;
     let bname = backend.name();
     eprintln!("  {name} on {bname}: {}", crate::grid::describe(&scene));
     for run in 0..runs.max(1) {
         let t = Instant::now();
         volumes.clear();
         for l in &scene.lights {
-            let (v, s) = match &gpu_sim {
-                Some(sim) => sim.simulate(l, &opts, &quiet)?,
-                None => eikon_wavefront::simulate_light(l, &medium, &opts, &quiet)?,
-            };
+            let (v, s) = sim.simulate(l, &opts, &quiet)?;
             patches = patches.max(s.peak_patches);
             volumes.push(v);
         }
@@ -121,7 +115,7 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
     let mut cs = eikon_view::render::camera_settings(&scene);
     cs.resolution = [args.width, args.height];
     cs.samples = 1;
-    let camera = Camera::from_settings(&cs)?;
+    let camera = eikon_view::render::camera(&cs)?;
     let env = eikon_view::background::load_environment(&scene.background)?;
     let surroundings = Surroundings::new(&scene, env, &volumes, &medium.geometry);
     let ropts = Options::default();
@@ -141,6 +135,7 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
                     .collect(),
             )
         }
+        #[cfg(feature = "gpu")]
         Backend::Gpu(gpu) => {
             let r = eikon_view::gpu::GpuRenderer::new(
                 gpu,
@@ -222,24 +217,7 @@ pub fn run(args: Args) -> Result<()> {
         return Ok(());
     }
     let backends = if args.backends.is_empty() {
-        match eikon_gpu::Gpu::new() {
-            Ok(g) => {
-                eprintln!(
-                    "GPU adapter: {}{}",
-                    g.describe(),
-                    if is_software(&g) {
-                        " (software: the CPU-emulated baseline)"
-                    } else {
-                        ""
-                    }
-                );
-                vec![BackendArg::Cpu, BackendArg::Gpu]
-            }
-            Err(e) => {
-                eprintln!("no GPU backend: {e}");
-                vec![BackendArg::Cpu]
-            }
-        }
+        crate::backend::available()
     } else {
         args.backends.clone()
     };

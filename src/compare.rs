@@ -7,8 +7,8 @@ use crate::output::{build_medium, write_atomic};
 use crate::render::{self, check_outputs, write_images, ExactOptions, Overrides, RenderMethod};
 use crate::simulate;
 use anyhow::{bail, Context, Result};
-use eikon_view::image::luminance;
-use eikon_view::{Exposure, Image, ToneMap};
+use eikon_optics::image::luminance;
+use eikon_optics::{Exposure, Image, ToneMap};
 use serde_json::json;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -23,19 +23,18 @@ pub struct Args {
     /// `compare.json`; the eikonal method's light volumes go to `light/`.
     #[arg(short, long)]
     output: PathBuf,
-    /// Methods to render, in order.
-    #[arg(
-        long,
-        value_enum,
-        value_delimiter = ',',
-        default_value = "eikonal,walter,holzschuch,straight"
-    )]
-    methods: Vec<RenderMethod>,
+    /// Methods to render, in order [default: eikonal, walter, holzschuch,
+    /// straight, and wyman, the image-space method, when the eikonal method
+    /// runs on a GPU and the scene is one wyman renders].
+    #[arg(long, value_enum, value_delimiter = ',')]
+    methods: Option<Vec<RenderMethod>>,
     /// The method the others are measured against.
     #[arg(long, value_enum, default_value = "holzschuch")]
     reference: RenderMethod,
     #[command(flatten)]
     exact: ExactOptions,
+    #[command(flatten)]
+    wyman: crate::wyman::WymanOptions,
     #[command(flatten)]
     overrides: Overrides,
     /// Print the table as JSON.
@@ -131,10 +130,18 @@ fn panel_label(method: &str, l1: Option<f64>) -> String {
 
 /// Run `eikon compare`.
 pub fn run(args: Args) -> Result<()> {
-    if args.methods.is_empty() {
+    let asked = args.methods.is_some();
+    let mut methods = args.methods.clone().unwrap_or_else(|| {
+        vec![
+            RenderMethod::Eikonal,
+            RenderMethod::Walter,
+            RenderMethod::Holzschuch,
+            RenderMethod::Straight,
+        ]
+    });
+    if methods.is_empty() {
         bail!("--methods: name at least one method");
     }
-    let mut methods = args.methods.clone();
     methods.dedup();
     if !methods.contains(&args.reference) {
         bail!(
@@ -149,6 +156,18 @@ pub fn run(args: Args) -> Result<()> {
     if args.output.exists() && !args.output.is_dir() {
         bail!("{}: exists and is not a directory", args.output.display());
     }
+    let backend = if methods.contains(&RenderMethod::Eikonal) {
+        args.overrides.backend.select(args.json)?
+    } else {
+        crate::backend::Backend::Cpu
+    };
+    if !asked && backend.name() == "gpu" {
+        // The image-space method's row where a GPU renders anyway.
+        match crate::wyman::check(&scene) {
+            Ok(()) => methods.push(RenderMethod::Wyman),
+            Err(e) => eprintln!("compare: no wyman row: {e:#}"),
+        }
+    }
     let files: Vec<PathBuf> = methods
         .iter()
         .flat_map(|m| ["exr", "png"].map(|e| args.output.join(format!("{}.{e}", m.name()))))
@@ -157,10 +176,13 @@ pub fn run(args: Args) -> Result<()> {
     let camera = render::camera(&scene, &args.overrides)?;
     let seed = args.overrides.seed.unwrap_or(scene.render.seed);
 
-    let backend = if methods.contains(&RenderMethod::Eikonal) {
-        args.overrides.backend.select(args.json)?
+    let wyman = if methods.contains(&RenderMethod::Wyman) {
+        if asked {
+            crate::wyman::check(&scene)?;
+        }
+        Some(crate::wyman::device()?)
     } else {
-        crate::backend::Backend::Cpu
+        None
     };
     let mut results: Vec<(RenderMethod, Image, f64)> = Vec::new();
     for &m in &methods {
@@ -171,6 +193,8 @@ pub fn run(args: Args) -> Result<()> {
             let sim = simulate::Args::defaults(args.scene.clone(), args.output.join("light"));
             let volumes = simulate::simulate_quiet(&sim, &scene, &medium, &backend)?;
             render::render_image(&scene, &medium, &volumes, &args.overrides, &backend)?.0
+        } else if let (RenderMethod::Wyman, Some(gpu)) = (m, &wyman) {
+            crate::wyman::image(gpu, &scene, &args.overrides, &args.wyman)?.0
         } else {
             let method = crate::exact::method(m.name(), args.exact.scatter_samples)?;
             crate::exact::render(&scene, &camera, method, args.exact.guaranteed, seed)?.0

@@ -1,15 +1,15 @@
 //! The exact mesh-boundary renderers behind `eikon render --method
 //! walter|holzschuch|straight`: a scene's mesh object becomes an
-//! `eikon_view::single::MeshMedium` (homogeneous inside, clear outside),
+//! `eikon_exact::single::MeshMedium` (homogeneous inside, clear outside),
 //! its lights point or directional lights, and the image is single
 //! scattering computed through the refracting boundary (Walter et al.
 //! 2009, Holzschuch 2015) or with straight shadow rays.
 
 use anyhow::{bail, Context, Result};
+use eikon_exact::single::{self, MeshLight, MeshMedium, Method, Settings, Stats};
+use eikon_exact::walter::Mode;
 use eikon_grid::{IndexProfile, Light, Scene, Shape};
-use eikon_view::single::{self, MeshLight, MeshMedium, Method, Settings, Stats};
-use eikon_view::walter::Mode;
-use eikon_view::{Camera, Image};
+use eikon_optics::{Camera, Image};
 use glam::DVec3;
 
 /// The scene's one mesh object as a homogeneous medium in a clear ambient.

@@ -360,12 +360,10 @@ impl Plan {
 /// then made again, and reading its volumes says what is wrong).
 pub fn light_inputs(lights: &Path, f: usize) -> Vec<String> {
     let dir = frame_dir(lights, f);
-    let run = std::fs::read(dir.join(eikon_wavefront::lightdir::SIDECAR))
-        .ok()
-        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
-        .and_then(|v| v["run_id"].as_str().map(str::to_string));
-    run.map(|r| vec![format!("{} run {r}", dir.display())])
-        .unwrap_or_default()
+    match eikon_wavefront::lightdir::LightDir::open(&dir) {
+        Ok(d) => vec![format!("{} run {}", dir.display(), d.sidecar.run_id)],
+        Err(_) => Vec::new(),
+    }
 }
 
 /// Check that the light folder `lights` (of `eikon simulate --frames`)

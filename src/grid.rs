@@ -255,18 +255,6 @@ pub fn check_memory(scene: &Scene, needs: &Needs) -> Result<u128> {
     Ok(total.max(Medium::memory_estimate(scene).peak))
 }
 
-/// `bytes` of GPU buffers and textures as host memory: on a software
-/// adapter (lavapipe) or an integrated GPU they are host memory and count
-/// against the limit; a discrete GPU's own memory does not (its driver
-/// refuses what does not fit, and `Gpu::checked` reports that).
-pub fn gpu_host_bytes(gpu: &eikon_gpu::Gpu, bytes: u64) -> Option<u64> {
-    matches!(
-        gpu.info.device_type,
-        wgpu::DeviceType::Cpu | wgpu::DeviceType::IntegratedGpu
-    )
-    .then_some(bytes)
-}
-
 /// The most memory this process has held resident (Linux `VmHWM`), to
 /// report beside the estimate; `None` where the system does not say.
 pub fn peak_resident() -> Option<u64> {

@@ -17,6 +17,7 @@ mod run;
 mod simulate;
 mod slice;
 mod trace;
+mod wyman;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -49,7 +50,7 @@ enum Command {
     Demo(run::DemoArgs),
     /// Time the standard scenes' light simulation and 800x600 frames on every available backend.
     Bench(bench::Args),
-    /// Render a scene with a mesh-bounded medium by every method (eikonal, walter, holzschuch, straight), side by side, with errors and times.
+    /// Render a scene with a mesh-bounded medium by every method (eikonal, walter, holzschuch, straight; wyman on request), side by side, with errors and times.
     Compare(compare::Args),
     /// Write a scene's volumes (index, gradient, extinction, light) as OpenVDB grids and/or NumPy arrays.
     Export(export::Args),

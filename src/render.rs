@@ -5,11 +5,9 @@ use crate::backend::Backend;
 use crate::output::{build_medium, write_all_atomic};
 use anyhow::{bail, Context, Result};
 use clap::ValueEnum;
-use eikon_grid::{Medium, Method, Scene};
-use eikon_view::{
-    encode_exr, encode_png, Camera, Exposure, Image, Options, Renderer, Stats, Surroundings,
-    ToneMap,
-};
+use eikon_grid::{ray, Medium, Scene};
+use eikon_optics::{encode_exr, encode_png, Camera, Exposure, Image, ToneMap};
+use eikon_view::{Options, Renderer, Stats, Surroundings};
 use eikon_wavefront::lightdir::{LightDir, SIDECAR};
 use eikon_wavefront::LightVolume;
 use glam::DVec3;
@@ -19,7 +17,7 @@ use std::time::Instant;
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 enum Integrator {
-    /// Forward Euler (eqs 11-12), the paper's choice.
+    /// Forward Euler [Ihrke07 eqs 11-12], the paper's choice.
     Euler,
     /// Classical fourth-order Runge-Kutta.
     Rk4,
@@ -77,6 +75,9 @@ pub enum RenderMethod {
     /// Single scattering with straight shadow rays: refraction on the light
     /// side ignored (the approximation the exact methods improve on).
     Straight,
+    /// Wyman's image-space two-interface refraction and caustic maps on
+    /// the GPU's render pipelines: the fast approximate preview.
+    Wyman,
 }
 
 impl RenderMethod {
@@ -87,6 +88,7 @@ impl RenderMethod {
             RenderMethod::Walter => "walter",
             RenderMethod::Holzschuch => "holzschuch",
             RenderMethod::Straight => "straight",
+            RenderMethod::Wyman => "wyman",
         }
     }
 }
@@ -129,6 +131,8 @@ pub struct Args {
     #[command(flatten)]
     exact: ExactOptions,
     #[command(flatten)]
+    wyman: crate::wyman::WymanOptions,
+    #[command(flatten)]
     overrides: Overrides,
     /// Print the render's statistics as JSON (not with `--frames`: `eikon
     /// status FOLDER --json` reports a frame run).
@@ -144,12 +148,21 @@ pub struct Args {
 pub fn run(args: Args) -> Result<()> {
     check_outputs(&args.output)?;
     if args.method != RenderMethod::Eikonal && args.light.is_some() {
-        bail!("--light: light volumes are for --method eikonal; the exact methods connect to the lights themselves");
+        bail!("--light: light volumes are for --method eikonal; the other methods reach the lights themselves");
     }
     if args.frames.frames.is_some() {
         return run_frames(&args);
     }
     let scene = args.overrides.grid.load(&args.scene)?;
+    if args.method == RenderMethod::Wyman {
+        return crate::wyman::render(
+            &scene,
+            &args.overrides,
+            &args.wyman,
+            &args.output,
+            args.json,
+        );
+    }
     if args.method != RenderMethod::Eikonal {
         let (image, stats, seconds) = exact_image(&scene, &args)?;
         let tone = tone(&scene, &args.overrides);
@@ -206,7 +219,7 @@ pub fn run(args: Args) -> Result<()> {
 
 /// Render `scene` by an exact mesh method (`--method walter`, ...): the
 /// image, its statistics and the seconds it took.
-fn exact_image(scene: &Scene, args: &Args) -> Result<(Image, eikon_view::single::Stats, f64)> {
+fn exact_image(scene: &Scene, args: &Args) -> Result<(Image, eikon_exact::single::Stats, f64)> {
     let camera = camera(scene, &args.overrides)?;
     let method = crate::exact::method(args.method.name(), args.exact.scatter_samples)?;
     let seed = args.overrides.seed.unwrap_or(scene.render.seed);
@@ -288,8 +301,15 @@ fn run_frames(args: &Args) -> Result<()> {
     } else {
         Backend::Cpu
     };
+    let wyman = if args.method == RenderMethod::Wyman {
+        crate::wyman::check_backend(&args.overrides)?;
+        crate::wyman::check(&anim.frame(plan.range.first)?)?;
+        Some(crate::wyman::device()?)
+    } else {
+        None
+    };
     let settings = format!(
-        "method {}; light {}; images {}; scatter samples {:?}; guaranteed {}; {}",
+        "method {}; light {}; images {}; scatter samples {:?}; guaranteed {}; wyman {}; {}",
         args.method.name(),
         args.light
             .as_ref()
@@ -301,6 +321,7 @@ fn run_frames(args: &Args) -> Result<()> {
             .join(" "),
         args.exact.scatter_samples,
         args.exact.guaranteed,
+        args.wyman.describe(),
         overrides_settings(&args.overrides, &backend)
     );
     let mut job = Job::open(&folder, "render", &plan, settings, false)?;
@@ -316,6 +337,11 @@ fn run_frames(args: &Args) -> Result<()> {
             };
             let (image, ..) = render_image(&scene, &medium, &volumes, &args.overrides, &backend)?;
             (image, note)
+        } else if let Some(gpu) = &wyman {
+            (
+                crate::wyman::image(gpu, &scene, &args.overrides, &args.wyman)?.0,
+                "",
+            )
         } else {
             (exact_image(&scene, args)?.0, "")
         };
@@ -377,7 +403,7 @@ pub fn camera(scene: &Scene, overrides: &Overrides) -> Result<Camera> {
             cs.samples
         );
     }
-    Camera::from_settings(&cs).with_context(|| format!("{}: camera", scene.origin))
+    eikon_view::render::camera(&cs).with_context(|| format!("{}: camera", scene.origin))
 }
 
 /// The largest image side, pixels (as the scene's `[camera] resolution`).
@@ -446,9 +472,9 @@ pub fn render_image(
     let r = &scene.render;
     let opts = Options {
         step: overrides.step.unwrap_or(r.step),
-        method: match overrides.integrator {
-            Some(Integrator::Euler) => Method::Euler,
-            Some(Integrator::Rk4) => Method::Rk4,
+        integrator: match overrides.integrator {
+            Some(Integrator::Euler) => ray::Integrator::Euler,
+            Some(Integrator::Rk4) => ray::Integrator::Rk4,
             None => r.integrator,
         },
         skip_empty: !overrides.no_skip,
@@ -470,13 +496,7 @@ pub fn render_image(
             "warning: no --light volumes given: in-scatter and the receiver are dark (run `eikon simulate` first, or `eikon run`)"
         );
     }
-    let gpu = match backend {
-        Backend::Gpu(g) => {
-            let size = eikon_view::gpu::DeviceSize::of(medium, volumes, &env, &camera, &opts);
-            crate::grid::gpu_host_bytes(g, eikon_view::gpu::GpuRenderer::device_bytes(&size))
-        }
-        Backend::Cpu => None,
-    };
+    let gpu = backend.renderer_host_bytes(medium, volumes, &env, &camera, &opts);
     crate::grid::check_memory(
         scene,
         &crate::grid::Needs {
@@ -489,6 +509,7 @@ pub fn render_image(
     )?;
     let surroundings = Surroundings::new(scene, env, volumes, &medium.geometry);
     crate::backend::announce();
+    #[cfg(feature = "gpu")]
     if let Backend::Gpu(gpu) = backend {
         let started = Instant::now();
         let renderer =
@@ -552,7 +573,7 @@ fn report(
                 "seconds": seconds,
                 "ray_steps": stats.steps,
                 "empty_skips": stats.skips,
-                "mean_luminance": image.data.iter().map(|&p| eikon_view::image::luminance(p)).sum::<f64>() / image.data.len().max(1) as f64,
+                "mean_luminance": image.data.iter().map(|&p| eikon_optics::image::luminance(p)).sum::<f64>() / image.data.len().max(1) as f64,
             }))?
         );
     } else {

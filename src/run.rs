@@ -39,7 +39,7 @@ pub struct DemoArgs {
 }
 
 /// The built-in scene of `eikon demo`: a glass sphere over a table under
-/// a directional light (the paper's Fig. 7), with its caustic.
+/// a directional light ([Ihrke07 fig 7]), with its caustic.
 pub const DEMO_SCENE: &str = include_str!("../configs/demo.toml");
 
 /// Simulate `scene` into `dir`, then render it to `images`.

@@ -4,10 +4,10 @@ use crate::backend::{Backend, BackendFlag};
 use crate::output::build_medium;
 use anyhow::{bail, Result};
 use clap::ValueEnum;
-use eikon_grid::{Medium, Method, Scene};
+use eikon_grid::{ray, Medium, Scene};
 use eikon_wavefront::lightdir::{self, LightSummary, Run, RunOptions};
 use eikon_wavefront::photons::simulate_photons;
-use eikon_wavefront::{check_scene, simulate_light, DepositRule, LightVolume, Options, Summary};
+use eikon_wavefront::{check_scene, DepositRule, LightVolume, Options, Summary};
 use serde_json::{json, Value};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -33,8 +33,8 @@ enum DepositArg {
     /// Track-length fluence and net flux of every patch; light passes
     /// through caustics.
     Fluence,
-    /// The paper's rule (5.2.2): the highest-energy ray per cell, patches
-    /// culled at caustics. With --no-fresnel it reproduces the paper.
+    /// The paper's rule [Ihrke07 sec 5.2.2]: the highest-energy ray per cell,
+    /// patches culled at caustics. With --no-fresnel it reproduces the paper.
     Paper,
 }
 
@@ -83,7 +83,7 @@ pub struct Args {
     /// How the wavefront becomes a light volume.
     #[arg(long, value_enum, default_value = "fluence")]
     deposit: DepositArg,
-    /// No Fresnel transmission at interfaces (the paper's eq 18 has none).
+    /// No Fresnel transmission at interfaces ([Ihrke07 eq 18] has none).
     #[arg(long)]
     no_fresnel: bool,
     /// Photons per light (per colour channel with dispersion), with
@@ -209,9 +209,9 @@ impl Args {
     fn options(&self) -> Result<Options> {
         let opts = Options {
             step: self.step,
-            method: match self.integrator {
-                Integrator::Euler => Method::Euler,
-                Integrator::Rk4 => Method::Rk4,
+            integrator: match self.integrator {
+                Integrator::Euler => ray::Integrator::Euler,
+                Integrator::Rk4 => ray::Integrator::Rk4,
             },
             patch_size: self.patch_size,
             split: self.split,
@@ -464,17 +464,11 @@ pub fn simulate(
             patches: (args.method == SimMethod::Wavefront).then_some(opts.max_patches),
             interfaces: opts.fresnel,
             photons: args.method == SimMethod::Photons,
-            gpu: match backend {
-                Backend::Gpu(g) if args.method == SimMethod::Wavefront => {
-                    let bytes = eikon_wavefront::gpu::GpuSimulator::device_bytes(
-                        scene.grid.geometry.dims,
-                        scene.channels(),
-                        &opts,
-                    );
-                    crate::grid::gpu_host_bytes(g, bytes)
-                }
-                _ => None,
-            },
+            gpu: (args.method == SimMethod::Wavefront)
+                .then(|| {
+                    backend.simulator_host_bytes(scene.grid.geometry.dims, scene.channels(), &opts)
+                })
+                .flatten(),
             ..crate::grid::Needs::default()
         },
     )?;
@@ -484,18 +478,13 @@ pub fn simulate(
     }
     crate::backend::announce();
     let started = Instant::now();
-    // The GPU uploads the medium once for every light.
-    let gpu = match backend {
-        Backend::Gpu(g) if args.method == SimMethod::Wavefront => {
-            Some(eikon_wavefront::gpu::GpuSimulator::new(g, medium)?)
-        }
-        _ => None,
+    // Photons run on the CPU whatever the backend.
+    let on = match args.method {
+        SimMethod::Wavefront => backend,
+        SimMethod::Photons => &Backend::Cpu,
     };
-    let sim_backend = if gpu.is_some() {
-        backend.describe()
-    } else {
-        Backend::Cpu.describe()
-    };
+    let sim = on.simulator(medium)?;
+    let sim_backend = on.describe();
     let mut results: Vec<(LightVolume, Summary, f64)> = Vec::new();
     for (i, light) in scene.lights.iter().enumerate() {
         let bar = indicatif::ProgressBar::new_spinner();
@@ -515,10 +504,7 @@ pub fn simulate(
                     ));
                     bar.tick();
                 };
-                match &gpu {
-                    Some(sim) => sim.simulate(light, &opts, &progress),
-                    None => simulate_light(light, medium, &opts, &progress),
-                }
+                sim.simulate(light, &opts, &progress)
             }
             SimMethod::Photons => {
                 bar.set_message(format!("tracing {} photons", args.count));
@@ -546,7 +532,7 @@ pub fn simulate(
         .into(),
         options: RunOptions {
             step_voxels: opts.step,
-            integrator: format!("{:?}", opts.method),
+            integrator: format!("{:?}", opts.integrator),
             patch_size_voxels: opts.patch_size,
             split_voxels: opts.split,
             threshold: opts.threshold,

@@ -3,14 +3,14 @@
 use crate::output::{fmt_vec, parse_vec3};
 use anyhow::{bail, Result};
 use clap::ValueEnum;
-use eikon_grid::{trace, AnalyticField, Form, IndexField, Method, Scene, TraceOptions};
+use eikon_grid::{ray, trace, AnalyticField, Form, IndexField, Scene, TraceOptions};
 use glam::DVec3;
 use serde_json::json;
 use std::path::PathBuf;
 
 #[derive(Clone, Copy, PartialEq, Eq, Debug, ValueEnum)]
 enum Integrator {
-    /// Forward Euler (eqs 11-12), first order.
+    /// Forward Euler [Ihrke07 eqs 11-12], first order.
     Euler,
     /// Classical fourth-order Runge-Kutta.
     Rk4,
@@ -20,9 +20,9 @@ enum Integrator {
 
 #[derive(Clone, Copy, PartialEq, Eq, Debug, ValueEnum)]
 enum FormArg {
-    /// Equal distance per step (eqs 9-10), as for eye rays.
+    /// Equal distance per step [Ihrke07 eqs 9-10], as for eye rays.
     Distance,
-    /// Equal optical path per step (eqs 14-15), as for light.
+    /// Equal optical path per step [Ihrke07 eqs 14-15], as for light.
     Time,
 }
 
@@ -102,9 +102,9 @@ pub fn run(args: Args) -> Result<()> {
         FormArg::Time => Form::EqualTime,
     };
     let method = match args.integrator {
-        Integrator::Euler => Method::Euler,
-        Integrator::Rk4 => Method::Rk4,
-        Integrator::Dopri5 => Method::DormandPrince,
+        Integrator::Euler => ray::Integrator::Euler,
+        Integrator::Rk4 => ray::Integrator::Rk4,
+        Integrator::Dopri5 => ray::Integrator::DormandPrince,
     };
     let opts = TraceOptions {
         tolerance: args.tolerance * geom.voxel_size(),

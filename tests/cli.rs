@@ -554,7 +554,7 @@ fn simulate_refuses_overflow_and_warns_of_trapped_light() {
     println!("{err}");
     assert!(!out.exists(), "no output may be written on failure");
     // A point light off the centre of a clear n = 3 sphere: geometric
-    // optics traps 83% (`tests/finite.rs` checks the fraction).
+    // optics traps 83% (`crates/wavefront/tests/finite.rs` checks the fraction).
     let trap = write_scene(
         dir.path(),
         "trap.toml",

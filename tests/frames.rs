@@ -62,10 +62,14 @@ fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
     p
 }
 
-/// Every `.npy` under `out` (relative path -> bytes).
+/// Every `.npy` under `out` (relative path -> bytes); none when `out` does
+/// not exist (yet: a run killed before it made its folder).
 fn arrays(out: &Path) -> BTreeMap<String, Vec<u8>> {
     let mut m = BTreeMap::new();
-    for e in std::fs::read_dir(out).unwrap().flatten() {
+    let Ok(entries) = std::fs::read_dir(out) else {
+        return m;
+    };
+    for e in entries.flatten() {
         if e.path().is_dir() {
             for f in std::fs::read_dir(e.path()).unwrap().flatten() {
                 let name = f.file_name().to_string_lossy().into_owned();

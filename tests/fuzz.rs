@@ -71,39 +71,19 @@ const MAX_BUILD_SAMPLES: usize = 8 << 20;
 // ---------------------------------------------------------------------------
 // Deterministic randomness.
 
-/// SplitMix64 (Steele, Lea and Flood 2014).
-#[derive(Clone)]
-struct Rng(u64);
+use eikon_rng::SplitMix64 as Rng;
 
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in `0..n` (0 when `n` is 0).
-    fn below(&mut self, n: usize) -> usize {
-        if n == 0 {
-            0
-        } else {
-            (self.next() % n as u64) as usize
-        }
-    }
-
+/// The draws the fuzzer needs beyond [`Rng`]'s own.
+trait Draw {
     /// Uniform in `lo..=hi`.
+    fn range(&mut self, lo: usize, hi: usize) -> usize;
+    /// One of `items`, uniformly.
+    fn pick<'a, T>(&mut self, items: &'a [T]) -> &'a T;
+}
+
+impl Draw for Rng {
     fn range(&mut self, lo: usize, hi: usize) -> usize {
         lo + self.below(hi - lo + 1)
-    }
-
-    fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    fn chance(&mut self, p: f64) -> bool {
-        self.unit() < p
     }
 
     fn pick<'a, T>(&mut self, items: &'a [T]) -> &'a T {
@@ -456,7 +436,7 @@ fn fuzz(
     let started = Instant::now();
     if only.is_none() {
         for (i, s) in seeds.iter().enumerate() {
-            let mut rng = Rng(seed ^ hash(family) ^ hash(&s.name));
+            let mut rng = Rng::new(seed ^ hash(family) ^ hash(&s.name));
             let label = format!("seed{i}");
             let outcome = run_case(
                 family,
@@ -479,7 +459,7 @@ fn fuzz(
     let budget = Duration::from_secs_f64(seconds);
     let mut case = only.unwrap_or(0);
     loop {
-        let mut rng = Rng(seed ^ hash(family) ^ case.wrapping_mul(0xA24B_AED4_963E_E407));
+        let mut rng = Rng::new(seed ^ hash(family) ^ case.wrapping_mul(0xA24B_AED4_963E_E407));
         let (s, input) = mutate(&mut rng, seeds);
         let name = seeds[s].name.clone();
         let outcome = run_case(
@@ -628,7 +608,7 @@ fn mutate_bytes(rng: &mut Rng, data: &mut Vec<u8>, seeds: &[Seed]) {
             data[p] = if rng.chance(0.5) {
                 *rng.pick(&BYTES)
             } else {
-                rng.next() as u8
+                rng.next_u64() as u8
             };
         }
         3 if len >= 4 => {
@@ -665,7 +645,7 @@ fn mutate_bytes(rng: &mut Rng, data: &mut Vec<u8>, seeds: &[Seed]) {
                     if rng.chance(0.5) {
                         *rng.pick(&BYTES)
                     } else {
-                        rng.next() as u8
+                        rng.next_u64() as u8
                     }
                 })
                 .collect();
@@ -703,9 +683,9 @@ fn mutate_bytes(rng: &mut Rng, data: &mut Vec<u8>, seeds: &[Seed]) {
         _ => {
             if len > 0 {
                 let p = rng.below(len);
-                data[p] = rng.next() as u8;
+                data[p] = rng.next_u64() as u8;
             } else {
-                data.push(rng.next() as u8);
+                data.push(rng.next_u64() as u8);
             }
         }
     }
@@ -816,7 +796,7 @@ fn mutate_text(rng: &mut Rng, data: &mut Vec<u8>, dict: &[&str], seeds: &[Seed])
                 let with = if rng.chance(0.85) {
                     rng.pick(&NUMBERS).to_string()
                 } else {
-                    format!("{}", rng.next() as i64)
+                    format!("{}", rng.next_u64() as i64)
                 };
                 data.splice(a..b, with.bytes());
                 return;
@@ -1772,14 +1752,14 @@ fn exr_seeds() -> Vec<Seed> {
         let (x, y) = (p.x() as f32, p.y() as f32);
         (0.1 + x / 16.0, 0.2 + y / 8.0, 0.3 * (x - y).abs(), 1.0)
     };
-    let mut image = eikon_view::Image::new(w as u32, h as u32);
+    let mut image = eikon_optics::Image::new(w as u32, h as u32);
     for (i, px) in image.data.iter_mut().enumerate() {
         let c = colour(Vec2(i % w, i / w));
         *px = [c.0, c.1, c.2];
     }
     let mut out = vec![seed(
         "encoder.exr",
-        eikon_view::encode_exr(&image).expect("encode EXR"),
+        eikon_optics::encode_exr(&image).expect("encode EXR"),
     )];
     let tiles = Blocks::Tiles(Vec2(8, 4));
     let kinds = [
@@ -2152,7 +2132,7 @@ fn fuzz_vdb() {
 
 #[test]
 fn fuzz_exr() {
-    use eikon_view::{Environment, LatLongMap};
+    use eikon_optics::{Environment, LatLongMap};
     let dir = Scratch::new("exr");
     let stats = fuzz(
         "exr",

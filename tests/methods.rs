@@ -44,8 +44,13 @@ fn write(dir: &Path, name: &str, text: &str) -> String {
     p.to_str().unwrap().to_string()
 }
 
+/// Whether the GPU backend can run: built with the `gpu` feature, and an
+/// adapter found (with `CI` set, a missing adapter fails instead).
 fn has_gpu() -> bool {
-    eikon_gpu::test_device().is_some()
+    #[cfg(feature = "gpu")]
+    return eikon_gpu::test_device().is_some();
+    #[cfg(not(feature = "gpu"))]
+    false
 }
 
 #[test]
@@ -239,6 +244,7 @@ fn bench_prints_a_row_per_scene_and_backend() {
 /// On a software or integrated adapter (lavapipe in CI) the GPU's buffers
 /// are host memory: the memory check lists them beside the host's arrays,
 /// for the simulator and the renderer.
+#[cfg(feature = "gpu")]
 #[test]
 fn gpu_buffers_are_in_the_memory_check() {
     if !has_gpu() {
@@ -289,4 +295,55 @@ fn gpu_buffers_are_in_the_memory_check() {
         "{err}"
     );
     assert!(!png.exists());
+}
+
+/// Built without the `gpu` feature, `--backend gpu` is refused with a
+/// message that says how to get it, and the default runs on the CPU.
+#[cfg(not(feature = "gpu"))]
+#[test]
+fn without_the_gpu_feature_the_gpu_backend_is_refused_and_the_default_is_the_cpu() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write(dir.path(), "amber.toml", AMBER);
+    let out = dir.path().join("gpu");
+    let args = ["simulate", &scene, "-o", out.to_str().unwrap()];
+    binary::expect_error_after_notes(
+        &[&args[..], &["--backend", "gpu"]].concat(),
+        &[
+            "built without the `gpu` feature",
+            "rebuild with default features",
+        ],
+    );
+    assert!(!out.exists());
+    let auto = dir.path().join("auto");
+    let o = eikon_ok(&["simulate", &scene, "-o", auto.to_str().unwrap(), "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(v["backend"].as_str().unwrap().starts_with("cpu"));
+}
+
+/// The `gpu` feature gates every GPU dependency: the CPU-only build's tree
+/// (`--no-default-features`) has no wgpu, the default one has.
+#[test]
+fn the_cpu_only_dependency_tree_has_no_wgpu() {
+    let tree = |features: &[&str]| {
+        let o = std::process::Command::new(env!("CARGO"))
+            .args(["tree", "--offline", "-e", "normal", "-p", "eikon"])
+            .args(["--prefix", "none"])
+            .args(features)
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .output()
+            .expect("running cargo tree");
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let text = String::from_utf8(o.stdout).unwrap();
+        assert!(
+            text.lines().any(|l| l.starts_with("eikon-wavefront")),
+            "{text}"
+        );
+        text.lines()
+            .filter(|l| l.starts_with("wgpu") || l.starts_with("eikon-gpu"))
+            .map(str::to_string)
+            .collect::<Vec<_>>()
+    };
+    let cpu = tree(&["--no-default-features"]);
+    assert!(cpu.is_empty(), "the CPU-only build compiles {cpu:?}");
+    assert!(!tree(&[]).is_empty(), "the default build has no wgpu");
 }

@@ -576,10 +576,10 @@ proptest! {
             (Just(w), Just(h), prop::collection::vec(prop::array::uniform3(-1.0f32..1e4), w * h))
         })
     ) {
-        let mut image = eikon_view::Image::new(w as u32, h as u32);
+        let mut image = eikon_optics::Image::new(w as u32, h as u32);
         image.data.clone_from(&texels);
-        let bytes = eikon_view::encode_exr(&image).unwrap();
-        let map = eikon_view::LatLongMap::from_exr_bytes(&bytes, std::path::Path::new("prop.exr")).unwrap();
+        let bytes = eikon_optics::encode_exr(&image).unwrap();
+        let map = eikon_optics::LatLongMap::from_exr_bytes(&bytes, std::path::Path::new("prop.exr")).unwrap();
         prop_assert_eq!((map.width(), map.height()), (w, h));
         let want: Vec<[f32; 3]> = texels.iter().map(|t| t.map(|c| c.max(0.0))).collect();
         prop_assert_eq!(map.data(), want.as_slice());

@@ -16,6 +16,8 @@
 //!   backends' estimates of device memory (checked before a run) to what a
 //!   run really creates.
 
+pub mod layout;
+
 use std::ops::Deref;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -199,6 +201,8 @@ impl Gpu {
                 // and samples the medium from 3D textures.
                 max_storage_buffers_per_shader_stage: limits.max_storage_buffers_per_shader_stage,
                 max_texture_dimension_3d: limits.max_texture_dimension_3d,
+                // Render targets as large as images may be (eikon-wyman).
+                max_texture_dimension_2d: limits.max_texture_dimension_2d,
                 max_bind_groups: limits.max_bind_groups,
                 ..wgpu::Limits::downlevel_defaults()
             },
@@ -443,6 +447,40 @@ impl Gpu {
         }
     }
 
+    /// A `width` x `height` 2D texture of `format` with `usage` (render
+    /// targets, depth buffers), tallied as [`Gpu::texture_3d`]'s are.
+    pub fn texture_2d(
+        &self,
+        label: &str,
+        [width, height]: [u32; 2],
+        format: wgpu::TextureFormat,
+        usage: wgpu::TextureUsages,
+    ) -> Texture {
+        let texture = self.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d {
+                width,
+                height,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage,
+            view_formats: &[],
+        });
+        let texel = format.block_copy_size(None).unwrap_or(4);
+        let bytes = u64::from(width) * u64::from(height) * u64::from(texel);
+        self.tally.add(bytes);
+        Texture {
+            view: texture.create_view(&Default::default()),
+            texture,
+            bytes,
+            tally: self.tally.clone(),
+        }
+    }
+
     /// Copy `len` elements of `buffer` back to the CPU, through a staging
     /// buffer of their size that is tallied while the read lasts (it is
     /// dropped before this returns: it counts towards
@@ -480,6 +518,106 @@ impl Gpu {
         staging.unmap();
         Ok(out)
     }
+}
+
+impl Gpu {
+    /// Compile `entry` of the WGSL `source` as an [`Eval`] kernel.
+    pub fn eval_kernel(&self, source: &str, entry: &str) -> Result<Eval, GpuError> {
+        Ok(Eval {
+            pipeline: self.pipeline(entry, source, entry)?,
+            entry: entry.to_string(),
+        })
+    }
+
+    /// [`Eval::run`] of `entry` in `source`, compiled for this one call.
+    pub fn eval(
+        &self,
+        source: &str,
+        entry: &str,
+        inputs: &[[f32; 4]],
+        per_input: usize,
+        extra: &[wgpu::BindingResource],
+    ) -> Result<Vec<[f32; 4]>, GpuError> {
+        self.eval_kernel(source, entry)?
+            .run(self, inputs, per_input, extra)
+    }
+}
+
+/// A kernel that evaluates shared WGSL functions on a batch of arguments
+/// (the function-level parity tests), one thread per input.
+pub struct Eval {
+    pipeline: wgpu::ComputePipeline,
+    entry: String,
+}
+
+impl Eval {
+    /// Run the kernel once per element of `inputs` and read its output
+    /// back. It sees `@group(0) @binding(0) var<storage, read> input:
+    /// array<vec4<f32>>` (integers passed as their bits), `@binding(1)
+    /// var<storage, read_write> output: array<vec4<f32>>` (`per_input`
+    /// entries per input; the entry point must use both) and `extra[i]` at
+    /// binding `2 + i`; the threads are numbered as [`groups`] lays them
+    /// out (the `dispatch` module's `item`).
+    pub fn run(
+        &self,
+        gpu: &Gpu,
+        inputs: &[[f32; 4]],
+        per_input: usize,
+        extra: &[wgpu::BindingResource],
+    ) -> Result<Vec<[f32; 4]>, GpuError> {
+        let input = gpu.storage("eval input", inputs);
+        let len = inputs.len() * per_input;
+        let output = gpu.storage_empty("eval output", (len * 16) as u64);
+        gpu.checked(&self.entry, || {
+            let mut entries = vec![
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: input.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: output.as_entire_binding(),
+                },
+            ];
+            for (i, r) in extra.iter().enumerate() {
+                entries.push(wgpu::BindGroupEntry {
+                    binding: 2 + i as u32,
+                    resource: r.clone(),
+                });
+            }
+            let bind = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some(&self.entry),
+                layout: &self.pipeline.get_bind_group_layout(0),
+                entries: &entries,
+            });
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            {
+                let mut pass = enc.begin_compute_pass(&Default::default());
+                pass.set_pipeline(&self.pipeline);
+                pass.set_bind_group(0, &bind, &[]);
+                let (x, y) = groups(inputs.len());
+                pass.dispatch_workgroups(x, y, 1);
+            }
+            gpu.queue.submit([enc.finish()]);
+        })?;
+        gpu.read(&output, len)
+    }
+}
+
+/// The workgroup size and how a kernel numbers its threads, as [`groups`]
+/// dispatches them: `item(id, groups)` is the thread's item.
+pub static DISPATCH: eikon_shader::Module = eikon_shader::Module {
+    name: "dispatch",
+    requires: &[],
+    declarations: dispatch_declarations,
+    text: "fn item(id: vec3<u32>, groups: vec3<u32>) -> u32 {\n    return id.x + id.y * groups.x * WORKGROUP;\n}\n",
+};
+
+fn dispatch_declarations() -> String {
+    eikon_shader::Consts::new()
+        .u32("WORKGROUP", WORKGROUP)
+        .wgsl()
+        .to_string()
 }
 
 /// Workgroup counts `(x, y)` covering `items` threads of [`WORKGROUP`] in

@@ -11,7 +11,8 @@
 //! scene without `[animation]` is a one-frame animation.
 
 use crate::error::{Error, Result};
-use crate::scene::{deserialize, read_text, Checker, GridOverride, Scene, Seg};
+use crate::scene::locate::{deserialize, Checker, Seg};
+use crate::scene::{read_text, GridOverride, Scene};
 use serde::Deserialize;
 use std::path::Path;
 

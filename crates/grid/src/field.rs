@@ -25,8 +25,9 @@
 //! Lengths are world units (the scene's). `extinction` is sigma_t per world
 //! unit, so a path of length d keeps `exp(-sigma_t d)`. The gradient is per
 //! world unit. The boundary indicator is per world unit and integrates to
-//! one across an interface (eq 2's Dirac delta).
+//! one across an interface ([Ihrke07 eq 2]'s Dirac delta).
 
+use crate::blocks::BlockGrid;
 use crate::error::Result;
 use crate::geometry::GridGeometry;
 use crate::ray::IndexField;
@@ -61,8 +62,9 @@ pub struct Medium {
 }
 
 /// Progress callback of [`Medium::build_with_progress`]: `(stage, done,
-/// total)` units of work; called from worker threads.
-pub type Progress<'a> = &'a (dyn Fn(&'static str, u64, u64) + Sync);
+/// total)` units of work; called from worker threads. Building has named
+/// stages (rasterize, smooth, ...), so it says which one is running.
+pub type BuildProgress<'a> = &'a (dyn Fn(&'static str, u64, u64) + Sync);
 
 /// Memory needed for a medium, in bytes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -128,13 +130,13 @@ impl Medium {
     }
 
     /// [`Medium::build`], reporting `(stage, done, total)` as it goes.
-    pub fn build_with_progress(scene: &Scene, progress: Progress) -> Result<Medium> {
+    pub fn build_with_progress(scene: &Scene, progress: BuildProgress) -> Result<Medium> {
         Self::build_within(scene, available_memory().unwrap_or(u128::MAX), progress)
     }
 
     /// [`Medium::build_with_progress`] refusing a grid whose build needs
     /// more than `avail` bytes (instead of the memory the system reports).
-    pub fn build_within(scene: &Scene, avail: u128, progress: Progress) -> Result<Medium> {
+    pub fn build_within(scene: &Scene, avail: u128, progress: BuildProgress) -> Result<Medium> {
         let est = Self::memory_estimate(scene);
         if est.peak > avail {
             return Err(scene.error_at(
@@ -210,7 +212,7 @@ impl Medium {
         // Boundary indicator: half the summed gradient magnitudes of every
         // material's smoothed coverage. Across an interface between two
         // materials each coverage goes 0 -> 1 or 1 -> 0, so the sum
-        // integrates to exactly one along the normal (eq 2's delta).
+        // integrates to exactly one along the normal ([Ihrke07 eq 2]'s delta).
         let mut boundary = Array3::<f32>::zeros((nx, ny, nz));
         let materials = scene.objects.len() as u64 + 1;
         for m in 0..=scene.objects.len() {
@@ -308,29 +310,22 @@ impl Medium {
 }
 
 /// Coarse map of the empty space of a medium, for skipping it: blocks of
-/// `BLOCK^3` cells where, out to one cell beyond the block, the index is
+/// `BLOCK^3` cells ([`BlockGrid`]) where, out to one cell beyond the block, the index is
 /// one constant, its gradient is zero and nothing absorbs, scatters or
 /// emits. Any trilinear sample taken within a cell of such a block sees
 /// exactly that constant, so a ray there goes straight and loses nothing,
 /// and may be moved without sampling at all.
 #[derive(Clone, Debug)]
 pub struct EmptySpace {
-    dims: [usize; 3],
-    min: DVec3,
-    inv_block: DVec3,
+    blocks: BlockGrid,
     /// The block's uniform index, or NaN where the block is not empty.
     n: Vec<f32>,
 }
 
 impl EmptySpace {
-    /// Cells per block edge.
-    pub const BLOCK: usize = 4;
-
     /// The empty space of index channel `channel` of `medium`.
     pub fn new(medium: &Medium, channel: usize) -> Self {
-        let b = Self::BLOCK;
-        let g = &medium.geometry;
-        let dims = g.dims.map(|d| d.div_ceil(b));
+        let blocks = BlockGrid::new(&medium.geometry);
         let idx = &medium.index[channel];
         let clear = |i: usize, j: usize, k: usize| -> bool {
             (1..4).all(|c| idx[[i, j, k, c]] == 0.0)
@@ -338,49 +333,30 @@ impl EmptySpace {
                     medium.extinction[[i, j, k, c]] == 0.0 && medium.emission[[i, j, k, c]] == 0.0
                 })
         };
-        let mut n = vec![f32::NAN; dims[0] * dims[1] * dims[2]];
+        let mut n = vec![f32::NAN; blocks.len()];
         n.par_iter_mut().enumerate().for_each(|(flat, out)| {
-            let (bi, bj, bk) = (
-                flat / (dims[1] * dims[2]),
-                (flat / dims[2]) % dims[1],
-                flat % dims[2],
-            );
+            let b = blocks.coords(flat);
+            let [i0, j0, k0] = blocks.first_voxel(b);
+            let n0 = idx[[i0, j0, k0, 0]];
             // The block and a margin of one cell around it.
-            let span =
-                |bx: usize, a: usize| (bx * b).saturating_sub(1)..((bx + 1) * b + 1).min(g.dims[a]);
-            let n0 = idx[[bi * b, bj * b, bk * b, 0]];
-            for i in span(bi, 0) {
-                for j in span(bj, 1) {
-                    for k in span(bk, 2) {
-                        if idx[[i, j, k, 0]] != n0 || !clear(i, j, k) {
-                            return;
-                        }
-                    }
-                }
+            if blocks.all_around(b, |i, j, k| idx[[i, j, k, 0]] == n0 && clear(i, j, k)) {
+                *out = n0;
             }
-            *out = n0;
         });
-        Self {
-            dims,
-            min: g.min,
-            inv_block: 1.0 / (g.spacing() * b as f64),
-            n,
-        }
+        Self { blocks, n }
+    }
+
+    /// Its blocks.
+    pub fn blocks(&self) -> &BlockGrid {
+        &self.blocks
     }
 
     /// The uniform index around `p` if `p` lies in an empty block inside
     /// the grid, else `None`.
     #[inline(always)]
     pub fn index_at(&self, p: DVec3) -> Option<f64> {
-        let u = (p - self.min) * self.inv_block;
-        if !(u.x >= 0.0 && u.y >= 0.0 && u.z >= 0.0) {
-            return None;
-        }
-        let (i, j, k) = (u.x as usize, u.y as usize, u.z as usize);
-        if i >= self.dims[0] || j >= self.dims[1] || k >= self.dims[2] {
-            return None;
-        }
-        let n = self.n[(i * self.dims[1] + j) * self.dims[2] + k];
+        let (b, _) = self.blocks.locate(p)?;
+        let n = self.n[self.blocks.flat(b)];
         (!n.is_nan()).then_some(n as f64)
     }
 
@@ -608,7 +584,7 @@ priority = 1
         // surface (radius + 3 sigma + supersampling + margin < 6 cells) is
         // found empty.
         let h = m.geometry.voxel_size();
-        let blk = EmptySpace::BLOCK as f64 * h;
+        let blk = crate::blocks::BLOCK as f64 * h;
         for (bi, bj, bk) in
             (0..8).flat_map(|i| (0..8).flat_map(move |j| (0..8).map(move |k| (i, j, k))))
         {

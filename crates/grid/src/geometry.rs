@@ -10,6 +10,7 @@
 //! between centres is the natural reconstruction. Within half a cell of the
 //! bounds the nearest centre value is held (clamped), not extrapolated.
 
+use eikon_shader::{layout, Layout, Module};
 use glam::DVec3;
 
 /// Geometry of a regular voxel grid (see the module docs for the convention).
@@ -180,6 +181,65 @@ impl Trilinear {
         out
     }
 }
+
+layout! {
+    /// The grid as a kernel reads it (`GridGpu` in WGSL), in f32: see
+    /// [`GridGeometry`] for the convention, and [`WGSL`] for the functions
+    /// over it.
+    pub struct GridGpu {
+        /// Lower corner.
+        pub min: [f32; 3],
+        /// The smallest cell edge ([`GridGeometry::voxel_size`]).
+        pub voxel: f32,
+        /// Upper corner.
+        pub max: [f32; 3],
+        /// Length of the bounds' diagonal.
+        pub diagonal: f32,
+        /// Cell size per axis.
+        pub spacing: [f32; 3],
+        /// Padding (a `vec3` is aligned to 16 bytes in WGSL).
+        pub pad0: f32,
+        /// `1 / spacing`, computed in f64.
+        pub inv_spacing: [f32; 3],
+        /// Padding.
+        pub pad1: f32,
+        /// Cells per axis.
+        pub dims: [u32; 3],
+        /// Padding.
+        pub pad2: u32,
+    }
+}
+
+impl GridGpu {
+    /// `g` in f32.
+    pub fn new(g: &GridGeometry) -> Self {
+        let f3 = |v: DVec3| v.to_array().map(|x| x as f32);
+        GridGpu {
+            min: f3(g.min),
+            voxel: g.voxel_size() as f32,
+            max: f3(g.max),
+            diagonal: g.diagonal() as f32,
+            spacing: f3(g.spacing()),
+            inv_spacing: f3(1.0 / g.spacing()),
+            dims: g.dims.map(|d| d as u32),
+            ..Default::default()
+        }
+    }
+}
+
+fn grid_declarations() -> String {
+    GridGpu::declaration()
+}
+
+/// The WGSL of the grid: `GridGpu`, containment, the slab test,
+/// cells, and the trilinear reconstruction in the cell-centre convention
+/// (`VoxelField::sample`'s order and [`Trilinear`]'s weights).
+pub static WGSL: Module = Module {
+    name: "grid",
+    requires: &[],
+    declarations: grid_declarations,
+    text: include_str!("geometry.wgsl"),
+};
 
 #[cfg(test)]
 mod tests {

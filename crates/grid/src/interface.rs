@@ -4,14 +4,14 @@
 //! The smoothing spreads an interface over a band a few voxels wide, and
 //! the ray equation refracts (or totally reflects) a ray through that band
 //! by itself. What it cannot do is split the light: Fresnel's partial
-//! reflection (eqs 2 and 5, `rho` and `tau`) needs the two indices the
-//! interface separates, which no point inside the band holds. They are read
+//! reflection ([Ihrke07 eqs 2 and 5], `rho` and `tau`) needs the two indices
+//! the interface separates, which no point inside the band holds. They are read
 //! once per boundary voxel, beyond the band ([`Interfaces::new`]).
 //!
 //! # Crossing a band
-//! The boundary indicator `delta` (eq 2) integrates to 1 along the normal
-//! across an interface, so a displacement `dx` inside the band covers the
-//! fraction `w = delta |dx . normal|` of one crossing. Light keeps the
+//! The boundary indicator `delta` [Ihrke07 eq 2] integrates to 1 along the
+//! normal across an interface, so a displacement `dx` inside the band covers
+//! the fraction `w = delta |dx . normal|` of one crossing. Light keeps the
 //! power fraction `(1 - R)^w` over it: over a whole crossing the fractions
 //! add up to 1 and the product to `1 - R`, however the band is cut into
 //! steps. `R` is the unpolarized Fresnel reflectance between the two side
@@ -24,11 +24,20 @@
 //! keeps all its power (`R` is not applied).
 
 use crate::field::Medium;
-use crate::fresnel;
 use crate::geometry::Trilinear;
 use crate::ray::IndexField;
+use eikon_optics::fresnel;
+use eikon_shader::{nothing, Module};
 use glam::DVec3;
 use rayon::prelude::*;
+
+/// The WGSL of [`crossing_transmittance`] and [`band_transmittance`].
+pub static WGSL: Module = Module {
+    name: "interface",
+    requires: &[&eikon_optics::fresnel::WGSL],
+    declarations: nothing,
+    text: include_str!("interface.wgsl"),
+};
 
 /// The two sides of an interface at a point, for Fresnel.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -154,19 +163,28 @@ impl Interfaces {
         if delta <= 0.0 {
             return 1.0;
         }
-        let grad = field.sample(p).1;
-        let len = grad.length();
-        if len == 0.0 || !len.is_finite() {
-            return 1.0;
-        }
-        let normal = grad / len;
-        let part = (delta * dx.dot(normal).abs()).min(1.0);
-        if part <= 0.0 {
-            return 1.0;
-        }
-        let sides = self.sides_at(&t, ch);
-        crossing_transmittance(sides, v, normal).powf(part)
+        band_transmittance(self.sides_at(&t, ch), delta, field.sample(p).1, v, dx)
     }
+}
+
+/// [`Interfaces::transmittance`] from its samples at the point: the
+/// `sides`, the boundary indicator `delta` and the index gradient `grad`
+/// (whose direction is the interface's normal).
+#[inline]
+pub fn band_transmittance(sides: Sides, delta: f64, grad: DVec3, v: DVec3, dx: DVec3) -> f64 {
+    if delta <= 0.0 {
+        return 1.0;
+    }
+    let len = grad.length();
+    if len == 0.0 || !len.is_finite() {
+        return 1.0;
+    }
+    let normal = grad / len;
+    let part = (delta * dx.dot(normal).abs()).min(1.0);
+    if part <= 0.0 {
+        return 1.0;
+    }
+    crossing_transmittance(sides, v, normal).powf(part)
 }
 
 /// `1 - R` for light with eikonal gradient `v` crossing the interface with

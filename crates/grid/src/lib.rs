@@ -1,7 +1,7 @@
 //! # eikon-grid
 //!
 //! The refractive medium on a voxel grid and the ray equation of geometric
-//! optics (Ihrke et al. 2007, sections 3-4 and the Appendix).
+//! optics ([Ihrke07 secs 3-4] and its appendix).
 //!
 //! * [`scene`]: TOML scene files (grid, ambient medium, objects, lights).
 //! * [`shape`] and [`object`]: solids with materials and priorities; overlaps
@@ -9,16 +9,16 @@
 //! * [`voxelize`](crate::field::Medium::build) and [`field`]: supersampled
 //!   rasterization, Gaussian smoothing, gradient, boundary indicator, and
 //!   trilinear or exact analytic sampling.
-//! * [`ray`]: eqs 9-10 and 14-15 with Euler, RK4 and Dormand-Prince.
+//! * [`ray`]: [Ihrke07 eqs 9-10 and 14-15] with Euler, RK4 and Dormand-Prince.
 //! * [`vdb`]: OpenVDB export (our own writer) and import of float grids.
 
 pub mod animation;
+pub mod blocks;
 pub mod error;
 pub mod field;
-pub mod fresnel;
 pub mod geometry;
 pub mod interface;
-pub mod mesh;
+pub mod mesh_solid;
 pub mod object;
 pub mod ray;
 pub mod scene;
@@ -30,10 +30,16 @@ mod voxelize;
 pub use error::{Error, Location, Result};
 pub use field::{AnalyticField, EmptySpace, Medium, MemoryEstimate, VoxelField};
 pub use geometry::{GridGeometry, Trilinear};
-pub use mesh::MeshSolid;
+pub use mesh_solid::MeshSolid;
 pub use object::{GridExtinction, GridIndex, IndexProfile, Material, Object};
 pub use ray::{
-    trace, trace_many, Form, IndexField, Method, RayEnd, RayState, Status, TraceOptions,
+    trace, trace_many, Form, IndexField, Integrator, RayEnd, RayState, Status, TraceOptions,
 };
 pub use scene::{Background, CameraSettings, GridOverride, Light, Receiver, RenderSettings, Scene};
 pub use shape::Shape;
+
+/// Progress of a long computation over many items: `(done, total)` or the
+/// like, the caller's docs say which two counts (the light simulation's
+/// step and live patches, the renderer's tiles done and in all); called
+/// from worker threads.
+pub type Progress<'a> = &'a (dyn Fn(usize, usize) + Sync);

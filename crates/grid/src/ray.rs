@@ -1,24 +1,25 @@
-//! The ray equation of geometric optics, `d/ds (n dx/ds) = grad n` (eq 8),
-//! in the two first-order forms of Ihrke et al. 2007:
+//! The ray equation of geometric optics, `d/ds (n dx/ds) = grad n`
+//! [Ihrke07 eq 8], in the two first-order forms of Ihrke et al. 2007:
 //!
-//! * **equal distance** (eqs 9-10): `dx/ds = v / n`, `dv/ds = grad n`, where
-//!   `s` is arc length, so every step covers the same distance. Used for eye
-//!   rays.
-//! * **equal time** (eqs 14-15): `dx/dt = v / n^2`, `dv/dt = grad n / n`,
-//!   where `dt = n ds` is optical path, so all particles launched together
-//!   stay on one wavefront. Used for light.
+//! * **equal distance** [Ihrke07 eqs 9-10]: `dx/ds = v / n`, `dv/ds = grad n`,
+//!   where `s` is arc length, so every step covers the same distance. Used for
+//!   eye rays.
+//! * **equal time** [Ihrke07 eqs 14-15]: `dx/dt = v / n^2`,
+//!   `dv/dt = grad n / n`, where `dt = n ds` is optical path, so all particles
+//!   launched together stay on one wavefront. Used for light.
 //!
 //! In both, `v = grad S` is the gradient of the eikonal, of length `n`.
 //! The state also carries the optical path length `L = int n ds`
 //! (`dL/ds = n`; in the equal-time form `dL/dt = 1`), integrated by the
 //! same scheme.
 //!
-//! Integrators: forward Euler (eqs 11-12 and their equal-time analogue),
-//! classical RK4, and adaptive Dormand-Prince 5(4). Total internal
+//! Integrators: forward Euler ([Ihrke07 eqs 11-12] and their equal-time
+//! analogue), classical RK4, and adaptive Dormand-Prince 5(4). Total internal
 //! reflection needs no special case: the ray turns inside the smoothed
 //! interface because `v` keeps integrating `grad n`.
 
 use crate::geometry::GridGeometry;
+use eikon_shader::{Consts, Module};
 use glam::DVec3;
 
 /// A refractive-index field that can be sampled anywhere.
@@ -30,16 +31,17 @@ pub trait IndexField: Sync {
 /// Which parameterization of the ray equation to integrate.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Form {
-    /// Eqs 9-10: the step is a fixed distance (world units).
+    /// [Ihrke07 eqs 9-10]: the step is a fixed distance (world units).
     EqualDistance,
-    /// Eqs 14-15: the step is a fixed optical path (world units times n).
+    /// [Ihrke07 eqs 14-15]: the step is a fixed optical path (world units times
+    /// n).
     EqualTime,
 }
 
 /// Numerical integration scheme.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Method {
-    /// Forward Euler, first order (eqs 11-12).
+pub enum Integrator {
+    /// Forward Euler, first order [Ihrke07 eqs 11-12].
     Euler,
     /// Classical Runge-Kutta, fourth order.
     Rk4,
@@ -47,6 +49,27 @@ pub enum Method {
     /// the largest step it may take.
     DormandPrince,
 }
+
+fn ray_declarations() -> String {
+    Consts::new()
+        .u32("FORM_EQUAL_DISTANCE", Form::EqualDistance as u32)
+        .u32("FORM_EQUAL_TIME", Form::EqualTime as u32)
+        .u32("INTEGRATOR_EULER", Integrator::Euler as u32)
+        .u32("INTEGRATOR_RK4", Integrator::Rk4 as u32)
+        .wgsl()
+        .to_string()
+}
+
+/// The WGSL of the ray equation: its right-hand side in both forms, the
+/// Euler and RK4 increments and the step on the eikonal shell, over the
+/// index field a kernel provides (the hook `index_field`). Dormand-Prince
+/// has no GPU form: kernels take RK4 for it.
+pub static WGSL: Module = Module {
+    name: "ray",
+    requires: &[],
+    declarations: ray_declarations,
+    text: include_str!("ray.wgsl"),
+};
 
 /// Position, eikonal gradient `v` (|v| = n) and optical path so far.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -75,7 +98,7 @@ impl RayState {
     }
 }
 
-/// Derivative of the state, the right-hand side of eqs 9-10 or 14-15.
+/// Derivative of the state, the right-hand side of [Ihrke07 eqs 9-10 or 14-15].
 #[derive(Clone, Copy)]
 struct Deriv {
     x: DVec3,
@@ -94,13 +117,14 @@ fn deriv<F: IndexField + ?Sized>(f: &F, form: Form, x: DVec3, v: DVec3) -> Deriv
 fn rhs(form: Form, n: f64, g: DVec3, v: DVec3) -> Deriv {
     let inv = 1.0 / n;
     match form {
-        // eq 9, eq 10; dL/ds = n by definition of optical path.
+        // [Ihrke07 eqs 9, 10]; dL/ds = n by definition of optical path.
         Form::EqualDistance => Deriv {
             x: v * inv,
             v: g,
             opl: n,
         },
-        // eq 14, eq 15; t is optical path itself (Appendix, eq 24: ds/dt = 1/n).
+        // [Ihrke07 eqs 14, 15]; t is optical path itself ([Ihrke07 eq 24] in
+        // the appendix: ds/dt = 1/n).
         Form::EqualTime => Deriv {
             x: v * (inv * inv),
             v: g * inv,
@@ -126,14 +150,24 @@ fn apply(s: &RayState, d: &Deriv, h: f64) -> RayState {
     }
 }
 
-/// One forward-Euler step of size `h` (eqs 11-12 in the equal-distance form).
-/// Always inlined: since `deriv` was split in two the compiler kept it out
-/// of line, which cost a call per step (+15% instructions per Euler step,
-/// docs/PERFORMANCE.md, "Ray steps per second").
+/// One forward-Euler step of size `h` ([Ihrke07 eqs 11-12] in the
+/// equal-distance form). Always inlined: since `deriv` was split in two the
+/// compiler kept it out of line, which cost a call per step (+15% instructions
+/// per Euler step, docs/PERFORMANCE.md, "Ray steps per second").
 #[inline(always)]
 pub fn step_euler<F: IndexField + ?Sized>(f: &F, form: Form, s: &mut RayState, h: f64) {
     let k = deriv(f, form, s.x, s.v);
     *s = apply(s, &k, h);
+}
+
+/// One forward-Euler step of size `h` in the equal-distance form
+/// [Ihrke07 eqs 11-12] from the index sample `(n, grad)` already taken at
+/// `s.x` (the eye rays', which gather [Ihrke07 eq 1] from that sample first).
+#[inline(always)]
+pub fn step_euler_sampled(s: &mut RayState, (n, grad): (f64, DVec3), h: f64) {
+    s.x += s.v * (h / n);
+    s.v += grad * h;
+    s.opl += n * h;
 }
 
 /// One classical RK4 step of size `h`.
@@ -164,7 +198,7 @@ fn onto_shell(s: &mut RayState, n: f64) {
 /// One RK4 step that starts by putting the state on the eikonal shell
 /// `|v| = n`, reusing the index sample of its first stage (no extra cost).
 /// Particles of one wavefront stepped with it in the equal-time form
-/// (eqs 14-15) all travel exactly `h` of optical path per step.
+/// [Ihrke07 eqs 14-15] all travel exactly `h` of optical path per step.
 #[inline]
 pub fn step_rk4_on_shell<F: IndexField + ?Sized>(f: &F, form: Form, s: &mut RayState, h: f64) {
     let (n, g) = f.sample(s.x);
@@ -347,7 +381,7 @@ pub struct TraceOptions {
     /// Parameterization.
     pub form: Form,
     /// Integrator.
-    pub method: Method,
+    pub integrator: Integrator,
     /// Step in world units (distance for equal distance, optical path for
     /// equal time); the largest step for Dormand-Prince.
     pub step: f64,
@@ -364,11 +398,16 @@ impl TraceOptions {
     /// Options with the step given in voxels of `grid` (its smallest cell
     /// edge), a Dormand-Prince tolerance of 1e-4 voxel, a guard of a
     /// million steps and no path recording.
-    pub fn in_voxels(grid: &GridGeometry, form: Form, method: Method, step_voxels: f64) -> Self {
+    pub fn in_voxels(
+        grid: &GridGeometry,
+        form: Form,
+        integrator: Integrator,
+        step_voxels: f64,
+    ) -> Self {
         let h = grid.voxel_size();
         Self {
             form,
-            method,
+            integrator,
             step: step_voxels * h,
             tolerance: 1e-4 * h,
             max_steps: 1_000_000,
@@ -463,16 +502,16 @@ impl March {
         let prev = self.s;
         let end = &mut self.end;
         let s = &mut self.s;
-        let h_used = match opts.method {
-            Method::Euler => {
+        let h_used = match opts.integrator {
+            Integrator::Euler => {
                 step_euler(field, opts.form, s, self.h);
                 self.h
             }
-            Method::Rk4 => {
+            Integrator::Rk4 => {
                 step_rk4(field, opts.form, s, self.h);
                 self.h
             }
-            Method::DormandPrince => {
+            Integrator::DormandPrince => {
                 let tol_v = opts.tolerance / opts.step;
                 let r = step_dopri(
                     field,
@@ -707,7 +746,7 @@ pub fn trace_many<F: IndexField + ?Sized>(
     }
     let mut finished = [false; LANES];
     loop {
-        if opts.method == Method::Rk4 {
+        if opts.integrator == Integrator::Rk4 {
             rk4_lockstep(field, grid, opts, &mut lanes, &mut finished);
         } else {
             for (lane, done) in lanes.iter_mut().zip(finished.iter_mut()) {
@@ -745,10 +784,10 @@ mod tests {
         }
     }
 
-    fn opts(method: Method) -> TraceOptions {
+    fn opts(integrator: Integrator) -> TraceOptions {
         TraceOptions {
             form: Form::EqualDistance,
-            method,
+            integrator,
             step: 0.01,
             tolerance: 1e-9,
             max_steps: 100_000,
@@ -764,10 +803,10 @@ mod tests {
             &g,
             DVec3::new(-1.0, 2.0, 0.5),
             DVec3::X,
-            &opts(Method::Rk4),
+            &opts(Integrator::Rk4),
         );
         assert_eq!(r.status, Status::Missed);
-        let mut o = opts(Method::Euler);
+        let mut o = opts(Integrator::Euler);
         o.max_steps = 10;
         let r = trace(&Uniform(1.0), &g, DVec3::splat(0.5), DVec3::X, &o);
         assert_eq!(r.status, Status::MaxSteps);
@@ -800,10 +839,14 @@ mod tests {
                 (o, DVec3::new(1.0, 0.1 * (y - 0.5), 0.05))
             })
             .collect();
-        for m in [Method::Euler, Method::Rk4, Method::DormandPrince] {
+        for m in [
+            Integrator::Euler,
+            Integrator::Rk4,
+            Integrator::DormandPrince,
+        ] {
             let mut o = opts(m);
             o.tolerance = 1e-6;
-            o.max_steps = if m == Method::Euler { 50 } else { 100_000 };
+            o.max_steps = if m == Integrator::Euler { 50 } else { 100_000 };
             let batch = trace_many(&Bump, &g, &rays, &o);
             for (r, b) in rays.iter().zip(&batch) {
                 let single = trace(&Bump, &g, r.0, r.1, &o);
@@ -819,7 +862,11 @@ mod tests {
     #[test]
     fn exit_point_and_optical_path_in_uniform_glass() {
         let g = GridGeometry::new([8, 8, 8], DVec3::ZERO, DVec3::ONE);
-        for m in [Method::Euler, Method::Rk4, Method::DormandPrince] {
+        for m in [
+            Integrator::Euler,
+            Integrator::Rk4,
+            Integrator::DormandPrince,
+        ] {
             for form in [Form::EqualDistance, Form::EqualTime] {
                 let mut o = opts(m);
                 o.form = form;

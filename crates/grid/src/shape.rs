@@ -6,7 +6,7 @@
 //! voxelizer uses that bound to find the cells a surface may cross, and only
 //! those cells are supersampled.
 
-use crate::mesh::MeshSolid;
+use crate::mesh_solid::MeshSolid;
 use crate::vdb::VdbSolid;
 use glam::{DMat3, DVec2, DVec3};
 use std::sync::Arc;

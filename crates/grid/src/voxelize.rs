@@ -7,7 +7,7 @@
 //! object containing it (Schmidt & Budge) and the cell stores the mean of the
 //! sub-samples' properties, plus the fraction covered by every material.
 
-use crate::field::Progress;
+use crate::field::BuildProgress;
 use crate::geometry::GridGeometry;
 use crate::object::Material;
 use crate::scene::Scene;
@@ -58,7 +58,7 @@ fn accumulate(cell: &mut [f32], m: &Material, p: DVec3, channels: usize, w: f32,
 
 /// Rasterize `scene` on `geom` (which may extend past the scene's own grid
 /// to make room for a smoothing halo).
-pub(crate) fn rasterize(scene: &Scene, geom: &GridGeometry, progress: Progress) -> Raster {
+pub(crate) fn rasterize(scene: &Scene, geom: &GridGeometry, progress: BuildProgress) -> Raster {
     let channels = scene.channels();
     let nobj = scene.objects.len();
     let stride = stride(channels, nobj);

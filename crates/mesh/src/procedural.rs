@@ -228,7 +228,7 @@ pub struct Bump {
     pub weight: f64,
 }
 
-/// The papers' hardest case (Walter et al. 2009, Fig. 7): a star-shaped
+/// The papers' hardest case ([Walter09 fig 7]): a star-shaped
 /// solid whose radius in unit direction `u` is
 /// `radius * (1 + amplitude * sum_k weight_k sin(frequency_k (u . d_k) + phase_k))`.
 ///
@@ -242,25 +242,6 @@ pub struct BumpySphere {
     radius: f64,
     amplitude: f64,
     bumps: Vec<Bump>,
-}
-
-/// SplitMix64: a tiny, well-mixed generator, so a seed gives the same bumps
-/// on every platform without a dependency.
-struct SplitMix(u64);
-
-impl SplitMix {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [0, 1).
-    fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
-    }
 }
 
 impl BumpySphere {
@@ -283,7 +264,8 @@ impl BumpySphere {
                 format!("bump count must lie in 1..=64, not {bumps}"),
             ));
         }
-        let mut rng = SplitMix(seed);
+        // SplitMix64: a seed gives the same bumps on every platform.
+        let mut rng = eikon_rng::SplitMix64::new(seed);
         let mut list: Vec<Bump> = (0..bumps)
             .map(|_| {
                 // Uniform on the sphere: z uniform, azimuth uniform.

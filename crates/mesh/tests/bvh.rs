@@ -4,28 +4,12 @@ use eikon_mesh::bvh::closest_hit_brute_force;
 use eikon_mesh::{icosphere, revolution, BumpySphere, Bvh, Mesh, Ray};
 use glam::{DVec2, DVec3};
 
-/// SplitMix64, for reproducible rays without a dependency.
-struct Rng(u64);
+// SplitMix64, for reproducible rays.
+use eikon_rng::SplitMix64 as Rng;
 
-impl Rng {
-    fn unit(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    fn in_box(&mut self, lo: DVec3, hi: DVec3) -> DVec3 {
-        lo + (hi - lo) * DVec3::new(self.unit(), self.unit(), self.unit())
-    }
-
-    fn direction(&mut self) -> DVec3 {
-        let z = 2.0 * self.unit() - 1.0;
-        let phi = 2.0 * std::f64::consts::PI * self.unit();
-        let s = (1.0 - z * z).sqrt();
-        DVec3::new(s * phi.cos(), s * phi.sin(), z)
-    }
+/// A uniform point of the box `[lo, hi]`.
+fn in_box(rng: &mut Rng, lo: DVec3, hi: DVec3) -> DVec3 {
+    lo + (hi - lo) * DVec3::new(rng.unit(), rng.unit(), rng.unit())
 }
 
 fn wine_glass() -> Mesh {
@@ -62,7 +46,7 @@ fn closest_hits_equal_brute_force() {
         .mesh(22)
         .unwrap();
     let meshes = [bumpy, wine_glass(), icosphere(0.5, 3).unwrap()];
-    let mut rng = Rng(2024);
+    let mut rng = Rng::new(2024);
     for mesh in &meshes {
         let bvh = Bvh::new(mesh);
         assert_eq!(bvh.triangle_count(), mesh.triangle_count());
@@ -72,9 +56,9 @@ fn closest_hits_equal_brute_force() {
         let (mut hits, mut total) = (0, 0);
         for i in 0..10_000 {
             let origin = if i % 3 == 0 {
-                rng.in_box(lo, hi)
+                in_box(&mut rng, lo, hi)
             } else {
-                rng.in_box(lo - pad, hi + pad)
+                in_box(&mut rng, lo - pad, hi + pad)
             };
             // Aim two rays in three at a point of the box so most hit.
             // Every eleventh ray runs along an axis: its slab tests meet
@@ -87,9 +71,9 @@ fn closest_hits_equal_brute_force() {
                     -axis
                 }
             } else if i % 3 == 1 {
-                rng.in_box(lo, hi) - origin
+                in_box(&mut rng, lo, hi) - origin
             } else {
-                rng.direction()
+                DVec3::from(rng.direction())
             };
             let mut ray = Ray::new(origin, direction);
             if i % 7 == 0 {
@@ -134,11 +118,11 @@ fn rays_from_inside_always_hit() {
     let b = BumpySphere::new(1.0, 0.2, 6, 5).unwrap();
     let mesh = b.mesh(22).unwrap();
     let bvh = Bvh::new(&mesh);
-    let mut rng = Rng(7);
+    let mut rng = Rng::new(7);
     let mut tested = 0;
     for i in 0..5_000 {
         // An interior point (the solid is star-shaped about the origin).
-        let u = rng.direction();
+        let u = DVec3::from(rng.direction());
         let origin = u * b.radius_at(u) * 0.7 * rng.unit();
         let target = if i % 2 == 0 {
             mesh.positions()[i % mesh.vertex_count()]
@@ -160,12 +144,12 @@ fn rays_from_inside_always_hit() {
 fn hits_alternate_between_entering_and_leaving() {
     let mesh = wine_glass();
     let bvh = Bvh::new(&mesh);
-    let mut rng = Rng(99);
+    let mut rng = Rng::new(99);
     let (lo, hi) = mesh.bounds();
     for _ in 0..500 {
-        let origin = rng.in_box(lo - DVec3::ONE, hi + DVec3::ONE);
+        let origin = in_box(&mut rng, lo - DVec3::ONE, hi + DVec3::ONE);
         let origin = DVec3::new(origin.x, origin.y, hi.z + 1.0);
-        let target = rng.in_box(lo, hi);
+        let target = in_box(&mut rng, lo, hi);
         let mut ray = Ray::new(origin, target - origin);
         let mut expect_entering = true;
         let mut count = 0;

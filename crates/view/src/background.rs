@@ -1,6 +1,6 @@
-//! What a ray sees once it leaves the volume: `L_bg` of eq 1, and the
+//! What a ray sees once it leaves the volume: `L_bg` of [Ihrke07 eq 1], and the
 //! diffuse receiver plane (the table a caustic falls on, the paper's
-//! Fig. 7, where it replaces the environment lookup by a ray-plane
+//! [Ihrke07 fig 7], where it replaces the environment lookup by a ray-plane
 //! intersection).
 //!
 //! The receiver is lit by the light volumes where it lies inside the
@@ -9,10 +9,12 @@
 //! light `j` interpolated at the hit point ([`eikon_wavefront::volume`]),
 //! and `n` the plane normal on the eye's side. Outside the grid nothing refracts or shadows, so it is lit by the
 //! lights directly: a directional light's irradiance, or a point or spot
-//! light's `P / (4 pi r^2)` (times the cone weight for a spot).
+//! light's `P / (4 pi r^2)` (times the cone weight for a spot). An
+//! image-space method may instead scale each light's direct irradiance by
+//! its own shadow and caustic maps ([`Surroundings::with_light_factor`]).
 
-use crate::environment::{Environment, EnvironmentError, LatLongMap};
 use eikon_grid::{Background, GridGeometry, Light, Receiver, Scene, Trilinear};
+use eikon_optics::environment::{Environment, EnvironmentError, LatLongMap};
 use eikon_wavefront::volume::mean_cosine;
 use eikon_wavefront::LightVolume;
 use glam::DVec3;
@@ -27,7 +29,14 @@ pub struct Surroundings<'a> {
     pub(crate) lights: &'a [Light],
     pub(crate) volumes: &'a [LightVolume],
     pub(crate) grid: &'a GridGeometry,
+    pub(crate) light_factor: Option<LightFactor<'a>>,
 }
+
+/// How much of light `j`'s unobstructed irradiance reaches receiver point
+/// `x`, per channel: `light_factor(j, x)`. An image-space method supplies
+/// it from its shadow and caustic maps (eikon-wyman) in place of light
+/// volumes.
+pub type LightFactor<'a> = &'a (dyn Fn(usize, DVec3) -> DVec3 + Sync);
 
 /// An emitting checkerboard plane.
 #[derive(Clone, Copy, Debug)]
@@ -43,7 +52,7 @@ pub(crate) struct Checker {
 /// A unit vector orthogonal to the unit `n` (a fixed, documented choice:
 /// from the world axis least aligned with `n`), so that checker squares
 /// line up with the world axes where they can.
-fn tangent(n: DVec3) -> DVec3 {
+pub fn tangent(n: DVec3) -> DVec3 {
     let a = n.abs();
     let axis = if a.x <= a.y && a.x <= a.z {
         DVec3::X
@@ -110,7 +119,16 @@ impl<'a> Surroundings<'a> {
             lights: &scene.lights,
             volumes,
             grid,
+            light_factor: None,
         }
+    }
+
+    /// The same surroundings with the receiver lit by each light's direct
+    /// irradiance times `factor(j, x)` (shadowed, focused), everywhere,
+    /// instead of by light volumes inside the grid.
+    pub fn with_light_factor(mut self, factor: LightFactor<'a>) -> Self {
+        self.light_factor = Some(factor);
+        self
     }
 
     /// Where a ray from `o` along the unit `d` meets the receiver, if it
@@ -136,7 +154,11 @@ impl<'a> Surroundings<'a> {
             -r.normal
         };
         let mut e = DVec3::ZERO;
-        if self.grid.contains(x) && !self.volumes.is_empty() {
+        if let Some(factor) = self.light_factor {
+            for (j, light) in self.lights.iter().enumerate() {
+                e += direct(light, x, n) * factor(j, x);
+            }
+        } else if self.grid.contains(x) && !self.volumes.is_empty() {
             let t = self.grid.trilinear(x);
             for v in self.volumes {
                 if let Some(light) = LightSample::at(v, &t, channel) {
@@ -220,7 +242,7 @@ fn direct(light: &Light, x: DVec3, n: DVec3) -> DVec3 {
             power,
         } => {
             let to = (x - *position).normalize_or_zero();
-            let w = eikon_wavefront::light::cone_weight(to, Some((*direction, *angle, *falloff)));
+            let w = eikon_optics::spot::cone_weight(to, Some((*direction, *angle, *falloff)));
             point_irradiance(*position, *power, x, n, w)
         }
     }

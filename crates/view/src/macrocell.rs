@@ -1,21 +1,20 @@
 //! Empty-space skipping for eye rays: a coarse grid of macro-cells
-//! (blocks of `BLOCK^3` voxels) that marks where the medium is uniform for
-//! the image formation model. In such a block, out to one voxel beyond it,
-//! the index is one constant with zero gradient, nothing scatters or
-//! emits, no boundary reflects, and the extinction is one constant per
-//! channel. Any trilinear sample taken inside the block sees exactly
-//! those values, so an eye ray crosses it in one straight step and eq 5's
-//! attenuation over that step is exactly `exp(-sigma_t length)`.
+//! (blocks of `BLOCK^3` voxels, [`BlockGrid`]) that marks where the
+//! medium is uniform for the image formation model. In such a block, out
+//! to one voxel beyond it, the index is one constant with zero gradient,
+//! nothing scatters or emits, no boundary reflects, and the extinction is
+//! one constant per channel. Any trilinear sample taken inside the block
+//! sees exactly those values, so an eye ray crosses it in one straight
+//! step and [Ihrke07 eq 5]'s attenuation over that step is exactly
+//! `exp(-sigma_t length)`.
 //!
 //! Clear air is the common case; the homogeneous interior of a glass
 //! object (absorbing, not scattering) is the other.
 
+use eikon_grid::blocks::{BlockGrid, BLOCK};
 use eikon_grid::Medium;
 use glam::DVec3;
 use rayon::prelude::*;
-
-/// Edge of a macro-cell, voxels.
-pub const BLOCK: usize = 4;
 
 /// What a ray needs to cross a uniform block.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -33,12 +32,13 @@ const CLEAR_CAP: u8 = 16;
 /// clear-distance field for the non-uniform blocks.
 #[derive(Clone, Debug)]
 pub struct MacroCells {
-    pub(crate) dims: [usize; 3],
+    /// The blocks.
+    pub(crate) blocks: BlockGrid,
+    /// The grid's lower corner, the voxel grid size, and per voxel the
+    /// Chebyshev distance (in voxels, capped) to the nearest voxel that is
+    /// not clear: within it the medium is one uniform constant (see
+    /// [`MacroCells::clear_step`]).
     min: DVec3,
-    inv_block: DVec3,
-    /// Voxel grid size, and per voxel the Chebyshev distance (in voxels,
-    /// capped) to the nearest voxel that is not clear: within it the medium
-    /// is one uniform constant (see [`MacroCells::clear_step`]).
     voxel_dims: [usize; 3],
     inv_spacing: DVec3,
     voxel: f64,
@@ -52,9 +52,9 @@ impl MacroCells {
     /// The macro-cells of index channel `channel` of `medium`.
     pub fn new(medium: &Medium, channel: usize) -> Self {
         let g = &medium.geometry;
-        let dims = g.dims.map(|d| d.div_ceil(BLOCK));
+        let blocks = BlockGrid::new(g);
         let idx = &medium.index[channel];
-        let mut cells = vec![[f32::NAN; 4]; dims[0] * dims[1] * dims[2]];
+        let mut cells = vec![[f32::NAN; 4]; blocks.len()];
         // Rounding leaves the smoothed index of a homogeneous interior a
         // few ulps off its value, and the smoothing's tails leave gradients
         // and boundary values a few voxels from a surface. Below `tiny`
@@ -62,43 +62,29 @@ impl MacroCells {
         // under 1e-4 of one interface crossing: nothing a pixel shows.
         let tiny = (1e-4 / (BLOCK as f64 * g.voxel_size())) as f32;
         cells.par_iter_mut().enumerate().for_each(|(flat, out)| {
-            let (bi, bj, bk) = (
-                flat / (dims[1] * dims[2]),
-                (flat / dims[2]) % dims[1],
-                flat % dims[2],
-            );
-            let span = |b: usize, a: usize| {
-                (b * BLOCK).saturating_sub(1)..((b + 1) * BLOCK + 1).min(g.dims[a])
-            };
-            let (i0, j0, k0) = (bi * BLOCK, bj * BLOCK, bk * BLOCK);
+            let b = blocks.coords(flat);
+            let [i0, j0, k0] = blocks.first_voxel(b);
             let n0 = idx[[i0, j0, k0, 0]];
             let s0 = [0, 1, 2].map(|c| medium.extinction[[i0, j0, k0, c]]);
             let same = |a: f32, b: f32| (a - b).abs() <= 4.0 * f32::EPSILON * b.abs();
-            for i in span(bi, 0) {
-                for j in span(bj, 1) {
-                    for k in span(bk, 2) {
-                        let uniform = same(idx[[i, j, k, 0]], n0)
-                            && (1..4).all(|c| idx[[i, j, k, c]].abs() <= tiny)
-                            && medium.boundary[[i, j, k]] <= tiny
-                            && (0..3).all(|c| {
-                                same(medium.extinction[[i, j, k, c]], s0[c])
-                                    && medium.emission[[i, j, k, c]] == 0.0
-                                    && medium.extinction[[i, j, k, c]] * medium.albedo[[i, j, k, c]]
-                                        == 0.0
-                            });
-                        if !uniform {
-                            return;
-                        }
-                    }
-                }
+            let uniform = |i: usize, j: usize, k: usize| {
+                same(idx[[i, j, k, 0]], n0)
+                    && (1..4).all(|c| idx[[i, j, k, c]].abs() <= tiny)
+                    && medium.boundary[[i, j, k]] <= tiny
+                    && (0..3).all(|c| {
+                        same(medium.extinction[[i, j, k, c]], s0[c])
+                            && medium.emission[[i, j, k, c]] == 0.0
+                            && medium.extinction[[i, j, k, c]] * medium.albedo[[i, j, k, c]] == 0.0
+                    })
+            };
+            if blocks.all_around(b, uniform) {
+                *out = [n0, s0[0], s0[1], s0[2]];
             }
-            *out = [n0, s0[0], s0[1], s0[2]];
         });
         Self {
-            dims,
-            min: g.min,
-            inv_block: 1.0 / (g.spacing() * BLOCK as f64),
+            blocks,
             cells,
+            min: g.min,
             voxel_dims: g.dims,
             inv_spacing: 1.0 / g.spacing(),
             voxel: g.voxel_size(),
@@ -130,20 +116,13 @@ impl MacroCells {
     /// along the unit `d` from `p` to where the line leaves the block.
     #[inline]
     pub fn crossing(&self, p: DVec3, d: DVec3) -> Option<(Uniform, f64)> {
-        let u = (p - self.min) * self.inv_block;
-        if !(u.x >= 0.0 && u.y >= 0.0 && u.z >= 0.0) {
-            return None;
-        }
-        let (i, j, k) = (u.x as usize, u.y as usize, u.z as usize);
-        if i >= self.dims[0] || j >= self.dims[1] || k >= self.dims[2] {
-            return None;
-        }
-        let c = self.cells[(i * self.dims[1] + j) * self.dims[2] + k];
+        let ([i, j, k], u) = self.blocks.locate(p)?;
+        let c = self.cells[self.blocks.flat([i, j, k])];
         if c[0].is_nan() {
             return None;
         }
         let cell = DVec3::new(i as f64, j as f64, k as f64);
-        let du = d * self.inv_block;
+        let du = d * self.blocks.inv_edge();
         let mut t = f64::INFINITY;
         for a in 0..3 {
             if du[a] > 0.0 {

@@ -3,9 +3,9 @@
 //! step needs (as a GPU would read one RGBA texture):
 //!
 //! * `[sigma_t r, g, b, delta]`: extinction per world unit and the
-//!   boundary indicator (eqs 2, 5);
+//!   boundary indicator [Ihrke07 eqs 2, 5];
 //! * `[sigma_s r, g, b, g]`: scattering `albedo * sigma_t` and the
-//!   Henyey-Greenstein asymmetry (eqs 2, 6);
+//!   Henyey-Greenstein asymmetry [Ihrke07 eqs 2, 6];
 //! * `[L_e r, g, b, 0]`: emitted radiance per unit length, stored only
 //!   when the medium emits anywhere;
 //! * per index channel, `[n_lo, n_hi]`: the interface sides

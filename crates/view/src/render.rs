@@ -1,25 +1,26 @@
-//! The view renderer (paper 5.3): curved eye rays through the volume,
-//! radiance by the simplified image formation model (eqs 1-7).
+//! The view renderer [Ihrke07 sec 5.3]: curved eye rays through the volume,
+//! radiance by the simplified image formation model [Ihrke07 eqs 1-7].
 //!
 //! Each eye ray enters the volume bounds and is marched with the
-//! equal-distance ray equation (eqs 9-10; Euler's eqs 11-12 by default,
-//! RK4 as an option). Over each step of length `ds` the medium is taken as
-//! constant at the step's start, and eq 1 is integrated exactly for that
-//! piece:
+//! equal-distance ray equation ([Ihrke07 eqs 9-10]; Euler's [Ihrke07 eqs 11-12]
+//! by default, RK4 as an option). Over each step of length `ds` the medium is
+//! taken as constant at the step's start, and [Ihrke07 eq 1] is integrated
+//! exactly for that piece:
 //!
 //! * the source `S = albedo sigma_t sum_j p(l_j . -d, g mu_j) phi_j + L_e`
-//!   (eqs 2, 3, 6): in-scatter from every light volume `j` (fluence rate
-//!   `phi_j`, net flux direction `l_j` and mean cosine `mu_j`, see
+//!   [Ihrke07 eqs 2, 3, 6]: in-scatter from every light volume `j` (fluence
+//!   rate `phi_j`, net flux direction `l_j` and mean cosine `mu_j`, see
 //!   [`eikon_wavefront::volume`]) through the Henyey-Greenstein phase, plus
 //!   emission; it adds `alpha S (1 - exp(-sigma_t ds)) / sigma_t`;
-//! * the attenuation `alpha` (eq 5) is multiplied by `exp(-sigma_t ds)`;
-//! * at a boundary (the indicator `delta`, eq 2) a fraction
+//! * the attenuation `alpha` [Ihrke07 eq 5] is multiplied by
+//!   `exp(-sigma_t ds)`;
+//! * at a boundary (the indicator `delta`, [Ihrke07 eq 2]) a fraction
 //!   `w = delta ds |cos i|` of one crossing is taken in this step (over a
 //!   whole crossing `w` sums to 1): it adds `alpha w rho L_r`, with
 //!   `rho` the Fresnel reflectance between the index on either side of the
 //!   interface and `L_r` the surroundings seen in the mirror direction
 //!   (the paper's environment mapping), and multiplies `alpha` by
-//!   `(1 - rho)^w`, the Fresnel transmission `tau` of eq 5's `T(t)`.
+//!   `(1 - rho)^w`, the Fresnel transmission `tau` of [Ihrke07 eq 5]'s `T(t)`.
 //!   Refraction and total internal reflection need no such term: the
 //!   ray equation bends the ray through the smoothed interface itself, so
 //!   where the interface reflects totally `rho` is taken as 0.
@@ -38,14 +39,12 @@
 //! is known to extend around it.
 
 use crate::background::{LightSample, Surroundings};
-use crate::camera::Camera;
-use crate::fresnel;
-use crate::image::Image;
 use crate::macrocell::MacroCells;
-use crate::phase::hg;
 use crate::properties::Properties;
-use eikon_grid::ray::step_rk4;
-use eikon_grid::{CameraSettings, Form, IndexField, Medium, Method, RayState, Scene};
+use eikon_grid::ray::{step_euler_sampled, step_rk4};
+use eikon_grid::{CameraSettings, Form, IndexField, Integrator, Medium, Progress, RayState, Scene};
+use eikon_optics::phase::hg;
+use eikon_optics::{fresnel, Camera, CameraError, Image};
 use eikon_wavefront::LightVolume;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -56,8 +55,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 pub struct Options {
     /// Step length, voxels.
     pub step: f64,
-    /// Integrator: Euler (eqs 11-12) or RK4.
-    pub method: Method,
+    /// Integrator: Euler [Ihrke07 eqs 11-12] or RK4.
+    pub integrator: Integrator,
     /// Cross empty blocks in one straight step.
     pub skip_empty: bool,
     /// Seed of the pixel sample jitter.
@@ -71,7 +70,7 @@ impl Default for Options {
     fn default() -> Self {
         Self {
             step: 0.5,
-            method: Method::Euler,
+            integrator: Integrator::Euler,
             skip_empty: true,
             seed: 0,
             min_transmittance: 1e-5,
@@ -101,8 +100,24 @@ pub fn camera_settings(scene: &Scene) -> CameraSettings {
     }
 }
 
-/// Render progress: `(tiles done, tiles in all)`.
-pub type Progress<'a> = &'a (dyn Fn(usize, usize) + Sync);
+/// The camera that `settings` describe: a scene's `[camera]` or the
+/// default of [`camera_settings`], with whatever the caller changed.
+///
+/// # Errors
+///
+/// As [`Camera::new`].
+pub fn camera(settings: &CameraSettings) -> Result<Camera, CameraError> {
+    let c = settings;
+    Camera::new(
+        c.position,
+        c.target,
+        c.up,
+        c.fov,
+        c.resolution[0],
+        c.resolution[1],
+        c.samples,
+    )
+}
 
 /// Mirror directions closer than this cosine (a quarter degree) share one
 /// lookup of the surroundings.
@@ -190,7 +205,8 @@ impl<'a> Renderer<'a> {
 
     /// Render the frame over tiles in parallel. The result does not depend
     /// on the number of threads: every pixel is computed on its own, its
-    /// samples summed in order.
+    /// samples summed in order. `progress` hears `(tiles done, tiles in
+    /// all)`.
     pub fn render(&self, progress: Progress) -> (Image, Stats) {
         let (w, h) = (self.camera.width(), self.camera.height());
         let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
@@ -360,14 +376,8 @@ impl<'a> Renderer<'a> {
             let x0 = walk.ray.x;
             let (n, grad) = field.sample(x0);
             self.gather(x0, (n, grad), dir, step, ch, &mut walk);
-            match self.opts.method {
-                Method::Euler => {
-                    // Eqs 11-12 with the sample already taken.
-                    let r = &mut walk.ray;
-                    r.x += r.v * (step / n);
-                    r.v += grad * step;
-                    r.opl += n * step;
-                }
+            match self.opts.integrator {
+                Integrator::Euler => step_euler_sampled(&mut walk.ray, (n, grad), step),
                 _ => step_rk4(&field, Form::EqualDistance, &mut walk.ray, step),
             }
             walk.stats.steps += 1;
@@ -389,8 +399,8 @@ impl<'a> Renderer<'a> {
         (walk.radiance, walk.stats)
     }
 
-    /// Eq 1 over one step of length `step` from `x` along the unit `d`:
-    /// in-scatter, emission, attenuation and Fresnel at boundaries (see
+    /// [Ihrke07 eq 1] over one step of length `step` from `x` along the unit
+    /// `d`: in-scatter, emission, attenuation and Fresnel at boundaries (see
     /// the module docs).
     #[allow(clippy::too_many_arguments)]
     fn gather(
@@ -411,7 +421,7 @@ impl<'a> Renderer<'a> {
                 let Some(light) = LightSample::at(v, &tri, ch) else {
                     continue;
                 };
-                // Eq 6 with the first angular moment of the light: HG
+                // [Ihrke07 eq 6] with the first angular moment of the light: HG
                 // about the net flux direction with g scaled by the mean
                 // cosine (exact for one ray family, mu = 1), between the
                 // light's direction of travel and the direction towards
@@ -421,8 +431,8 @@ impl<'a> Renderer<'a> {
                     * hg(light.direction.dot(-d), here.g * light.mean_cosine);
             }
         }
-        // The radiance law: L / n^2 is what a ray carries unchanged (the
-        // paper's eq 1 leaves it out), so radiance arising where the index
+        // The radiance law: L / n^2 is what a ray carries unchanged
+        // ([Ihrke07 eq 1] leaves it out), so radiance arising where the index
         // is n reaches an eye in index n_eye scaled by (n_eye / n)^2.
         // Without it matter in glass would look n^2 too bright.
         source *= (self.eye_index[ch] / n).powi(2);

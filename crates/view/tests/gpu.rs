@@ -1,45 +1,25 @@
-//! The GPU view renderer against the CPU one. These tests need a Vulkan,
-//! Metal or DX12 adapter: CI installs Mesa's lavapipe and sets `CI` and
-//! `WGPU_BACKEND=vulkan`, and there a missing adapter fails the test
-//! instead of skipping it.
+//! The GPU view renderer against the CPU one (the laws both obey are in
+//! `laws.rs`, one body each). These tests need a Vulkan, Metal or DX12
+//! adapter: without one they are reported as ignored; CI installs Mesa's
+//! lavapipe and sets `CI` and `WGPU_BACKEND=vulkan`, and there a missing
+//! adapter fails them.
 //!
 //! Images are compared by PSNR after the same tone curve on both
 //! ([`psnr`]). `cargo test --release -p eikon-view --test gpu --
 //! --nocapture` prints the measured numbers; those quoted in the doc
-//! comments were measured on lavapipe (llvmpipe, Vulkan).
+//! comments were measured on lavapipe (llvmpipe, Vulkan). `cargo bench -p
+//! eikon-view --bench gpu_frame` times the 800x600 glass sphere.
 
 use eikon_gpu::Gpu;
-use eikon_grid::{Medium, Method, Scene};
+use eikon_grid::Integrator;
+use eikon_optics::Image;
+use eikon_testkit::metrics::{count_difference, psnr};
+use eikon_testkit::scenes::{camera, lit};
+use eikon_testkit::Tests;
 use eikon_view::background::load_environment;
 use eikon_view::gpu::GpuRenderer;
-use eikon_view::image::log_average_luminance;
-use eikon_view::render::camera_settings;
-use eikon_view::{Camera, Image, Options, Renderer, Stats, Surroundings};
-use eikon_wavefront::{simulate_light, LightVolume};
-
-fn gpu() -> Option<Gpu> {
-    eikon_gpu::test_device()
-}
-
-/// Scene, medium and light volumes (simulated with default options).
-fn setup(text: &str) -> (Scene, Medium, Vec<LightVolume>) {
-    let scene = Scene::parse(text, "test").unwrap();
-    let medium = Medium::build(&scene).unwrap();
-    let volumes = scene
-        .lights
-        .iter()
-        .map(|l| {
-            simulate_light(l, &medium, &eikon_wavefront::Options::default(), &|_, _| {})
-                .unwrap()
-                .0
-        })
-        .collect();
-    (scene, medium, volumes)
-}
-
-fn camera(scene: &Scene) -> Camera {
-    Camera::from_settings(&camera_settings(scene)).unwrap()
-}
+use eikon_view::{Options, Renderer, Stats, Surroundings};
+use eikon_wavefront::LightVolume;
 
 /// The CPU and the GPU image of `text` with `opts`.
 fn both(gpu: &Gpu, text: &str, opts: Options) -> (Image, Image) {
@@ -49,7 +29,7 @@ fn both(gpu: &Gpu, text: &str, opts: Options) -> (Image, Image) {
 
 /// The CPU and the GPU image of `text` with `opts`, with their counters.
 fn both_with_stats(gpu: &Gpu, text: &str, opts: Options) -> ((Image, Stats), (Image, Stats)) {
-    let (scene, medium, volumes) = setup(text);
+    let (scene, medium, volumes) = lit(text);
     let env = load_environment(&scene.background).unwrap();
     let s = Surroundings::new(&scene, env, &volumes, &medium.geometry);
     let cam = camera(&scene);
@@ -57,11 +37,6 @@ fn both_with_stats(gpu: &Gpu, text: &str, opts: Options) -> ((Image, Stats), (Im
     let r = GpuRenderer::new(gpu, &medium, &volumes, &s, &cam, opts).unwrap();
     let g = r.render_with_stats().unwrap();
     (cpu, g)
-}
-
-/// Relative difference of two counts (0 when both are 0).
-fn rel(a: u64, b: u64) -> f64 {
-    a.abs_diff(b) as f64 / a.max(b).max(1) as f64
 }
 
 /// Largest relative difference between the CPU's and the GPU's counts of
@@ -73,48 +48,26 @@ fn rel(a: u64, b: u64) -> f64 {
 /// skips (two light volumes).
 const MAX_COUNT_DIFFERENCE: f64 = 0.02;
 
-/// PSNR (dB) of `b` against `a` after the same tone curve on both:
-/// exposure `k = 0.18 / ` the log-average luminance of `a`, then
-/// `y = kx / (1 + kx)` per channel (peak 1). Non-finite values count as
-/// the largest error.
-fn psnr(a: &Image, b: &Image) -> f64 {
-    let k = 0.18 / log_average_luminance(a).unwrap_or(1.0).max(1e-9);
-    let t = |x: f32| {
-        let y = k * x as f64;
-        y / (1.0 + y)
-    };
-    let mut se = 0.0;
-    for (p, q) in a.data.iter().zip(&b.data) {
-        for c in 0..3 {
-            let d = t(p[c]) - t(q[c]);
-            se += if d.is_finite() { d * d } else { 1.0 };
-        }
-    }
-    let mse = se / (3 * a.data.len()) as f64;
-    10.0 * (1.0 / mse.max(1e-30)).log10()
-}
-
-fn check(name: &str, text: &str, opts: Options, min_db: f64) {
-    let Some(gpu) = gpu() else { return };
-    let ((cpu, cs), (g, gs)) = both_with_stats(&gpu, text, opts);
+fn check(gpu: &Gpu, name: &str, text: &str, opts: Options, min_db: f64) {
+    let ((cpu, cs), (g, gs)) = both_with_stats(gpu, text, opts);
     println!(
         "{name}: ray steps CPU {} GPU {} ({:.3}%), empty-space skips CPU {} GPU {} ({:.3}%)",
         cs.steps,
         gs.steps,
-        100.0 * rel(cs.steps, gs.steps),
+        100.0 * count_difference(cs.steps, gs.steps),
         cs.skips,
         gs.skips,
-        100.0 * rel(cs.skips, gs.skips)
+        100.0 * count_difference(cs.skips, gs.skips)
     );
     assert!(cs.steps > 0, "{name}: the CPU took no ray steps");
     assert!(
-        rel(cs.steps, gs.steps) <= MAX_COUNT_DIFFERENCE,
+        count_difference(cs.steps, gs.steps) <= MAX_COUNT_DIFFERENCE,
         "{name}: ray steps CPU {} GPU {}",
         cs.steps,
         gs.steps
     );
     assert!(
-        rel(cs.skips, gs.skips) <= MAX_COUNT_DIFFERENCE,
+        count_difference(cs.skips, gs.skips) <= MAX_COUNT_DIFFERENCE,
         "{name}: empty-space skips CPU {} GPU {}",
         cs.skips,
         gs.skips
@@ -144,8 +97,7 @@ fn check(name: &str, text: &str, opts: Options, min_db: f64) {
 /// A glass sphere (n = 1.5, absorbing) above a receiver lit through a
 /// light volume, under the sky: refraction, Fresnel reflection of the sky
 /// and the receiver, the caustic. Measured: 94.9 dB.
-#[test]
-fn glass_sphere_over_a_receiver_matches_the_cpu() {
+fn glass_sphere_over_a_receiver_matches_the_cpu(gpu: &Gpu) {
     let text = r#"
 [grid]
 resolution = 48
@@ -178,14 +130,13 @@ samples = 2
 [background]
 type = "sky"
 "#;
-    check("glass sphere", text, Options::default(), 40.0);
+    check(gpu, "glass sphere", text, Options::default(), 40.0);
 }
 
 /// A checkerboard on the grid's far face, seen past a glass bead through a
 /// uniform medium, mostly by skips: a skip ends at the bounds, not past
 /// the board.
-#[test]
-fn a_board_on_the_grid_face_matches_the_cpu() {
+fn a_board_on_the_grid_face_matches_the_cpu(gpu: &Gpu) {
     let text = r#"
 [grid]
 resolution = [80, 16, 40]
@@ -212,14 +163,13 @@ normal = [-1.0, 0.0, 0.0]
 square = 0.1
 colors = [[0.9, 0.55, 0.12], [0.1, 0.18, 0.45]]
 "#;
-    check("board on the face", text, Options::default(), 40.0);
+    check(gpu, "board on the face", text, Options::default(), 40.0);
 }
 
 /// A dispersive sphere (n = 1.45, 1.5, 1.55): one ray per channel, each
 /// through its own index field, against a checkerboard. Measured: 47.6 dB
 /// (the f32 rays part from the f64 ones at a few silhouette pixels).
-#[test]
-fn a_dispersive_sphere_matches_the_cpu() {
+fn a_dispersive_sphere_matches_the_cpu(gpu: &Gpu) {
     let text = r#"
 [grid]
 resolution = 40
@@ -244,7 +194,7 @@ normal = [0, 0, 1]
 square = 0.3
 colors = [[1, 1, 1], [0.1, 0.1, 0.1]]
 "#;
-    check("dispersive sphere", text, Options::default(), 40.0);
+    check(gpu, "dispersive sphere", text, Options::default(), 40.0);
 }
 
 const SLAB: &str = r#"
@@ -276,16 +226,14 @@ color = [0.05, 0.05, 0.1]
 "#;
 
 /// A homogeneous scattering medium filling the grid, lit from above: single
-/// scattering through the HG phase (eqs 3-6). Measured: 140.4 dB.
-#[test]
-fn a_scattering_medium_matches_the_cpu() {
-    check("scattering medium", SLAB, Options::default(), 40.0);
+/// scattering through the HG phase [Ihrke07 eqs 3-6]. Measured: 140.4 dB.
+fn a_scattering_medium_matches_the_cpu(gpu: &Gpu) {
+    check(gpu, "scattering medium", SLAB, Options::default(), 40.0);
 }
 
 /// A Luneburg lens over a checkerboard, RK4 (a graded index: no Fresnel
 /// jump at its rim). Measured: 95.2 dB.
-#[test]
-fn a_luneburg_lens_matches_the_cpu() {
+fn a_luneburg_lens_matches_the_cpu(gpu: &Gpu) {
     let text = r#"
 [grid]
 resolution = 48
@@ -310,17 +258,16 @@ square = 0.4
 colors = [[1, 0, 0], [0, 0, 1]]
 "#;
     let opts = Options {
-        method: Method::Rk4,
+        integrator: Integrator::Rk4,
         step: 0.25,
         ..Options::default()
     };
-    check("luneburg lens", text, opts, 40.0);
+    check(gpu, "luneburg lens", text, opts, 40.0);
 }
 
 /// An emissive, absorbing and scattering sphere lit by a point light over
 /// a receiver, seen with 3 samples per pixel. Measured: 121.2 dB.
-#[test]
-fn an_emissive_volume_matches_the_cpu() {
+fn an_emissive_volume_matches_the_cpu(gpu: &Gpu) {
     let text = r#"
 [grid]
 resolution = 32
@@ -355,15 +302,20 @@ samples = 3
 type = "constant"
 color = [0.02, 0.02, 0.02]
 "#;
-    check("emissive volume", text, Options::default(), 40.0);
+    check(gpu, "emissive volume", text, Options::default(), 40.0);
 }
 
 /// Two lights (a directional and a spot light), so two light volumes and
 /// two passes, on a scattering sphere over a receiver that reaches out of
 /// the grid (lit directly there). Measured: 120.6 dB.
-#[test]
-fn two_light_volumes_match_the_cpu() {
-    check("two light volumes", TWO_LIGHTS, Options::default(), 40.0);
+fn two_light_volumes_match_the_cpu(gpu: &Gpu) {
+    check(
+        gpu,
+        "two light volumes",
+        TWO_LIGHTS,
+        Options::default(),
+        40.0,
+    );
 }
 
 /// The whole GPU pipeline against the whole CPU one on the scene of
@@ -375,11 +327,9 @@ fn two_light_volumes_match_the_cpu() {
 /// 80.5 to 82.0 dB; asserted 60 dB (the others' 40 dB is for scenes whose
 /// renders differ through refraction; here the volumes are in-scattered
 /// and lit on the receiver only).
-#[test]
-fn gpu_simulated_volumes_render_as_the_cpu_ones() {
-    let Some(gpu) = gpu() else { return };
-    let (scene, medium, cpu_volumes) = setup(TWO_LIGHTS);
-    let sim = eikon_wavefront::gpu::GpuSimulator::new(&gpu, &medium).unwrap();
+fn gpu_simulated_volumes_render_as_the_cpu_ones(gpu: &Gpu) {
+    let (scene, medium, cpu_volumes) = lit(TWO_LIGHTS);
+    let sim = eikon_wavefront::gpu::GpuSimulator::new(gpu, &medium).unwrap();
     let gpu_volumes: Vec<LightVolume> = scene
         .lights
         .iter()
@@ -395,7 +345,7 @@ fn gpu_simulated_volumes_render_as_the_cpu_ones() {
     let s = Surroundings::new(&scene, env.clone(), &cpu_volumes, &medium.geometry);
     let (cpu, _) = Renderer::new(&medium, &cpu_volumes, &s, &cam, opts).render(&|_, _| {});
     let s = Surroundings::new(&scene, env, &gpu_volumes, &medium.geometry);
-    let g = GpuRenderer::new(&gpu, &medium, &gpu_volumes, &s, &cam, opts)
+    let g = GpuRenderer::new(gpu, &medium, &gpu_volumes, &s, &cam, opts)
         .unwrap()
         .render()
         .unwrap();
@@ -446,157 +396,26 @@ type = "constant"
 color = [0.02, 0.02, 0.02]
 "#;
 
-/// An empty volume shows the environment: each pixel is the sky looked up
-/// along its ray, with and without empty-space skipping. Measured: worst
-/// relative difference 1.6e-4 (f32 lookups of the sun's steep lobe).
-#[test]
-fn an_empty_volume_shows_the_environment_on_the_gpu() {
-    let Some(gpu) = gpu() else { return };
-    let text = r#"
-[grid]
-resolution = 24
-min = [-1, -1, -1]
-max = [1, 1, 1]
-
-[camera]
-position = [0.3, 0.4, 3.0]
-target = [0, 0, 0]
-fov = 60
-resolution = [48, 36]
-
-[background]
-type = "sky"
-"#;
-    let (scene, medium, volumes) = setup(text);
-    let env = load_environment(&scene.background).unwrap();
-    let s = Surroundings::new(&scene, env.clone(), &volumes, &medium.geometry);
-    let cam = camera(&scene);
-    for skip in [true, false] {
-        let opts = Options {
-            skip_empty: skip,
-            seed: 7,
-            ..Options::default()
-        };
-        let img = GpuRenderer::new(&gpu, &medium, &volumes, &s, &cam, opts)
-            .unwrap()
-            .render()
-            .unwrap();
-        let mut worst: f64 = 0.0;
-        for y in 0..cam.height() {
-            for x in 0..cam.width() {
-                let (_, d) = cam.ray(x, y, 0, 7);
-                let want = env.lookup(d);
-                let got = img.pixel(x, y).unwrap();
-                for c in 0..3 {
-                    worst = worst.max((got[c] as f64 - want[c]).abs() / want[c].max(1e-3));
-                }
-            }
-        }
-        println!("GPU empty volume, skip {skip}: worst relative difference {worst:.2e}");
-        assert!(worst <= 1e-3, "{worst}");
-    }
-}
-
-/// A glass slab (n = 1.5) seen face on against a uniform board: the
-/// board's radiance times `(1 - R)^2`, as on the CPU (tests/render.rs).
-/// Measured: 0.92204 against 0.92160.
-#[test]
-fn normal_incidence_transmits_the_fresnel_fraction_on_the_gpu() {
-    let Some(gpu) = gpu() else { return };
-    let text = r#"
-[grid]
-resolution = 48
-min = [-1, -1, -1]
-max = [1, 1, 1]
-
-[[object]]
-shape = { type = "box", center = [0, 0, 0], size = [3, 3, 0.8] }
-index = 1.5
-
-[camera]
-position = [0, 0, 40]
-target = [0, 0, 0]
-fov = 0.5
-resolution = [5, 5]
-
-[background]
-type = "checker"
-point = [-50, -50, -3]
-normal = [0, 0, 1]
-square = 100
-colors = [[1, 1, 1], [1, 1, 1]]
-"#;
-    let (_, g) = both(&gpu, text, Options::default());
-    let r = ((1.0f64 - 1.5) / (1.0 + 1.5)).powi(2);
-    let want = (1.0 - r) * (1.0 - r);
-    let got = g.pixel(2, 2).unwrap()[1] as f64;
-    println!("GPU slab at normal incidence: transmitted {got:.5}, (1 - R)^2 = {want:.5}");
-    assert!((got - want).abs() < 1e-3, "{got} vs {want}");
-}
-
 /// The same inputs give bitwise the same image, frame after frame.
-#[test]
-fn repeated_gpu_renders_are_bitwise_equal() {
-    let Some(gpu) = gpu() else { return };
-    let (scene, medium, volumes) = setup(SLAB);
+fn repeated_gpu_renders_are_bitwise_equal(gpu: &Gpu) {
+    let (scene, medium, volumes) = lit(SLAB);
     let env = load_environment(&scene.background).unwrap();
     let s = Surroundings::new(&scene, env, &volumes, &medium.geometry);
     let cam = camera(&scene);
-    let r = GpuRenderer::new(&gpu, &medium, &volumes, &s, &cam, Options::default()).unwrap();
+    let r = GpuRenderer::new(gpu, &medium, &volumes, &s, &cam, Options::default()).unwrap();
     let a = r.render().unwrap();
     let b = r.render().unwrap();
-    let again = GpuRenderer::new(&gpu, &medium, &volumes, &s, &cam, Options::default()).unwrap();
+    let again = GpuRenderer::new(gpu, &medium, &volumes, &s, &cam, Options::default()).unwrap();
     let c = again.render().unwrap();
     let bits = |i: &Image| -> Vec<u32> { i.data.iter().flatten().map(|x| x.to_bits()).collect() };
     assert!(bits(&a) == bits(&b), "two frames differ");
     assert!(bits(&a) == bits(&c), "two renderers differ");
 }
 
-/// The 800x600 frame of `configs/glass-sphere.toml` (128^3, its light
-/// volume, 2 samples per pixel): GPU and CPU seconds per frame. Measured
-/// on lavapipe (llvmpipe, 2 cores shared with other jobs): GPU 19.9 s per
-/// frame against 4.3 s for the CPU renderer (its setup included; both
-/// slowed by other builds), PSNR 82.7 dB between them. llvmpipe runs the march at about 5 us per ray
-/// iteration; the number says nothing about a hardware GPU.
-/// `cargo test --release -p eikon-view --test gpu -- --ignored --nocapture`
-#[test]
-#[ignore]
-fn frame_time_of_the_glass_sphere() {
-    let Some(gpu) = gpu() else { return };
-    let path = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../../configs/glass-sphere.toml"
-    );
-    let text = std::fs::read_to_string(path).unwrap();
-    let (scene, medium, volumes) = setup(&text);
-    let env = load_environment(&scene.background).unwrap();
-    let s = Surroundings::new(&scene, env, &volumes, &medium.geometry);
-    let cam = camera(&scene);
-    let opts = Options::default();
-    let r = GpuRenderer::new(&gpu, &medium, &volumes, &s, &cam, opts).unwrap();
-    let g = r.render().unwrap();
-    let gpu_s = r.time_frames(3).unwrap();
-    let t = std::time::Instant::now();
-    let (cpu, _) = Renderer::new(&medium, &volumes, &s, &cam, opts).render(&|_, _| {});
-    let cpu_s = t.elapsed().as_secs_f64();
-    println!(
-        "glass sphere {}x{} x{} spp: GPU {gpu_s:.3} s/frame ({}), CPU {cpu_s:.3} s/frame ({} threads); PSNR {:.1} dB",
-        cam.width(),
-        cam.height(),
-        cam.samples(),
-        gpu.describe(),
-        rayon::current_num_threads(),
-        psnr(&cpu, &g)
-    );
-}
-
 /// A 256^3 grid (the device's 3D texture limit) uploads and renders: a
 /// glass sphere lit by a light volume, checked against the CPU at a few
 /// pixels. `cargo test --release -p eikon-view --test gpu -- --ignored`
-#[test]
-#[ignore]
-fn a_256_cubed_grid_fits() {
-    let Some(gpu) = gpu() else { return };
+fn a_256_cubed_grid_fits(gpu: &Gpu) {
     let text = r#"
 [grid]
 resolution = 256
@@ -624,7 +443,7 @@ resolution = [24, 18]
 type = "sky"
 "#;
     let t = std::time::Instant::now();
-    let (cpu, g) = both(&gpu, text, Options::default());
+    let (cpu, g) = both(gpu, text, Options::default());
     let db = psnr(&cpu, &g);
     println!(
         "256^3: GPU vs CPU PSNR {db:.1} dB ({:.0} s in all)",
@@ -641,9 +460,7 @@ type = "sky"
 /// volume, a dispersive one (three flux arrays) with skipping off, an
 /// emissive volume with three samples per pixel, two light volumes, and no
 /// light volume at all. Everything is freed afterwards.
-#[test]
-fn device_bytes_bound_the_peak() {
-    let Some(gpu) = gpu() else { return };
+fn device_bytes_bound_the_peak(gpu: &Gpu) {
     let sphere = |extra: &str, index: &str, light: bool| {
         format!(
             r#"
@@ -699,7 +516,7 @@ type = "sky"
         ),
     ];
     for (text, opts) in cases {
-        let (scene, medium, volumes) = setup(&text);
+        let (scene, medium, volumes) = lit(&text);
         let env = load_environment(&scene.background).unwrap();
         let cam = camera(&scene);
         let size = eikon_view::gpu::DeviceSize::of(&medium, &volumes, &env, &cam, &opts);
@@ -707,7 +524,7 @@ type = "sky"
         let base = gpu.live_bytes();
         gpu.reset_peak();
         {
-            let r = GpuRenderer::new(&gpu, &medium, &volumes, &s, &cam, opts).unwrap();
+            let r = GpuRenderer::new(gpu, &medium, &volumes, &s, &cam, opts).unwrap();
             r.render_with_stats().unwrap();
         }
         assert_eq!(gpu.live_bytes(), base, "everything is freed");
@@ -723,4 +540,47 @@ type = "sky"
             "{estimate} >> {peak}"
         );
     }
+}
+
+fn main() {
+    Tests::new()
+        .gpu(
+            "gpu_simulated_volumes_render_as_the_cpu_ones",
+            gpu_simulated_volumes_render_as_the_cpu_ones,
+        )
+        .gpu(
+            "repeated_gpu_renders_are_bitwise_equal",
+            repeated_gpu_renders_are_bitwise_equal,
+        )
+        .gpu("device_bytes_bound_the_peak", device_bytes_bound_the_peak)
+        .gpu(
+            "glass_sphere_over_a_receiver_matches_the_cpu",
+            glass_sphere_over_a_receiver_matches_the_cpu,
+        )
+        .gpu(
+            "a_board_on_the_grid_face_matches_the_cpu",
+            a_board_on_the_grid_face_matches_the_cpu,
+        )
+        .gpu(
+            "a_dispersive_sphere_matches_the_cpu",
+            a_dispersive_sphere_matches_the_cpu,
+        )
+        .gpu(
+            "a_scattering_medium_matches_the_cpu",
+            a_scattering_medium_matches_the_cpu,
+        )
+        .gpu(
+            "a_luneburg_lens_matches_the_cpu",
+            a_luneburg_lens_matches_the_cpu,
+        )
+        .gpu(
+            "an_emissive_volume_matches_the_cpu",
+            an_emissive_volume_matches_the_cpu,
+        )
+        .gpu(
+            "two_light_volumes_match_the_cpu",
+            two_light_volumes_match_the_cpu,
+        )
+        .gpu_slow("a_256_cubed_grid_fits", a_256_cubed_grid_fits)
+        .run()
 }

@@ -1,5 +1,5 @@
 //! HistoPyramid stream compaction and expansion (Ziegler et al. 2006, as
-//! extended in Ihrke et al. 2007, section 5.2.3).
+//! extended in [Ihrke07 sec 5.2.3]).
 //!
 //! Every input entry (a wavefront patch) asks for 0 (eliminate), 1
 //! (retain) or 4 (tessellate) slots in the next list. The pyramid's base
@@ -15,7 +15,18 @@
 //! a GPU kernel; the CPU version here runs the same steps with rayon and
 //! reuses its buffers from one build to the next.
 
+use eikon_shader::{nothing, Module};
 use rayon::prelude::*;
+
+/// The WGSL of the pyramid, the one the GPU simulator runs: the layout,
+/// one reduction step, the walk ([`HistoPyramid::locate`]) and the rank
+/// of an entry, over the kernel's `pyramid` array.
+pub static WGSL: Module = Module {
+    name: "histopyramid",
+    requires: &[],
+    declarations: nothing,
+    text: include_str!("histopyramid.wgsl"),
+};
 
 /// Work items below which a level is reduced serially.
 const PARALLEL_MIN: usize = 1 << 14;

@@ -1,22 +1,23 @@
 //! # eikon-wavefront
 //!
-//! Light simulation by adaptive wavefront tracing (Ihrke et al. 2007,
-//! sections 4.2 and 5.2). Each light emits a wavefront of four-particle
+//! Light simulation by adaptive wavefront tracing
+//! ([Ihrke07 secs 4.2 and 5.2]). Each light emits a wavefront of four-particle
 //! patches where it meets the volume ([`light`]); then every step runs
 //! the steps of the paper as a few calls in [`simulate_light`]:
 //!
-//! 1. [`propagate`](propagate::propagate): corners move with eqs 14-15; the tube each patch
-//!    sweeps is deposited into the light volume as track-length fluence and net flux
-//!    ([`deposit`], beyond the paper: every ray family adds, through caustics too); flux is
-//!    attenuated with eq 18 and by Fresnel transmission at interfaces (beyond the paper);
+//! 1. [`propagate`](propagate::propagate): corners move with [Ihrke07 eqs 14-15]; the tube
+//!    each patch sweeps is deposited into the light volume as track-length fluence and net
+//!    flux ([`deposit`], beyond the paper: every ray family adds, through caustics too);
+//!    flux is attenuated with [Ihrke07 eq 18] and by Fresnel transmission at interfaces
+//!    (beyond the paper);
 //! 2. [`refine`](refine::refine): tessellation analysis (eliminate, retain, tessellate)
 //!    and the new patch list through a [`HistoPyramid`].
 //!
 //! With `--deposit paper` ([`DepositRule::Paper`]) the paper's own steps run instead of
-//! the deposit in step 1: [`irradiance`](propagate::irradiance) (eq 17, flux over area),
-//! patches culled where they flip at a caustic, and
-//! [`PaperVolume::deposit`](voxelize::PaperVolume::deposit) keeping the highest-energy
-//! ray per cell (5.2.2).
+//! the deposit in step 1: [`irradiance`](propagate::irradiance) ([Ihrke07 eq 17], flux over
+//! area), patches culled where they flip at a caustic, and
+//! [`PaperVolume::deposit`](deposit::paper::PaperVolume::deposit) keeping the highest-energy
+//! ray per cell [Ihrke07 sec 5.2.2].
 //!
 //! [`photons`] is the brute-force baseline: photons with the same track-length deposit.
 //!
@@ -24,6 +25,7 @@
 //! whatever the number of threads.
 
 pub mod deposit;
+#[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod histopyramid;
 pub mod light;
@@ -34,7 +36,6 @@ pub mod propagate;
 pub mod refine;
 pub mod staging;
 pub mod volume;
-pub mod voxelize;
 
 pub use histopyramid::HistoPyramid;
 pub use patch::Patches;
@@ -42,7 +43,7 @@ pub use volume::LightVolume;
 
 use deposit::Counters;
 use eikon_grid::interface::{probe_length, Interfaces};
-use eikon_grid::{Light, Medium, Method, Scene};
+use eikon_grid::{Integrator, Light, Medium, Progress, Scene};
 use rayon::prelude::*;
 
 /// How the wavefront becomes a light volume.
@@ -52,8 +53,9 @@ pub enum DepositRule {
     /// ([`deposit`]); light passes through caustics.
     #[default]
     Fluence,
-    /// The paper's rule (5.2.2, 5.2.3): the highest-energy ray per cell as
-    /// a point value, patches culled at caustic flips ([`voxelize`]).
+    /// The paper's rule [Ihrke07 secs 5.2.2, 5.2.3]: the highest-energy ray per
+    /// cell as a point value, patches culled at caustic flips
+    /// ([`deposit::paper`]).
     Paper,
 }
 
@@ -119,7 +121,7 @@ pub struct Options {
     pub step: f64,
     /// Integrator for the corners (Euler or RK4; the adaptive scheme would
     /// break the common time of a wavefront).
-    pub method: Method,
+    pub integrator: Integrator,
     /// Size of the emitted patches, in voxels.
     pub patch_size: f64,
     /// Tessellate a patch whose span exceeds this many voxels.
@@ -135,9 +137,9 @@ pub struct Options {
     pub max_steps: Option<usize>,
     /// How the wavefront becomes a light volume.
     pub deposit: DepositRule,
-    /// Fresnel transmission at interfaces (beyond the paper, whose eq 18
-    /// has none): the reflected part leaves the beam and is counted as
-    /// reflected.
+    /// Fresnel transmission at interfaces (beyond the paper, whose
+    /// [Ihrke07 eq 18] has none): the reflected part leaves the beam and is
+    /// counted as reflected.
     pub fresnel: bool,
 }
 
@@ -145,7 +147,7 @@ impl Default for Options {
     fn default() -> Self {
         Self {
             step: 0.5,
-            method: Method::Rk4,
+            integrator: Integrator::Rk4,
             patch_size: 1.0,
             split: 1.0,
             threshold: 1e-4,
@@ -173,6 +175,7 @@ pub enum Error {
     #[error(transparent)]
     Scene(#[from] eikon_grid::Error),
     /// The GPU backend failed (no adapter, a limit, a validation error).
+    #[cfg(feature = "gpu")]
     #[error(transparent)]
     Gpu(#[from] eikon_gpu::GpuError),
     /// A value of the light volume or of the energy account is not finite
@@ -197,9 +200,9 @@ impl Options {
                 ),
             );
         }
-        if self.method == Method::DormandPrince {
+        if self.integrator == Integrator::DormandPrince {
             return bad(
-                "method",
+                "integrator",
                 "adaptive steps break the common time of a wavefront; use euler or rk4".into(),
             );
         }
@@ -363,9 +366,6 @@ pub fn default_depth(light: &Light, grid: &eikon_grid::GridGeometry, opts: &Opti
         }
     }
 }
-
-/// Simulation progress: `(step, live patches)` of the wavefront running.
-pub type Progress<'a> = &'a (dyn Fn(usize, usize) + Sync);
 
 fn add(acc: &mut [f64; 3], x: &[f64; 3]) {
     (0..3).for_each(|c| acc[c] += x[c]);
@@ -580,8 +580,9 @@ pub(crate) fn start_wavefront(
     let entered = light::emit(light, grid, field, opts.patch_size * h, mask, p);
     add(&mut summary.entered, &entered);
     // A light inside the volume emits from a sphere one voxel across
-    // (a patch needs an area): what the medium absorbs within it, eq 18
-    // over that radius at the light's extinction, never reaches it.
+    // (a patch needs an area): what the medium absorbs within it,
+    // [Ihrke07 eq 18] over that radius at the light's extinction, never reaches
+    // it.
     if let Light::Point { position, .. } | Light::Spot { position, .. } = light {
         if grid.contains(*position) {
             let sigma = medium.sample_rgb(&medium.extinction, *position);
@@ -670,7 +671,8 @@ pub fn fluence_depth(light: &Light, grid: &eikon_grid::GridGeometry, opts: &Opti
 
 /// Simulate one light: its wavefront (or, with dispersion, one wavefront
 /// per colour channel, each through its own index field) from emission to
-/// the last patch. Returns the light volume and the summary.
+/// the last patch. Returns the light volume and the summary. `progress`
+/// hears `(step, live patches)` of the wavefront running.
 pub fn simulate_light(
     light: &Light,
     medium: &Medium,
@@ -681,7 +683,7 @@ pub fn simulate_light(
     let grid = &medium.geometry;
     let groups = medium.channels();
     let paper = opts.deposit == DepositRule::Paper;
-    let mut paper_volume = paper.then(|| voxelize::PaperVolume::new(grid, groups));
+    let mut paper_volume = paper.then(|| deposit::paper::PaperVolume::new(grid, groups));
     let Plan {
         mut rules,
         dt,
@@ -725,7 +727,7 @@ pub fn simulate_light(
             medium,
             field: &field,
             empty: &empty,
-            method: opts.method,
+            integrator: opts.integrator,
             dt,
             interfaces: interfaces.as_ref(),
             channel: g,

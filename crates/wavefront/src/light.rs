@@ -1,4 +1,4 @@
-//! Initial wavefronts of the light sources (paper 5.2).
+//! Initial wavefronts of the light sources [Ihrke07 sec 5.2].
 //!
 //! Every patch starts where its central ray first meets the volume bounds
 //! (a short margin before it), which skips the empty space between the
@@ -17,6 +17,7 @@
 
 use crate::patch::Patches;
 use eikon_grid::{GridGeometry, IndexField, Light, RayState};
+use eikon_optics::spot::cone_weight;
 use glam::DVec3;
 use std::f64::consts::PI;
 
@@ -173,24 +174,6 @@ fn triangle_solid_angle(a: DVec3, b: DVec3, c: DVec3) -> f64 {
     let num = a.dot(b.cross(c)).abs();
     let den = 1.0 + a.dot(b) + b.dot(c) + c.dot(a);
     2.0 * num.atan2(den)
-}
-
-/// Spot weight of direction `dir`: 1 inside the cone, a smoothstep across
-/// the `falloff` band at its edge, 0 outside. `cone` is the unit axis, the
-/// half-angle and the falloff in degrees, or `None` for a point light.
-pub fn cone_weight(dir: DVec3, cone: Option<(DVec3, f64, f64)>) -> f64 {
-    let Some((axis, angle, falloff)) = cone else {
-        return 1.0;
-    };
-    let theta = dir.dot(axis).clamp(-1.0, 1.0).acos().to_degrees();
-    if theta >= angle {
-        0.0
-    } else if falloff <= 0.0 || theta <= angle - falloff {
-        1.0
-    } else {
-        let x = (angle - theta) / falloff;
-        x * x * (3.0 - 2.0 * x)
-    }
 }
 
 /// How many patches `emit` considers for `light` with patches of `size`

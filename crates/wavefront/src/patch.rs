@@ -2,13 +2,32 @@
 //!
 //! A patch is a quadrilateral of four light particles `c0, c1, c2, c3`
 //! (in order around it) that share one wavefront: all four were launched
-//! together and move with the equal-time ray equation (eqs 14-15), so they
-//! stay on a surface of constant optical path. Its flux is RGB power in
+//! together and move with the equal-time ray equation [Ihrke07 eqs 14-15], so
+//! they stay on a surface of constant optical path. Its flux is RGB power in
 //! watts; its differential irradiance is that flux over its current area
-//! (the intensity law, eqs 16-17).
+//! (the intensity law, [Ihrke07 eqs 16-17]).
 
 use eikon_grid::RayState;
+use eikon_shader::{Consts, Module};
 use glam::DVec3;
+
+fn patch_declarations() -> String {
+    Consts::new()
+        .u32("SPLIT_QUARTERS", Split::Quarters as u32)
+        .u32("SPLIT_STRIPS_S", Split::StripsS as u32)
+        .u32("SPLIT_STRIPS_T", Split::StripsT as u32)
+        .wgsl()
+        .to_string()
+}
+
+/// The WGSL of the patch geometry: [`normal`], [`area`], [`span`], the
+/// bilinear map and [`Split`].
+pub static WGSL: Module = Module {
+    name: "patch",
+    requires: &[],
+    declarations: patch_declarations,
+    text: include_str!("patch.wgsl"),
+};
 
 /// All live patches of one wavefront, one array per attribute.
 #[derive(Clone, Debug, Default)]
@@ -16,7 +35,7 @@ pub struct Patches {
     /// Corner particles: position, eikonal gradient `v` (|v| = n) and the
     /// optical path travelled, for corners 0..4.
     pub corner: [Vec<RayState>; 4],
-    /// RGB flux carried, W, after attenuation along the path (eq 18).
+    /// RGB flux carried, W, after attenuation along the path [Ihrke07 eq 18].
     pub flux: Vec<[f64; 3]>,
     /// RGB flux the patch would carry without attenuation: its share of
     /// the light's emitted power. `flux / flux0` is its transmittance.
@@ -81,7 +100,7 @@ impl Patches {
         [0, 1, 2, 3].map(|c| self.corner[c][i].x)
     }
 
-    /// Midpoint of patch `i`: where it deposits (5.2.2).
+    /// Midpoint of patch `i`: where it deposits [Ihrke07 sec 5.2.2].
     #[inline]
     pub fn midpoint(&self, i: usize) -> DVec3 {
         let p = self.positions(i);

@@ -29,11 +29,11 @@
 //!
 //! # Transport
 //! Exactly as [`propagate`](crate::propagate::propagate) moves a patch
-//! corner: the equal-time ray equation (eqs 14-15) with the same
+//! corner: the equal-time ray equation [Ihrke07 eqs 14-15] with the same
 //! integrator and step in the [`Bounded`] field, on the eikonal shell
-//! `|v| = n`, straight through empty space ([`EmptySpace`]), and eq 18's
-//! attenuation by the trapezoid of `sigma_t / n` before and after each step
-//! times `dt`. A photon ends when
+//! `|v| = n`, straight through empty space ([`EmptySpace`]), and
+//! [Ihrke07 eq 18]'s attenuation by the trapezoid of `sigma_t / n` before and
+//! after each step times `dt`. A photon ends when
 //! it has left the bounds (it is outside and its forward line misses the
 //! box), when its transmittance is below the threshold in every channel,
 //! or at the wavefront's step limit.
@@ -66,12 +66,14 @@
 //! summary are therefore bitwise the same for any thread count.
 
 use crate::deposit::Counters;
-use crate::light::{self, cone_weight, PlaneFrame};
+use crate::light::{self, PlaneFrame};
 use crate::propagate::{step_depth, Bounded};
 use crate::{Error, LightVolume, Options, Summary};
 use eikon_grid::interface::{probe_length, Interfaces};
 use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
-use eikon_grid::{EmptySpace, Form, GridGeometry, IndexField, Light, Medium, Method, RayState};
+use eikon_grid::{EmptySpace, Form, GridGeometry, IndexField, Integrator, Light, Medium, RayState};
+use eikon_optics::spot::cone_weight;
+use eikon_rng::{mix, SplitMix64, GOLDEN};
 use glam::DVec3;
 use rayon::prelude::*;
 use std::f64::consts::PI;
@@ -104,7 +106,7 @@ pub fn working_bytes(cells: u128) -> u128 {
 /// same [`LightVolume`] the wavefront writes. `seed` picks the random numbers: the same
 /// seed gives bitwise the same result whatever the number of threads.
 ///
-/// Of `opts`, `step`, `method`, `threshold`, `max_steps` and `fresnel` apply, with
+/// Of `opts`, `step`, `integrator`, `threshold`, `max_steps` and `fresnel` apply, with
 /// the same meaning as for the wavefront. In the summary, `emitted` counts
 /// photons that entered the volume, `exited`, `absorbed` (below the
 /// threshold) and `step_limit` how they ended, `steps` is the longest
@@ -157,7 +159,7 @@ pub fn simulate_photons(
             grid,
             field: Bounded::new(medium, g),
             empty: EmptySpace::new(medium, g),
-            method: opts.method,
+            integrator: opts.integrator,
             dt,
             threshold: opts.threshold,
             max_steps,
@@ -177,7 +179,7 @@ pub fn simulate_photons(
                 .map(|chunk| {
                     let mut t = Tally::default();
                     for i in chunk * CHUNK..((chunk + 1) * CHUNK).min(count) {
-                        let mut rng = Rng::new(key, i as u64);
+                        let mut rng = stream(key, i as u64);
                         let (a, b) = strata.draw(i, &mut rng);
                         if let Some((s, flux)) = source.launch(a, b, grid, &tracer.field) {
                             tracer.trace(s, flux, &mut t);
@@ -199,33 +201,11 @@ pub fn simulate_photons(
 // ---------------------------------------------------------------------------
 // Random numbers.
 
-const GOLDEN: u64 = 0x9E37_79B9_7F4A_7C15;
-
-/// The SplitMix64 output function (Steele, Lea and Flood 2014); also what
-/// makes run ids ([`crate::staging::new_run_id`]).
-#[inline]
-pub(crate) fn mix(mut z: u64) -> u64 {
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
-
-/// SplitMix64 stream of one photon. The start state hashes the run's key
-/// (itself a hash of the seed) with the photon's index, so photons of one
-/// seed, and the photon sets of two seeds, do not share streams.
-struct Rng(u64);
-
-impl Rng {
-    fn new(key: u64, index: u64) -> Self {
-        Rng(mix(key ^ index))
-    }
-
-    /// Uniform in [0, 1), 53 random bits.
-    #[inline]
-    fn uniform(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(GOLDEN);
-        (mix(self.0) >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
-    }
+/// The SplitMix64 stream of one photon. The start state hashes the run's
+/// key (itself a hash of the seed) with the photon's index, so photons of
+/// one seed, and the photon sets of two seeds, do not share streams.
+fn stream(key: u64, index: u64) -> SplitMix64 {
+    SplitMix64::new(mix(key ^ index))
 }
 
 // ---------------------------------------------------------------------------
@@ -258,7 +238,7 @@ impl Strata {
     }
 
     /// Photon `i`'s point: uniform in its cell of the unit square.
-    fn draw(&self, i: usize, rng: &mut Rng) -> (f64, f64) {
+    fn draw(&self, i: usize, rng: &mut SplitMix64) -> (f64, f64) {
         let i = i as u128;
         // Row of photon i: start(r) <= i < start(r + 1).
         let mut r = (i * self.rows / self.count).min(self.rows - 1);
@@ -270,8 +250,8 @@ impl Strata {
         }
         let (lo, hi) = (self.start(r), self.start(r + 1));
         let width = (hi - lo) as f64;
-        let a = ((i - lo) as f64 + rng.uniform()) / width;
-        let b = (lo as f64 + rng.uniform() * width) / self.count as f64;
+        let a = ((i - lo) as f64 + rng.unit()) / width;
+        let b = (lo as f64 + rng.unit() * width) / self.count as f64;
         (a.min(1.0), b.min(1.0))
     }
 }
@@ -447,7 +427,7 @@ struct Tracer<'a> {
     grid: &'a GridGeometry,
     field: Bounded<'a>,
     empty: EmptySpace,
-    method: Method,
+    integrator: Integrator,
     dt: f64,
     threshold: f64,
     max_steps: usize,
@@ -488,8 +468,8 @@ fn clear_cells(medium: &Medium) -> Vec<bool> {
 
 impl Tracer<'_> {
     /// `sigma_t / n` per channel at `p`, zero outside the bounds: the
-    /// integrand of eq 18 exactly as `propagate` samples it (bitwise: in a
-    /// clear cell `sample_rgb` adds up exact zeros).
+    /// integrand of [Ihrke07 eq 18] exactly as `propagate` samples it (bitwise:
+    /// in a clear cell `sample_rgb` adds up exact zeros).
     #[inline]
     fn extinction_per_index(&self, p: DVec3) -> DVec3 {
         if !self.grid.contains(p) || self.empty.index_at(p).is_some() {
@@ -550,15 +530,15 @@ impl Tracer<'_> {
             } else {
                 let b = before.unwrap_or_else(|| self.extinction_per_index(x0));
                 // On the eikonal shell |v| = n, like the wavefront's corners.
-                match self.method {
-                    Method::Euler => {
+                match self.integrator {
+                    Integrator::Euler => {
                         step_euler_on_shell(&self.field, Form::EqualTime, &mut s, self.dt)
                     }
                     _ => step_rk4_on_shell(&self.field, Form::EqualTime, &mut s, self.dt),
                 }
                 let after = self.extinction_per_index(s.x);
                 before = Some(after);
-                // Eq 18 over one step, exactly as for a patch.
+                // [Ihrke07 eq 18] over one step, exactly as for a patch.
                 let depth = step_depth(&self.medium.geometry, x0, s.x, b, after, self.dt);
                 self.tally.chord(x0, s.x, &flux, depth, self.group);
                 for c in 0..3 {
@@ -606,13 +586,13 @@ mod tests {
 
     #[test]
     fn random_numbers_are_uniform_and_seeded() {
-        let mut r = Rng::new(mix(7), 3);
-        let xs: Vec<f64> = (0..100_000).map(|_| r.uniform()).collect();
+        let mut r = stream(mix(7), 3);
+        let xs: Vec<f64> = (0..100_000).map(|_| r.unit()).collect();
         assert!(xs.iter().all(|&x| (0.0..1.0).contains(&x)));
         let mean = xs.iter().sum::<f64>() / xs.len() as f64;
         // Standard error of the mean: 1 / sqrt(12 * 1e5) = 9.1e-4.
         assert!((mean - 0.5).abs() < 4e-3, "{mean}");
-        let first = |key, i| Rng::new(key, i).uniform();
+        let first = |key, i| stream(key, i).unit();
         assert_eq!(first(mix(7), 3), xs[0]);
         assert_ne!(first(mix(7), 4), xs[0]);
         assert_ne!(first(mix(8), 3), xs[0]);
@@ -638,7 +618,7 @@ mod tests {
                 covered = hi;
             }
             assert_eq!(covered, count as u128);
-            let mut rng = Rng::new(1, 2);
+            let mut rng = stream(1, 2);
             let mut sum = (0.0, 0.0);
             for i in 0..count {
                 let (a, b) = strata.draw(i, &mut rng);

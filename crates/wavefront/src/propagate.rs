@@ -1,15 +1,15 @@
 //! Steps 1 and 2 of a simulation step: move every corner with the
-//! equal-time ray equation (eqs 14-15), deposit the tube the patch sweeps
-//! (the track-length fluence, [`deposit::tube`]), attenuate the flux along
-//! the way (eq 18) and by Fresnel transmission at interfaces
+//! equal-time ray equation [Ihrke07 eqs 14-15], deposit the tube the patch
+//! sweeps (the track-length fluence, [`deposit::tube`]), attenuate the flux
+//! along the way [Ihrke07 eq 18] and by Fresnel transmission at interfaces
 //! ([`Interfaces::transmittance`], beyond the paper); with the paper's
 //! deposit, recompute each patch's differential irradiance from its new
-//! area (eq 17). Corners are kept on the eikonal shell `|v| = n`
+//! area [Ihrke07 eq 17]. Corners are kept on the eikonal shell `|v| = n`
 //! (`ray::step_rk4_on_shell`), which makes equal time equal optical path.
 //!
 //! # The attenuation integral
-//! Eq 18's `int sigma_t / n dt` is taken along the patch's central path,
-//! one step at a time, by the trapezoid rule: `sigma_t / n` is sampled at
+//! [Ihrke07 eq 18]'s `int sigma_t / n dt` is taken along the patch's central
+//! path, one step at a time, by the trapezoid rule: `sigma_t / n` is sampled at
 //! the patch midpoint before and after the step (sigma_t trilinearly from
 //! the extinction volume, n from the index field), averaged, and multiplied
 //! by the step's `dt`. Since `dt = n ds` this is `int sigma_t ds`, the
@@ -21,9 +21,18 @@ use crate::deposit::{self, Counters};
 use crate::patch::{area, Patches};
 use eikon_grid::interface::Interfaces;
 use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
-use eikon_grid::{EmptySpace, Form, GridGeometry, IndexField, Medium, Method, VoxelField};
+use eikon_grid::{EmptySpace, Form, GridGeometry, IndexField, Integrator, Medium, VoxelField};
+use eikon_shader::{nothing, Module};
 use glam::DVec3;
 use rayon::prelude::*;
+
+/// The WGSL of [`step_depth`].
+pub static WGSL: Module = Module {
+    name: "propagate",
+    requires: &[&eikon_grid::geometry::WGSL],
+    declarations: nothing,
+    text: include_str!("propagate.wgsl"),
+};
 
 /// The index field as light sees it: the voxel field inside the bounds,
 /// and straight travel (no gradient) outside them.
@@ -65,13 +74,13 @@ fn extinction_per_index(medium: &Medium, field: &Bounded, empty: &EmptySpace, p:
     medium.sample_rgb(&medium.extinction, p) / field.sample(p).0
 }
 
-/// Eq 18's optical depth `int sigma_t / n dt` over one step of `dt` from
-/// `x0` to `x1`, given `sigma_t / n` at both ends (zero outside the
+/// [Ihrke07 eq 18]'s optical depth `int sigma_t / n dt` over one step of `dt`
+/// from `x0` to `x1`, given `sigma_t / n` at both ends (zero outside the
 /// bounds): the trapezoid rule, except that a step crossing the bounds is
 /// charged only for its part inside, at the inside end's value. (The
 /// trapezoid would charge half the step whatever its part inside: up to
 /// `sigma_t h / 4` too much or too little for light entering obliquely.)
-pub(crate) fn step_depth(
+pub fn step_depth(
     grid: &GridGeometry,
     x0: DVec3,
     x1: DVec3,
@@ -98,11 +107,11 @@ pub struct Step<'a> {
     /// Its empty blocks.
     pub empty: &'a EmptySpace,
     /// Integrator.
-    pub method: Method,
+    pub integrator: Integrator,
     /// Equal-time step, world units of optical path.
     pub dt: f64,
     /// Interface sides for Fresnel transmission; `None` leaves the flux
-    /// to eq 18 alone (the paper).
+    /// to [Ihrke07 eq 18] alone (the paper).
     pub interfaces: Option<&'a Interfaces>,
     /// Index channel of the wavefront (its interface sides).
     pub channel: usize,
@@ -116,7 +125,7 @@ pub struct Step<'a> {
 /// Flux that left the beams in one step, per patch.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Loss {
-    /// RGB flux absorbed or scattered away (eq 18).
+    /// RGB flux absorbed or scattered away [Ihrke07 eq 18].
     pub absorbed: [f64; 3],
     /// RGB flux reflected at an interface (Fresnel).
     pub reflected: [f64; 3],
@@ -124,7 +133,7 @@ pub struct Loss {
 
 /// Advance every patch by one equal-time step `dt` (optical path, world
 /// units), deposit the tube each patch sweeps into the tally, attenuate its
-/// flux (eq 18) and apply Fresnel transmission where it crosses an
+/// flux [Ihrke07 eq 18] and apply Fresnel transmission where it crosses an
 /// interface. `losses` receives, per patch, the flux taken out of the beam
 /// in this step.
 pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
@@ -132,7 +141,7 @@ pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
         medium,
         field,
         empty,
-        method,
+        integrator,
         dt,
         interfaces,
         channel,
@@ -175,8 +184,8 @@ pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
             for s in [&mut *a, &mut *b, &mut *c, &mut *d] {
                 // On the shell |v| = n, so each corner advances exactly dt
                 // of optical path and the four stay on one wavefront.
-                match method {
-                    Method::Euler => step_euler_on_shell(field, Form::EqualTime, s, dt),
+                match integrator {
+                    Integrator::Euler => step_euler_on_shell(field, Form::EqualTime, s, dt),
                     _ => step_rk4_on_shell(field, Form::EqualTime, s, dt),
                 }
             }
@@ -206,8 +215,8 @@ pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
         });
 }
 
-/// Eq 17 with eq 18's attenuation already in the flux: the differential
-/// irradiance of each patch is its flux over its current area.
+/// [Ihrke07 eq 17] with [Ihrke07 eq 18]'s attenuation already in the flux: the
+/// differential irradiance of each patch is its flux over its current area.
 pub fn irradiance(patches: &mut Patches) {
     let [c0, c1, c2, c3] = &patches.corner;
     (

@@ -1,4 +1,5 @@
-//! Step 3: tessellation analysis and the rebuilt patch list (5.2.3).
+//! Step 3: tessellation analysis and the rebuilt patch list
+//! [Ihrke07 sec 5.2.3].
 //!
 //! Each patch becomes Eliminate (0), Retain (1) or Tessellate (4):
 //! * eliminated when its transmittance `flux / flux0` has fallen below the
@@ -43,9 +44,10 @@ pub struct Ended {
     pub faint_flux: [f64; 3],
 }
 
-/// Fate of one patch.
+/// Fate of one patch (the GPU's `FATE_*` are these values).
 #[derive(Clone, Copy, PartialEq, Eq)]
-enum Fate {
+#[repr(u32)]
+pub(crate) enum Fate {
     Exit,
     Absorbed,
     Faint,
@@ -141,7 +143,7 @@ impl Incident {
             } => {
                 let d = x - position;
                 let r2 = d.length_squared();
-                power * crate::light::cone_weight(d / r2.sqrt(), cone)
+                power * eikon_optics::spot::cone_weight(d / r2.sqrt(), cone)
                     / (4.0 * std::f64::consts::PI * r2)
             }
         }
@@ -214,7 +216,9 @@ fn fate(p: &Patches, i: usize, grid: &GridGeometry, rules: &Rules) -> Fate {
 
 /// Analyse every patch of `p`, rebuild the list into `next` through the
 /// HistoPyramid and swap it into `p`. Returns what left the list; `held`
-/// counts splits refused by `max_patches`.
+/// counts splits refused by `max_patches`. Three steps, as the GPU's
+/// kernels: [`tally`] (the fates and what left), [`grant`] (the split
+/// grants: each patch's count of 0, 1 or 4) and [`rebuild`] (the walk).
 pub fn refine<F: IndexField + ?Sized>(
     p: &mut Patches,
     next: &mut Patches,
@@ -224,6 +228,24 @@ pub fn refine<F: IndexField + ?Sized>(
     rules: &Rules,
     held: &mut usize,
 ) -> Ended {
+    let (ended, kept, splits) = tally(p, scratch, grid, rules);
+    grant(scratch, rules.max_patches, kept, splits, held);
+    if kept == p.len() {
+        // Every patch retained: the list stands as it is.
+        return ended;
+    }
+    rebuild(p, next, scratch, field);
+    ended
+}
+
+/// Each patch's fate (in parallel), and in patch order (deterministic
+/// sums) what left the list, the patches kept and the splits asked for.
+fn tally(
+    p: &Patches,
+    scratch: &mut Scratch,
+    grid: &GridGeometry,
+    rules: &Rules,
+) -> (Ended, usize, usize) {
     let n = p.len();
     scratch.fate.clear();
     scratch.fate.resize(n, Fate::Retain);
@@ -232,8 +254,6 @@ pub fn refine<F: IndexField + ?Sized>(
         .par_iter_mut()
         .enumerate()
         .for_each(|(i, f)| *f = fate(p, i, grid, rules));
-
-    // Book-keeping in patch order: deterministic sums.
     let mut ended = Ended::default();
     let mut splits = 0usize;
     let mut kept = 0usize;
@@ -260,9 +280,15 @@ pub fn refine<F: IndexField + ?Sized>(
             Fate::Split => splits += 1,
         }
     }
-    // Splits that would overflow the list are refused; patches earlier in
-    // the list get the room first.
-    let mut room = rules.max_patches.saturating_sub(kept + splits) / 3;
+    (ended, kept, splits)
+}
+
+/// The patches' counts in the next list: 0 for those that left, 1 for
+/// those retained, 4 for a split granted. Splits that would overflow the
+/// list are refused (counted in `held`); patches earlier in the list get
+/// the room first.
+fn grant(scratch: &mut Scratch, max_patches: usize, kept: usize, splits: usize, held: &mut usize) {
+    let mut room = max_patches.saturating_sub(kept + splits) / 3;
     scratch.counts.clear();
     scratch.counts.extend(scratch.fate.iter().map(|f| match f {
         Fate::Retain => 1,
@@ -277,11 +303,17 @@ pub fn refine<F: IndexField + ?Sized>(
         }
         _ => 0,
     }));
+}
 
-    if kept == n {
-        // Every patch retained: the list stands as it is.
-        return ended;
-    }
+/// The next list from the counts: the HistoPyramid's walk finds each
+/// slot's source patch and part, and a slot copies its patch or becomes
+/// one of its children; then `next` is swapped into `p`.
+fn rebuild<F: IndexField + ?Sized>(
+    p: &mut Patches,
+    next: &mut Patches,
+    scratch: &mut Scratch,
+    field: &F,
+) {
     scratch.pyramid.build(&scratch.counts);
     scratch
         .pyramid
@@ -359,5 +391,4 @@ pub fn refine<F: IndexField + ?Sized>(
             },
         );
     std::mem::swap(p, next);
-    ended
 }

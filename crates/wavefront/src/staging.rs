@@ -94,8 +94,8 @@ pub fn new_run_id() -> String {
         ^ (u64::from(std::process::id()) << 40)
         ^ COUNTER
             .fetch_add(1, Ordering::Relaxed)
-            .wrapping_mul(0x9e37_79b9_7f4a_7c15);
-    format!("{:016x}", crate::photons::mix(x))
+            .wrapping_mul(eikon_rng::GOLDEN);
+    format!("{:016x}", eikon_rng::mix(x))
 }
 
 /// A writer that counts and checksums what passes through it.

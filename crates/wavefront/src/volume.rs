@@ -24,7 +24,7 @@
 //! of directions, and the whole of it for one family). A surface of normal
 //! `N` facing the light receives the irradiance `max(0, -F . N)`.
 //!
-//! `--deposit paper` (Ihrke et al. 2007, 5.2.2) stores its highest-energy
+//! `--deposit paper` [Ihrke07 sec 5.2.2] stores its highest-energy
 //! ray in the same form: `phi` its differential irradiance, `F` that times
 //! its direction (`mu = 1`).
 

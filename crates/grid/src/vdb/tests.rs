@@ -23,13 +23,10 @@ fn write_file(path: &Path, grids: &[Grid], options: &WriteOptions) -> WriteRepor
     report
 }
 
-/// A deterministic pseudo-random value in [0, 1).
+/// A deterministic pseudo-random value in [0, 1): the top 24 bits of the
+/// SplitMix64 hash of `i`.
 fn rnd(i: u64) -> f32 {
-    let mut x = i.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xD1B5_4A32_D192_ED03;
-    x ^= x >> 29;
-    x = x.wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    x ^= x >> 32;
-    (x >> 40) as f32 / (1u64 << 24) as f32
+    (eikon_rng::mix(i.wrapping_add(eikon_rng::GOLDEN)) >> 40) as f32 / (1u64 << 24) as f32
 }
 
 /// Voxels scattered over several root nodes (32^3 nodes span 4096 voxels),

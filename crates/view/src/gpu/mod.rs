@@ -1,6 +1,6 @@
 //! The `gpu` backend of the view renderer: the CPU renderer's image
-//! formation ([`crate::render`], paper 5.3, eqs 1-12) as a wgpu compute
-//! shader (`render.wgsl`), in f32.
+//! formation ([`crate::render`], [Ihrke07 sec 5.3], [Ihrke07 eqs 1-12]) as a
+//! wgpu compute shader (`render.wgsl`), in f32.
 //!
 //! * The medium, its packed properties ([`Properties`], with the same
 //!   probe for the interface sides), and the light volumes are 3D textures
@@ -19,7 +19,7 @@
 //!   one), each marching the same rays; pass 0 adds what needs no light
 //!   volume, every pass its volume's in-scatter and receiver light (the
 //!   image is linear in them).
-//! * Tone mapping stays on the host ([`crate::image`]).
+//! * Tone mapping stays on the host ([`eikon_optics::image`]).
 //!
 //! Differences from the CPU: f32 instead of f64 arithmetic (the plane-hit
 //! rounding allowance is 2e-6 instead of 1e-9 of the scene's scale), and
@@ -36,17 +36,18 @@
 //! sphere (45.6 dB before that fix); ray steps and empty-space skips
 //! ([`GpuRenderer::render_with_stats`]) within 0.4% of the CPU's.
 
-use crate::background::Surroundings;
-use crate::camera::Camera;
-use crate::environment::Environment;
-use crate::image::Image;
-use crate::macrocell::{MacroCells, BLOCK};
-use crate::phase::G_MAX;
+use crate::background::{Checker, Surroundings};
+use crate::macrocell::MacroCells;
 use crate::properties::Properties;
 use crate::render::{probe_length, Options, Stats, MIRROR_COS};
 use eikon_gpu::{texture_bytes, Buffer, Gpu, GpuError, Texture, MIN_BUFFER_BYTES};
-use eikon_grid::{Light, Medium, Method};
+use eikon_grid::blocks::BLOCK;
+use eikon_grid::geometry::GridGpu;
+use eikon_grid::{Integrator, Light, Medium};
+use eikon_optics::{Camera, Environment, Image};
+use eikon_shader::{compose, layout, Consts, Layout, VECTOR};
 use eikon_wavefront::LightVolume;
+use glam::DVec3;
 use std::time::Instant;
 
 const SHADER: &str = include_str!("render.wgsl");
@@ -69,14 +70,184 @@ const PIXEL_BYTES: u64 = 12;
 /// skips, 64 bits each.
 const COUNTER_BYTES: u64 = 16;
 
-/// Rows of four words in the uniform block (`Params` in the shader): 21
-/// fixed ones, then three per light.
-const PARAM_ROWS: usize = 21 + 3 * MAX_LIGHTS;
+/// The rounding allowance of a plane hit relative to the scene's scale
+/// (`background.rs`: 1e-9 in f64; f32's rounding needs more).
+const PLANE_EPS: f32 = 2e-6;
+
+/// Kinds of [`ViewLight`].
+const LIGHT_DIRECTIONAL: u32 = 0;
+const LIGHT_POINT: u32 = 1;
+const LIGHT_SPOT: u32 = 2;
 
 /// Format of the medium's and the light volumes' textures, and of the
 /// interface sides.
 const RGBA: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 const RG: wgpu::TextureFormat = wgpu::TextureFormat::Rg32Float;
+
+layout! {
+    /// A light of the receiver's direct lighting outside the grid
+    /// (`background.rs` `direct`).
+    pub struct ViewLight {
+        /// A point or spot light's position.
+        pub position: [f32; 3],
+        /// `LIGHT_DIRECTIONAL`, `LIGHT_POINT` or `LIGHT_SPOT`.
+        pub kind: u32,
+        /// A directional light's direction of travel, a spot light's
+        /// unit axis.
+        pub direction: [f32; 3],
+        /// The spot's half-angle, degrees.
+        pub angle: f32,
+        /// RGB power (a directional light's irradiance).
+        pub power: [f32; 3],
+        /// The spot's falloff band, degrees.
+        pub falloff: f32,
+    }
+}
+
+layout! {
+    /// The uniform block of the view renderer (`P` in `render.wgsl`).
+    pub struct ViewParams {
+        /// The grid.
+        pub grid: GridGpu,
+        /// Index channels (3 with dispersion, else 1).
+        pub channels: u32,
+        /// Image width, pixels.
+        pub width: u32,
+        /// Image height, pixels.
+        pub height: u32,
+        /// Most ray-equation steps per eye ray.
+        pub budget: u32,
+        /// Lights in `lights`.
+        pub light_count: u32,
+        /// `INTEGRATOR_EULER` or `INTEGRATOR_RK4`.
+        pub integrator: u32,
+        /// 1: skip empty space.
+        pub skip_empty: u32,
+        /// 1: something emits.
+        pub emits: u32,
+        /// 1: something scatters.
+        pub scatters: u32,
+        /// 0: a constant environment, 1: a lat-long map.
+        pub env_kind: u32,
+        /// The map's width, texels.
+        pub env_width: u32,
+        /// Its height.
+        pub env_height: u32,
+        /// 1: a checkerboard.
+        pub has_checker: u32,
+        /// 1: a receiver plane.
+        pub has_receiver: u32,
+        /// Words of one channel's block table.
+        pub skip_words: u32,
+        /// Where the clear distances start.
+        pub clear_base: u32,
+        /// Macro-cells per axis.
+        pub block_dims: [u32; 3],
+        /// Words of one channel's clear distances.
+        pub clear_words: u32,
+        /// `1 / (spacing BLOCK)` per axis.
+        pub inv_block: [f32; 3],
+        /// Rays stop below this transmittance.
+        pub min_transmittance: f32,
+        /// The eye.
+        pub eye: [f32; 3],
+        /// The eye-ray step, world units.
+        pub step: f32,
+        /// A constant environment's radiance.
+        pub env_const: [f32; 3],
+        /// Padding.
+        pub pad0: f32,
+        /// A point on the checkerboard.
+        pub checker_point: [f32; 3],
+        /// Its squares' edge.
+        pub checker_square: f32,
+        /// Its unit normal.
+        pub checker_normal: [f32; 3],
+        /// Padding.
+        pub pad1: f32,
+        /// Its first in-plane axis.
+        pub checker_u: [f32; 3],
+        /// Padding.
+        pub pad2: f32,
+        /// Its second in-plane axis.
+        pub checker_w: [f32; 3],
+        /// Padding.
+        pub pad3: f32,
+        /// The colours of its squares.
+        pub checker_color0: [f32; 3],
+        /// Padding.
+        pub pad4: f32,
+        /// The other colour.
+        pub checker_color1: [f32; 3],
+        /// Padding.
+        pub pad5: f32,
+        /// A point on the receiver.
+        pub receiver_point: [f32; 3],
+        /// Padding.
+        pub pad6: f32,
+        /// Its unit normal.
+        pub receiver_normal: [f32; 3],
+        /// Padding.
+        pub pad7: f32,
+        /// Its RGB albedo.
+        pub receiver_albedo: [f32; 3],
+        /// Padding.
+        pub pad8: f32,
+        /// The lights, `light_count` of them.
+        pub lights: [ViewLight; MAX_LIGHTS],
+    }
+}
+
+layout! {
+    /// The uniform of one pass (`PASS` in `render.wgsl`).
+    pub struct RenderPass {
+        /// 1: the pass adds what needs no light volume.
+        pub base: u32,
+        /// 1: a light volume is bound.
+        pub lit: u32,
+        /// Flux arrays of the volume (1, or 3 with dispersion).
+        pub flux_arrays: u32,
+        /// Samples in the chunk.
+        pub samples: u32,
+    }
+}
+
+fn declarations() -> String {
+    let c = Consts::new()
+        .u32("TILE", TILE)
+        .u32("MAX_LIGHTS", MAX_LIGHTS as u32)
+        .u32("LIGHT_DIRECTIONAL", LIGHT_DIRECTIONAL)
+        .u32("LIGHT_POINT", LIGHT_POINT)
+        .u32("LIGHT_SPOT", LIGHT_SPOT)
+        .f32("MIRROR_COS", MIRROR_COS as f32)
+        .f32("PLANE_EPS", PLANE_EPS)
+        .u32("NONE", u32::MAX)
+        .f32("INF", 1e30);
+    format!(
+        "{}{}{}{}",
+        ViewLight::declaration(),
+        ViewParams::declaration(),
+        RenderPass::declaration(),
+        c.wgsl()
+    )
+}
+
+/// The renderer's full WGSL: its generated declarations, the shared
+/// modules and `render.wgsl`.
+pub fn source() -> String {
+    compose(
+        &declarations(),
+        &[
+            &VECTOR,
+            &eikon_grid::geometry::WGSL,
+            &eikon_grid::ray::WGSL,
+            &eikon_optics::fresnel::WGSL,
+            &eikon_optics::phase::WGSL,
+            &eikon_optics::spot::WGSL,
+        ],
+        SHADER,
+    )
+}
 
 /// What the GPU renderer's device memory depends on, all known before a
 /// run (see [`GpuRenderer::device_bytes`]), so that a render that does not
@@ -162,13 +333,8 @@ pub struct GpuRenderer<'a> {
     _textures: Vec<Texture>,
 }
 
-/// Pack `[f32; 4]` as words.
-fn f4(v: [f64; 4]) -> [u32; 4] {
-    v.map(|x| (x as f32).to_bits())
-}
-
-fn v3(v: glam::DVec3, w: f64) -> [u32; 4] {
-    f4([v.x, v.y, v.z, w])
+fn f3(v: DVec3) -> [f32; 3] {
+    v.to_array().map(|x| x as f32)
 }
 
 fn too_big(gpu: &Gpu, message: String) -> GpuError {
@@ -206,6 +372,452 @@ fn flat_texture(
     })
 }
 
+/// `bytes` against the device's storage binding limit.
+fn check_binding(gpu: &Gpu, what: &str, bytes: u64) -> Result<(), GpuError> {
+    let max = u64::from(gpu.device.limits().max_storage_buffer_binding_size);
+    if bytes > max {
+        return Err(too_big(
+            gpu,
+            format!("the {what} needs {bytes} bytes, over the storage binding limit of {max}"),
+        ));
+    }
+    Ok(())
+}
+
+/// The index channels (absent channels bound to the first), the packed
+/// properties ([`Properties`]), the emission and the interface sides as
+/// textures.
+fn upload_medium(gpu: &Gpu, medium: &Medium, properties: &Properties) -> MediumTextures {
+    let dims = medium.geometry.dims;
+    let [_, ny, nz] = dims;
+    let channels = medium.channels();
+    let mut textures = Vec::new();
+    for (c, idx) in medium.index.iter().enumerate() {
+        let data = idx.as_slice().expect("standard layout");
+        textures.push(flat_texture(
+            gpu,
+            &format!("index {c}"),
+            dims,
+            RGBA,
+            4,
+            data,
+        ));
+    }
+    let scatters = properties
+        .texels
+        .iter()
+        .any(|t| t[1].truncate().max_element() > 0.0);
+    let props: Vec<[f32; 4]> = properties
+        .texels
+        .iter()
+        .flat_map(|t| [t[0].to_array(), t[1].to_array()])
+        .collect();
+    let flat: &[f32] = bytemuck::cast_slice(&props);
+    let layer = ny * nz;
+    let pick = |half: usize| {
+        move |i0: usize, i1: usize| -> Vec<u8> {
+            let mut out = Vec::with_capacity((i1 - i0) * layer * 16);
+            for f in i0 * layer..i1 * layer {
+                out.extend_from_slice(bytemuck::cast_slice(
+                    &flat[8 * f + 4 * half..8 * f + 4 * half + 4],
+                ));
+            }
+            out
+        }
+    };
+    let propa = gpu.texture_3d("sigma delta", dims, RGBA, &pick(0));
+    let propb = gpu.texture_3d("scatter g", dims, RGBA, &pick(1));
+    let emission = match &properties.emission {
+        Some(e) => {
+            let data: Vec<f32> = e.iter().flat_map(|v| v.to_array()).collect();
+            flat_texture(gpu, "emission", dims, RGBA, 4, &data)
+        }
+        None => flat_texture(gpu, "no emission", [1, 1, 1], RGBA, 4, &[0.0; 4]),
+    };
+    let sides: Vec<Texture> = properties
+        .sides
+        .sides
+        .iter()
+        .enumerate()
+        .map(|(c, s)| {
+            let data: &[f32] = bytemuck::cast_slice(s);
+            flat_texture(gpu, &format!("sides {c}"), dims, RG, 2, data)
+        })
+        .collect();
+    let view = |t: &wgpu::Texture| t.create_view(&Default::default());
+    let mut views: Vec<wgpu::TextureView> = (0..3)
+        .map(|c| view(&textures[c.min(channels - 1)]))
+        .collect();
+    views.push(view(&propa));
+    views.push(view(&propb));
+    views.push(view(&emission));
+    views.extend((0..3).map(|c| view(&sides[c.min(channels - 1)])));
+    textures.extend([propa, propb, emission]);
+    textures.extend(sides);
+    MediumTextures {
+        views,
+        emits: properties.emission.is_some(),
+        scatters,
+        textures,
+    }
+}
+
+/// One pass per light volume: its fluence and flux arrays as textures; a
+/// dark placeholder without any.
+fn upload_volumes(gpu: &Gpu, dims: [usize; 3], volumes: &[LightVolume]) -> VolumeTextures {
+    let view = |t: &wgpu::Texture| t.create_view(&Default::default());
+    let mut out = VolumeTextures {
+        views: Vec::new(),
+        arrays: Vec::new(),
+        textures: Vec::new(),
+    };
+    for (j, v) in volumes.iter().enumerate() {
+        let irr = vec3_texture(
+            gpu,
+            &format!("fluence {j}"),
+            dims,
+            v.fluence.as_slice().expect("standard layout"),
+        );
+        out.arrays.push(v.flux.len() as u32);
+        let dirs: Vec<Texture> = v
+            .flux
+            .iter()
+            .enumerate()
+            .map(|(c, d)| {
+                vec3_texture(
+                    gpu,
+                    &format!("flux {j}.{c}"),
+                    dims,
+                    d.as_slice().expect("standard layout"),
+                )
+            })
+            .collect();
+        let k = dirs.len();
+        out.views.push([
+            view(&irr),
+            view(&dirs[0]),
+            view(&dirs[1.min(k - 1)]),
+            view(&dirs[2.min(k - 1)]),
+        ]);
+        out.textures.push(irr);
+        out.textures.extend(dirs);
+    }
+    if volumes.is_empty() {
+        let dark = flat_texture(gpu, "no light volume", [1, 1, 1], RGBA, 4, &[0.0; 4]);
+        out.views
+            .push([view(&dark), view(&dark), view(&dark), view(&dark)]);
+        out.arrays.push(1);
+        out.textures.push(dark);
+    }
+    out
+}
+
+/// The empty-space tables of every channel ([`MacroCells`]), or one word
+/// without skipping.
+fn skip_table(medium: &Medium, skip_empty: bool) -> SkipTable {
+    let g = &medium.geometry;
+    let blocks = g.dims.map(|d| d.div_ceil(BLOCK));
+    let nblocks = blocks[0] * blocks[1] * blocks[2];
+    let clear_words = g.voxel_count().div_ceil(4);
+    let mut words: Vec<u32> = Vec::new();
+    if skip_empty {
+        let cells: Vec<MacroCells> = (0..medium.channels())
+            .map(|c| MacroCells::new(medium, c))
+            .collect();
+        for m in &cells {
+            debug_assert_eq!(m.blocks.dims, blocks);
+            for c in &m.cells {
+                if c[0].is_nan() {
+                    words.extend([u32::MAX; 4]);
+                } else {
+                    words.extend(c.map(f32::to_bits));
+                }
+            }
+        }
+        for m in &cells {
+            let mut w = vec![0u32; clear_words];
+            for (f, &d) in m.clear.iter().enumerate() {
+                w[f / 4] |= u32::from(d) << (8 * (f % 4));
+            }
+            words.extend(w);
+        }
+    } else {
+        words.push(0);
+    }
+    SkipTable {
+        words,
+        blocks,
+        block_words: 4 * nblocks,
+        clear_words,
+    }
+}
+
+/// The environment: a constant, or a lat-long map's RGB texels.
+fn environment_data(surroundings: &Surroundings) -> EnvironmentData {
+    match &surroundings.environment {
+        Environment::Constant(c) => EnvironmentData {
+            kind: 0,
+            width: 1,
+            height: 1,
+            constant: *c,
+            texels: vec![0.0; 3],
+        },
+        Environment::LatLong(m) => EnvironmentData {
+            kind: 1,
+            width: m.width() as u32,
+            height: m.height() as u32,
+            constant: [0.0; 3],
+            texels: m.data().iter().flatten().copied().collect(),
+        },
+    }
+}
+
+/// The eye rays of one chunk of samples (at most [`RAY_CHUNK`] bytes, at
+/// least one sample), the radiance sums and the counters, checked against
+/// the device's limits.
+fn frame_buffers(gpu: &Gpu, camera: &Camera) -> Result<FrameBuffers, GpuError> {
+    let limits = gpu.device.limits();
+    let (w, h) = (camera.width(), camera.height());
+    let pixels = u64::from(w) * u64::from(h);
+    check_binding(gpu, "image", pixels * PIXEL_BYTES)?;
+    let groups = w.div_ceil(TILE).max(h.div_ceil(TILE));
+    if groups > limits.max_compute_workgroups_per_dimension {
+        return Err(too_big(
+            gpu,
+            format!(
+                "the {w}x{h} image needs {groups} workgroups along one axis, over the limit of {}",
+                limits.max_compute_workgroups_per_dimension
+            ),
+        ));
+    }
+    let per_sample = pixels * PIXEL_BYTES;
+    check_binding(gpu, "eye rays of one sample", per_sample)?;
+    let max_binding = u64::from(limits.max_storage_buffer_binding_size);
+    let chunk = (RAY_CHUNK.min(max_binding) / per_sample).clamp(1, u64::from(camera.samples()));
+    Ok(FrameBuffers {
+        rays: gpu.storage_empty("eye rays", per_sample * chunk),
+        accum: gpu.storage_empty("radiance", pixels * PIXEL_BYTES),
+        counters: gpu.storage_empty("render counters", COUNTER_BYTES),
+        chunk: chunk as u32,
+    })
+}
+
+/// The uniform block of a render.
+fn view_params(
+    medium: &Medium,
+    surroundings: &Surroundings,
+    camera: &Camera,
+    opts: &Options,
+    (textures, table, env): (&MediumTextures, &SkipTable, &EnvironmentData),
+) -> ViewParams {
+    let g = &medium.geometry;
+    let ds = opts.step * g.voxel_size();
+    let budget = (64.0 * g.diagonal() / ds) as u64 + 16;
+    let channels = medium.channels();
+    let checker = surroundings.checker.unwrap_or(Checker {
+        point: DVec3::ZERO,
+        normal: DVec3::ZERO,
+        u: DVec3::ZERO,
+        w: DVec3::ZERO,
+        square: 1.0,
+        colors: [DVec3::ZERO; 2],
+    });
+    let receiver = surroundings.receiver.as_ref();
+    let mut lights = [ViewLight::default(); MAX_LIGHTS];
+    for (out, l) in lights.iter_mut().zip(surroundings.lights) {
+        *out = match l {
+            Light::Directional { direction, power } => ViewLight {
+                kind: LIGHT_DIRECTIONAL,
+                direction: f3(*direction),
+                power: f3(*power),
+                ..Default::default()
+            },
+            Light::Point { position, power } => ViewLight {
+                kind: LIGHT_POINT,
+                position: f3(*position),
+                power: f3(*power),
+                ..Default::default()
+            },
+            Light::Spot {
+                position,
+                direction,
+                angle,
+                falloff,
+                power,
+            } => ViewLight {
+                kind: LIGHT_SPOT,
+                position: f3(*position),
+                direction: f3(*direction),
+                angle: *angle as f32,
+                power: f3(*power),
+                falloff: *falloff as f32,
+            },
+        };
+    }
+    ViewParams {
+        grid: GridGpu::new(g),
+        channels: channels as u32,
+        width: camera.width(),
+        height: camera.height(),
+        budget: budget.min(u64::from(u32::MAX)) as u32,
+        light_count: surroundings.lights.len() as u32,
+        integrator: if opts.integrator == Integrator::Euler {
+            Integrator::Euler as u32
+        } else {
+            Integrator::Rk4 as u32
+        },
+        skip_empty: u32::from(opts.skip_empty),
+        emits: u32::from(textures.emits),
+        scatters: u32::from(textures.scatters),
+        env_kind: env.kind,
+        env_width: env.width,
+        env_height: env.height,
+        has_checker: u32::from(surroundings.checker.is_some()),
+        has_receiver: u32::from(receiver.is_some()),
+        skip_words: table.block_words as u32,
+        clear_base: (channels * table.block_words) as u32,
+        clear_words: table.clear_words as u32,
+        block_dims: table.blocks.map(|b| b as u32),
+        inv_block: f3(1.0 / (g.spacing() * BLOCK as f64)),
+        min_transmittance: opts.min_transmittance as f32,
+        eye: f3(camera.position()),
+        step: ds as f32,
+        env_const: env.constant,
+        checker_point: f3(checker.point),
+        checker_square: checker.square as f32,
+        checker_normal: f3(checker.normal),
+        checker_u: f3(checker.u),
+        checker_w: f3(checker.w),
+        checker_color0: f3(checker.colors[0]),
+        checker_color1: f3(checker.colors[1]),
+        receiver_point: f3(receiver.map_or(DVec3::ZERO, |r| r.point)),
+        receiver_normal: f3(receiver.map_or(DVec3::ZERO, |r| r.normal)),
+        receiver_albedo: f3(receiver.map_or(DVec3::ZERO, |r| r.albedo)),
+        lights,
+        ..Default::default()
+    }
+}
+
+/// The kernel of [`source`] and its bind group layout.
+fn compile(gpu: &Gpu) -> Result<(wgpu::ComputePipeline, wgpu::BindGroupLayout), GpuError> {
+    gpu.checked("view renderer pipeline", || {
+        let tex = |binding: u32| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                view_dimension: wgpu::TextureViewDimension::D3,
+                multisampled: false,
+            },
+            count: None,
+        };
+        let buf = |binding: u32, ty: wgpu::BufferBindingType| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty,
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        };
+        let mut entries = vec![
+            buf(0, wgpu::BufferBindingType::Uniform),
+            buf(1, wgpu::BufferBindingType::Uniform),
+        ];
+        entries.extend((2..15).map(tex));
+        for b in 15..18 {
+            entries.push(buf(b, wgpu::BufferBindingType::Storage { read_only: true }));
+        }
+        for b in 18..20 {
+            entries.push(buf(
+                b,
+                wgpu::BufferBindingType::Storage { read_only: false },
+            ));
+        }
+        let layout = gpu
+            .device
+            .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some("view renderer"),
+                entries: &entries,
+            });
+        let pl = gpu
+            .device
+            .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some("view renderer"),
+                bind_group_layouts: &[&layout],
+                push_constant_ranges: &[],
+            });
+        let module = gpu
+            .device
+            .create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some("view renderer"),
+                source: wgpu::ShaderSource::Wgsl(source().into()),
+            });
+        let pipeline = gpu
+            .device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some("view renderer"),
+                layout: Some(&pl),
+                module: &module,
+                entry_point: Some("render"),
+                compilation_options: Default::default(),
+                cache: None,
+            });
+        (pipeline, layout)
+    })
+}
+
+/// The medium's textures as the kernel binds them.
+struct MediumTextures {
+    /// idx0..2, propa, propb, emission, sides0..2.
+    views: Vec<wgpu::TextureView>,
+    /// Whether anything emits, and anything scatters.
+    emits: bool,
+    scatters: bool,
+    textures: Vec<Texture>,
+}
+
+/// The light volumes as the kernel binds them, one pass each.
+struct VolumeTextures {
+    /// Per pass: fluence, flux vector 0..2.
+    views: Vec<[wgpu::TextureView; 4]>,
+    /// Per pass: its flux arrays (1, or 3 with dispersion).
+    arrays: Vec<u32>,
+    textures: Vec<Texture>,
+}
+
+/// The frame's buffers: eye rays of one chunk of samples, radiance sums,
+/// counters.
+struct FrameBuffers {
+    rays: Buffer,
+    accum: Buffer,
+    counters: Buffer,
+    /// Samples per chunk.
+    chunk: u32,
+}
+
+/// The empty-space tables' words (per channel the block table, then per
+/// channel the clear distances, four to a word) and where they lie.
+struct SkipTable {
+    words: Vec<u32>,
+    /// Macro-cells per axis.
+    blocks: [usize; 3],
+    /// Words of one channel's block table, and of its clear distances.
+    block_words: usize,
+    clear_words: usize,
+}
+
+/// The environment as the kernel reads it: kind (0 constant, 1 lat-long),
+/// map size, constant radiance, RGB texels.
+struct EnvironmentData {
+    kind: u32,
+    width: u32,
+    height: u32,
+    constant: [f32; 3],
+    texels: Vec<f32>,
+}
+
 impl<'a> GpuRenderer<'a> {
     /// Upload `medium`, its light `volumes` (one per light, possibly none)
     /// and `surroundings`, and compile the kernel, for frames seen by
@@ -219,11 +831,66 @@ impl<'a> GpuRenderer<'a> {
         camera: &Camera,
         opts: Options,
     ) -> Result<Self, GpuError> {
-        let limits = gpu.device.limits();
-        let g = &medium.geometry;
-        let dims = g.dims;
+        Self::check_limits(gpu, medium, surroundings)?;
+        let binding = |what: &str, bytes: u64| check_binding(gpu, what, bytes);
+        let properties = Properties::new(medium, probe_length(medium));
+        let textures = upload_medium(gpu, medium, &properties);
+        let lit = upload_volumes(gpu, medium.geometry.dims, volumes);
+        let table = skip_table(medium, opts.skip_empty);
+        binding("empty-space table", table.words.len() as u64 * 4)?;
+        let skip = gpu.storage("empty space", &table.words);
+        let environment = environment_data(surroundings);
+        binding("environment map", environment.texels.len() as u64 * 4)?;
+        let env = gpu.storage("environment", &environment.texels);
+        let frame = frame_buffers(gpu, camera)?;
+        let params = view_params(
+            medium,
+            surroundings,
+            camera,
+            &opts,
+            (&textures, &table, &environment),
+        );
+        let params = gpu.uniform("view params", &[params]);
+        let (pipeline, layout) = compile(gpu)?;
+        let single_chunk = frame.chunk >= camera.samples();
+        let mut all = textures.textures;
+        all.extend(lit.textures);
+        let renderer = Self {
+            gpu,
+            camera: camera.clone(),
+            seed: opts.seed,
+            pipeline,
+            layout,
+            params,
+            medium_views: textures.views,
+            volume_views: lit.views,
+            volume_arrays: lit.arrays,
+            skip,
+            env,
+            rays: frame.rays,
+            accum: frame.accum,
+            counters: frame.counters,
+            chunk: frame.chunk,
+            single_chunk,
+            lit: !volumes.is_empty(),
+            _textures: all,
+        };
+        if single_chunk {
+            renderer.upload_rays(0, camera.samples());
+        }
+        Ok(renderer)
+    }
+
+    /// The grid against the 3D texture limit, the lights against
+    /// [`MAX_LIGHTS`].
+    fn check_limits(
+        gpu: &Gpu,
+        medium: &Medium,
+        surroundings: &Surroundings,
+    ) -> Result<(), GpuError> {
+        let dims = medium.geometry.dims;
         let [nx, ny, nz] = dims;
-        let max3d = limits.max_texture_dimension_3d as usize;
+        let max3d = gpu.device.limits().max_texture_dimension_3d as usize;
         if dims.iter().any(|&d| d > max3d) {
             return Err(too_big(
                 gpu,
@@ -239,358 +906,7 @@ impl<'a> GpuRenderer<'a> {
                 ),
             ));
         }
-        let max_binding = u64::from(limits.max_storage_buffer_binding_size);
-        let check = |what: &str, bytes: u64| {
-            if bytes > max_binding {
-                Err(too_big(
-                    gpu,
-                    format!("the {what} needs {bytes} bytes, over the storage binding limit of {max_binding}"),
-                ))
-            } else {
-                Ok(())
-            }
-        };
-        let channels = medium.channels();
-        let properties = Properties::new(medium, probe_length(medium));
-        let mut textures = Vec::new();
-
-        // Index channels (reused for absent channels).
-        let r32 = RGBA;
-        for (c, idx) in medium.index.iter().enumerate() {
-            let data = idx.as_slice().expect("standard layout");
-            textures.push(flat_texture(gpu, &format!("index {c}"), dims, r32, 4, data));
-        }
-        let scatters = properties
-            .texels
-            .iter()
-            .any(|t| t[1].truncate().max_element() > 0.0);
-        let props: Vec<[f32; 4]> = properties
-            .texels
-            .iter()
-            .flat_map(|t| [t[0].to_array(), t[1].to_array()])
-            .collect();
-        let flat: &[f32] = bytemuck::cast_slice(&props);
-        let layer = ny * nz;
-        let pick = |half: usize| {
-            move |i0: usize, i1: usize| -> Vec<u8> {
-                let mut out = Vec::with_capacity((i1 - i0) * layer * 16);
-                for f in i0 * layer..i1 * layer {
-                    out.extend_from_slice(bytemuck::cast_slice(
-                        &flat[8 * f + 4 * half..8 * f + 4 * half + 4],
-                    ));
-                }
-                out
-            }
-        };
-        let propa = gpu.texture_3d("sigma delta", dims, r32, &pick(0));
-        let propb = gpu.texture_3d("scatter g", dims, r32, &pick(1));
-        let tiny = [1usize, 1, 1];
-        let emission = match &properties.emission {
-            Some(e) => {
-                let data: Vec<f32> = e.iter().flat_map(|v| v.to_array()).collect();
-                flat_texture(gpu, "emission", dims, r32, 4, &data)
-            }
-            None => flat_texture(gpu, "no emission", tiny, r32, 4, &[0.0; 4]),
-        };
-        let sides: Vec<Texture> = properties
-            .sides
-            .sides
-            .iter()
-            .enumerate()
-            .map(|(c, s)| {
-                let data: &[f32] = bytemuck::cast_slice(s);
-                flat_texture(gpu, &format!("sides {c}"), dims, RG, 2, data)
-            })
-            .collect();
-        let view = |t: &wgpu::Texture| t.create_view(&Default::default());
-        let mut medium_views: Vec<wgpu::TextureView> = (0..3)
-            .map(|c| view(&textures[c.min(channels - 1)]))
-            .collect();
-        medium_views.push(view(&propa));
-        medium_views.push(view(&propb));
-        medium_views.push(view(&emission));
-        medium_views.extend((0..3).map(|c| view(&sides[c.min(channels - 1)])));
-        textures.extend([propa, propb, emission]);
-        textures.extend(sides);
-
-        // One pass per light volume; a dark placeholder without any.
-        let mut volume_views = Vec::new();
-        let mut volume_arrays = Vec::new();
-        for (j, v) in volumes.iter().enumerate() {
-            let irr = vec3_texture(
-                gpu,
-                &format!("fluence {j}"),
-                dims,
-                v.fluence.as_slice().expect("standard layout"),
-            );
-            volume_arrays.push(v.flux.len() as u32);
-            let dirs: Vec<Texture> = v
-                .flux
-                .iter()
-                .enumerate()
-                .map(|(c, d)| {
-                    vec3_texture(
-                        gpu,
-                        &format!("flux {j}.{c}"),
-                        dims,
-                        d.as_slice().expect("standard layout"),
-                    )
-                })
-                .collect();
-            let k = dirs.len();
-            volume_views.push([
-                view(&irr),
-                view(&dirs[0]),
-                view(&dirs[1.min(k - 1)]),
-                view(&dirs[2.min(k - 1)]),
-            ]);
-            textures.push(irr);
-            textures.extend(dirs);
-        }
-        if volumes.is_empty() {
-            let dark = flat_texture(gpu, "no light volume", tiny, r32, 4, &[0.0; 4]);
-            volume_views.push([view(&dark), view(&dark), view(&dark), view(&dark)]);
-            volume_arrays.push(1);
-            textures.push(dark);
-        }
-
-        // Empty-space skipping: per channel the block table, then per
-        // channel the clear distances (four to a word).
-        let blocks = dims.map(|d| d.div_ceil(BLOCK));
-        let nblocks = blocks[0] * blocks[1] * blocks[2];
-        let clear_words = g.voxel_count().div_ceil(4);
-        let mut skip: Vec<u32> = Vec::new();
-        if opts.skip_empty {
-            let cells: Vec<MacroCells> =
-                (0..channels).map(|c| MacroCells::new(medium, c)).collect();
-            for m in &cells {
-                debug_assert_eq!(m.dims, blocks);
-                for c in &m.cells {
-                    if c[0].is_nan() {
-                        skip.extend([u32::MAX; 4]);
-                    } else {
-                        skip.extend(c.map(f32::to_bits));
-                    }
-                }
-            }
-            for m in &cells {
-                let mut words = vec![0u32; clear_words];
-                for (f, &d) in m.clear.iter().enumerate() {
-                    words[f / 4] |= u32::from(d) << (8 * (f % 4));
-                }
-                skip.extend(words);
-            }
-        } else {
-            skip.push(0);
-        }
-        check("empty-space table", skip.len() as u64 * 4)?;
-        let skip = gpu.storage("empty space", &skip);
-
-        // The environment map, RGB per texel.
-        let (env_kind, env_w, env_h, env_const, env_data) = match &surroundings.environment {
-            Environment::Constant(c) => (0u32, 1u32, 1u32, *c, vec![0.0f32; 3]),
-            Environment::LatLong(m) => (
-                1,
-                m.width() as u32,
-                m.height() as u32,
-                [0.0; 3],
-                m.data().iter().flatten().copied().collect(),
-            ),
-        };
-        check("environment map", env_data.len() as u64 * 4)?;
-        let env = gpu.storage("environment", &env_data);
-
-        // Image and rays.
-        let (w, h) = (camera.width(), camera.height());
-        let pixels = u64::from(w) * u64::from(h);
-        check("image", pixels * PIXEL_BYTES)?;
-        let groups = w.div_ceil(TILE).max(h.div_ceil(TILE));
-        if groups > limits.max_compute_workgroups_per_dimension {
-            return Err(too_big(
-                gpu,
-                format!(
-                    "the {w}x{h} image needs {groups} workgroups along one axis, over the limit of {}",
-                    limits.max_compute_workgroups_per_dimension
-                ),
-            ));
-        }
-        let per_sample = pixels * PIXEL_BYTES;
-        check("eye rays of one sample", per_sample)?;
-        let chunk = (RAY_CHUNK.min(max_binding) / per_sample).clamp(1, u64::from(camera.samples()));
-        let chunk = chunk as u32;
-        let rays = gpu.storage_empty("eye rays", per_sample * u64::from(chunk));
-        let accum = gpu.storage_empty("radiance", pixels * PIXEL_BYTES);
-        let counters = gpu.storage_empty("render counters", COUNTER_BYTES);
-
-        // Uniforms, in the order of `Params` in the shader.
-        let hvox = g.voxel_size();
-        let ds = opts.step * hvox;
-        let budget = (64.0 * g.diagonal() / ds) as u64 + 16;
-        let budget = budget.min(u64::from(u32::MAX)) as u32;
-        let mut p: Vec<[u32; 4]> = vec![
-            [nx as u32, ny as u32, nz as u32, channels as u32],
-            [w, h, budget, surroundings.lights.len() as u32],
-            [
-                u32::from(!matches!(opts.method, Method::Euler)),
-                u32::from(opts.skip_empty),
-                u32::from(properties.emission.is_some()),
-                u32::from(scatters),
-            ],
-            [
-                env_kind,
-                env_w,
-                env_h,
-                u32::from(surroundings.checker.is_some()),
-            ],
-            [
-                u32::from(surroundings.receiver.is_some()),
-                (4 * nblocks) as u32,
-                (channels * 4 * nblocks) as u32,
-                clear_words as u32,
-            ],
-            [blocks[0] as u32, blocks[1] as u32, blocks[2] as u32, 0],
-            v3(g.min, hvox),
-            v3(g.max, g.diagonal()),
-            v3(1.0 / g.spacing(), ds),
-            v3(1.0 / (g.spacing() * BLOCK as f64), opts.min_transmittance),
-            v3(camera.position(), MIRROR_COS),
-            f4([
-                env_const[0] as f64,
-                env_const[1] as f64,
-                env_const[2] as f64,
-                G_MAX,
-            ]),
-        ];
-        let ck = surroundings.checker;
-        let z = glam::DVec3::ZERO;
-        p.push(v3(ck.map_or(z, |c| c.point), ck.map_or(1.0, |c| c.square)));
-        p.push(v3(ck.map_or(z, |c| c.normal), 0.0));
-        p.push(v3(ck.map_or(z, |c| c.u), 0.0));
-        p.push(v3(ck.map_or(z, |c| c.w), 0.0));
-        p.push(v3(ck.map_or(z, |c| c.colors[0]), 0.0));
-        p.push(v3(ck.map_or(z, |c| c.colors[1]), 0.0));
-        let rc = surroundings.receiver.as_ref();
-        p.push(v3(rc.map_or(z, |r| r.point), 0.0));
-        p.push(v3(rc.map_or(z, |r| r.normal), 0.0));
-        p.push(v3(rc.map_or(z, |r| r.albedo), 0.0));
-        for k in 0..MAX_LIGHTS {
-            let l = match surroundings.lights.get(k) {
-                None => [[0; 4]; 3],
-                Some(Light::Directional { direction, power }) => {
-                    [v3(*direction, 0.0), v3(z, 0.0), v3(*power, 0.0)]
-                }
-                Some(Light::Point { position, power }) => {
-                    [v3(*position, 1.0), v3(z, 0.0), v3(*power, 0.0)]
-                }
-                Some(Light::Spot {
-                    position,
-                    direction,
-                    angle,
-                    falloff,
-                    power,
-                }) => [
-                    v3(*position, 2.0),
-                    v3(*direction, *angle),
-                    v3(*power, *falloff),
-                ],
-            };
-            p.extend(l);
-        }
-        debug_assert_eq!(p.len(), PARAM_ROWS);
-        let params = gpu.uniform("view params", &p);
-
-        let (pipeline, layout) = gpu.checked("view renderer pipeline", || {
-            let tex = |binding: u32| wgpu::BindGroupLayoutEntry {
-                binding,
-                visibility: wgpu::ShaderStages::COMPUTE,
-                ty: wgpu::BindingType::Texture {
-                    sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                    view_dimension: wgpu::TextureViewDimension::D3,
-                    multisampled: false,
-                },
-                count: None,
-            };
-            let buf = |binding: u32, ty: wgpu::BufferBindingType| wgpu::BindGroupLayoutEntry {
-                binding,
-                visibility: wgpu::ShaderStages::COMPUTE,
-                ty: wgpu::BindingType::Buffer {
-                    ty,
-                    has_dynamic_offset: false,
-                    min_binding_size: None,
-                },
-                count: None,
-            };
-            let mut entries = vec![
-                buf(0, wgpu::BufferBindingType::Uniform),
-                buf(1, wgpu::BufferBindingType::Uniform),
-            ];
-            entries.extend((2..15).map(tex));
-            for b in 15..18 {
-                entries.push(buf(b, wgpu::BufferBindingType::Storage { read_only: true }));
-            }
-            for b in 18..20 {
-                entries.push(buf(
-                    b,
-                    wgpu::BufferBindingType::Storage { read_only: false },
-                ));
-            }
-            let layout = gpu
-                .device
-                .create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                    label: Some("view renderer"),
-                    entries: &entries,
-                });
-            let pl = gpu
-                .device
-                .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                    label: Some("view renderer"),
-                    bind_group_layouts: &[&layout],
-                    push_constant_ranges: &[],
-                });
-            let module = gpu
-                .device
-                .create_shader_module(wgpu::ShaderModuleDescriptor {
-                    label: Some("view renderer"),
-                    source: wgpu::ShaderSource::Wgsl(SHADER.into()),
-                });
-            let pipeline = gpu
-                .device
-                .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some("view renderer"),
-                    layout: Some(&pl),
-                    module: &module,
-                    entry_point: Some("render"),
-                    compilation_options: Default::default(),
-                    cache: None,
-                });
-            (pipeline, layout)
-        })?;
-
-        let single_chunk = chunk >= camera.samples();
-        let renderer = Self {
-            gpu,
-            camera: camera.clone(),
-            seed: opts.seed,
-            pipeline,
-            layout,
-            params,
-            medium_views,
-            volume_views,
-            volume_arrays,
-            skip,
-            env,
-            rays,
-            accum,
-            counters,
-            chunk,
-            single_chunk,
-            lit: !volumes.is_empty(),
-            _textures: textures,
-        };
-        if single_chunk {
-            renderer.upload_rays(0, camera.samples());
-        }
-        Ok(renderer)
+        Ok(())
     }
 
     /// Device memory, bytes, that [`Self::new`] and then rendering a frame
@@ -651,9 +967,9 @@ impl<'a> GpuRenderer<'a> {
         b += buffer(per_sample * chunk);
         let accum = buffer(pixels * PIXEL_BYTES);
         b += accum + COUNTER_BYTES;
-        b += (PARAM_ROWS * std::mem::size_of::<[u32; 4]>()) as u64;
+        b += ViewParams::size() as u64;
         let passes = size.volumes.max(1) as u64;
-        b + accum.max(passes * std::mem::size_of::<[u32; 4]>() as u64)
+        b + accum.max(passes * RenderPass::size() as u64)
     }
 
     /// Write the eye-ray directions of samples `s0..s1` (sample-major,
@@ -699,12 +1015,12 @@ impl<'a> GpuRenderer<'a> {
                 for (j, vol) in self.volume_views.iter().enumerate() {
                     let pass = gpu.uniform(
                         "view pass",
-                        &[[
-                            u32::from(j == 0),
-                            u32::from(self.lit),
-                            self.volume_arrays[j],
-                            s1 - s0,
-                        ]],
+                        &[RenderPass {
+                            base: u32::from(j == 0),
+                            lit: u32::from(self.lit),
+                            flux_arrays: self.volume_arrays[j],
+                            samples: s1 - s0,
+                        }],
                     );
                     let mut entries = vec![
                         wgpu::BindGroupEntry {
@@ -818,6 +1134,18 @@ impl<'a> GpuRenderer<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The composed source parses and validates as wgpu compiles it, and
+    /// its uniform blocks have the Rust structs' offsets (no device
+    /// needed).
+    #[test]
+    fn the_kernel_validates_and_its_layouts_match_rust() {
+        let module = eikon_gpu::layout::validate(&source()).unwrap_or_else(|e| panic!("{e}"));
+        eikon_gpu::layout::check::<ViewParams>(&module).unwrap();
+        eikon_gpu::layout::check::<ViewLight>(&module).unwrap();
+        eikon_gpu::layout::check::<RenderPass>(&module).unwrap();
+        eikon_gpu::layout::check::<GridGpu>(&module).unwrap();
+    }
     use crate::background::load_environment;
     use eikon_grid::Scene;
 

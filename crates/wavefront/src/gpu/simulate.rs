@@ -1,13 +1,18 @@
 //! The light simulator on the GPU: every step of [`crate::simulate_light`]
 //! as wgpu compute kernels (`simulate.wgsl`), with the same physics,
 //! conventions and units, in f32, for both deposit rules
-//! ([`DepositRule`]) and with or without Fresnel transmission.
+//! ([`DepositRule`]) and with or without Fresnel transmission. The kernel
+//! source is composed ([`source`]) from the WGSL modules it shares with
+//! the CPU code and the view renderer (the grid, the ray equation, Fresnel,
+//! the spot cone, patch and deposit geometry, [Ihrke07 eq 18]'s step depth, the
+//! HistoPyramid), its uniform block [`SimParams`] and its constants
+//! generated from their Rust definitions.
 //!
 //! Per wavefront, emission (`light::emit`), the absorption inside a
 //! point light's start sphere (and, with the fluence deposit, the chords
 //! from the light to its start sphere) and the pre-step tessellation run on
 //! the CPU exactly as there; the patches are then uploaded and every step
-//! runs on the GPU: propagate (eqs 14-15, 18, Fresnel at interfaces) with,
+//! runs on the GPU: propagate ([Ihrke07 eqs 14-15, 18], Fresnel at interfaces) with,
 //! for the fluence deposit, the tube each patch sweeps deposited in the
 //! same kernel (`deposit::tube`: sub-patches, box footprints, chords cut
 //! among the cells by a 3D DDA, summed per cell in a small per-thread
@@ -16,9 +21,10 @@
 //! has left, faint and dim patches), the split grants (in patch order, by
 //! the rank of each split read off a HistoPyramid of the split flags), the
 //! HistoPyramid of the counts and its walk (compaction and expansion in one
-//! pass), and, with the paper's deposit, the highest-energy rule (atomics
+//! pass; both pyramids live in one buffer and are built by the shared
+//! `histopyramid` module), and, with the paper's deposit, the highest-energy rule (atomics
 //! on packed keys, ties to the lowest patch index as the CPU's in-order
-//! apply) and the irradiance of eq 17. The only read-back per step is the
+//! apply) and the irradiance of [Ihrke07 eq 17]. The only read-back per step is the
 //! new list's length.
 //!
 //! The fluence deposit adds to 64-bit fixed-point counters as
@@ -83,19 +89,181 @@
 //!   slower than the CPU backend: one thread per patch with a varying
 //!   number of chords diverges on its SIMD lanes.
 
-use crate::deposit::Counters;
-use crate::patch::Patches;
-use crate::refine::Incident;
+use crate::deposit::{self, Counters};
+use crate::patch::{self, Patches};
+use crate::refine::{Fate, Incident, Rules};
 use crate::{crossings_bound, power_bound, units_per_crossing, DepositRule, Summary};
-use crate::{propagate, refine, Error, LightVolume, Options, Progress};
-use eikon_gpu::{groups, texture_bytes, Buffer, Gpu, GpuError, Texture, MIN_BUFFER_BYTES};
+use crate::{histopyramid, propagate, refine, Error, LightVolume, Options};
+use eikon_gpu::{
+    groups, texture_bytes, Buffer, Gpu, GpuError, Texture, DISPATCH, MIN_BUFFER_BYTES,
+};
+use eikon_grid::blocks::BLOCK;
+use eikon_grid::geometry::GridGpu;
 use eikon_grid::interface::{probe_length, Interfaces};
-use eikon_grid::{EmptySpace, Light, Medium, Method};
+use eikon_grid::{EmptySpace, Integrator, Light, Medium, Progress};
+use eikon_shader::{compose, layout, Consts, Layout, VECTOR};
 use glam::DVec3;
 use ndarray::Array4;
 use std::sync::OnceLock;
 
 const SOURCE: &str = include_str!("simulate.wgsl");
+
+layout! {
+    /// The uniform block of the simulator's kernels (`P` in
+    /// `simulate.wgsl`): what one step of one wavefront reads.
+    pub struct SimParams {
+        /// The grid.
+        pub grid: GridGpu,
+        /// Live patches (the list the kernels work on).
+        pub n: u32,
+        /// Patches of the list the walk reads (its pyramid's base).
+        pub n_old: u32,
+        /// Colour channel of a dispersive wavefront, or -1.
+        pub group: i32,
+        /// `INTEGRATOR_EULER`, or `INTEGRATOR_RK4` (also for
+        /// Dormand-Prince, which has no GPU form).
+        pub integrator: u32,
+        /// Blocks of the empty-space table per axis.
+        pub empty_dims: [u32; 3],
+        /// [`Rules::max_depth`].
+        pub max_depth: u32,
+        /// `1 / block size` per axis, world units.
+        pub inv_block: [f32; 3],
+        /// [`Rules::max_patches`], as far as the device allows.
+        pub max_patches: u32,
+        /// Fluence units per watt-unit of length, per channel
+        /// ([`Counters::scales`]).
+        pub fl_scale: [f32; 3],
+        /// Flux-vector units per watt-unit of length.
+        pub flux_scale: f32,
+        /// [`Incident`]: a point or spot light's position.
+        pub incident_position: [f32; 3],
+        /// Its power, or a plane wave's irradiance.
+        pub incident_power: f32,
+        /// A spot light's unit axis.
+        pub cone_axis: [f32; 3],
+        /// `INCIDENT_UNIFORM`, `INCIDENT_POINT` or `INCIDENT_SPOT`.
+        pub incident_kind: u32,
+        /// The spot's half-angle, degrees.
+        pub cone_angle: f32,
+        /// Its falloff band, degrees.
+        pub cone_falloff: f32,
+        /// [`Rules::dim`].
+        pub dim: f32,
+        /// [`Rules::faint`].
+        pub faint: f32,
+        /// Equal-time step, world units of optical path.
+        pub dt: f32,
+        /// [`Rules::threshold`].
+        pub threshold: f32,
+        /// Split above this span, world units (see [`GpuSimulator`]).
+        pub split_span: f32,
+        /// Fixed-point scale of the energy tallies.
+        pub scale: f32,
+        /// The paper's deposit's phase id (midpoints; corners use
+        /// `stamp + 1`).
+        pub stamp: u32,
+        /// 1: the track-length deposit ([`DepositRule::Fluence`]), 0: the
+        /// paper's.
+        pub fluence: u32,
+        /// 1: Fresnel transmission at interfaces.
+        pub fresnel: u32,
+        /// Where the split flags' pyramid starts in the pyramid buffer.
+        pub splits_base: u32,
+    }
+}
+
+layout! {
+    /// The uniform of one reduction dispatch (`L` in `simulate.wgsl`).
+    pub struct PyramidLevel {
+        /// The level built (>= 1).
+        pub level: u32,
+        /// 1: the split flags' pyramid, 0: the counts'.
+        pub splits: u32,
+        /// Padding.
+        pub pad: [u32; 2],
+    }
+}
+
+/// Energy categories of the tallies, each 64-bit fixed point per channel
+/// (two words): words `2 (3 category + channel)`.
+const ENERGY: [&str; 5] = [
+    "E_ABSORBED",
+    "E_EXITED",
+    "E_CULLED",
+    "E_REFLECTED",
+    "E_TRAPPED",
+];
+/// Stats words after the energies: counts.
+const S_EXITED: usize = 30;
+const S_ABSORBED: usize = 31;
+const S_CAUSTIC: usize = 32;
+const S_HELD: usize = 33;
+const S_KEPT: usize = 34;
+const S_SPLITS: usize = 35;
+const S_FAINT: usize = 36;
+const STATS_WORDS: usize = 37;
+/// What `Incident` is, for `incident_at`.
+const INCIDENT_UNIFORM: u32 = 0;
+const INCIDENT_POINT: u32 = 1;
+const INCIDENT_SPOT: u32 = 2;
+/// Cells a thread sums before its atomic adds (`deposit::Local`, smaller
+/// than the CPU's: private memory per thread).
+const LOCAL_CELLS: u32 = 16;
+
+fn declarations() -> String {
+    let mut c = Consts::new();
+    for (k, name) in ENERGY.iter().enumerate() {
+        c = c.u32(name, k as u32);
+    }
+    let c = c
+        .u32("S_EXITED", S_EXITED as u32)
+        .u32("S_ABSORBED", S_ABSORBED as u32)
+        .u32("S_CAUSTIC", S_CAUSTIC as u32)
+        .u32("S_HELD", S_HELD as u32)
+        .u32("S_KEPT", S_KEPT as u32)
+        .u32("S_SPLITS", S_SPLITS as u32)
+        .u32("S_FAINT", S_FAINT as u32)
+        .u32("STATS_WORDS", STATS_WORDS as u32)
+        .u32("FATE_EXIT", Fate::Exit as u32)
+        .u32("FATE_ABSORBED", Fate::Absorbed as u32)
+        .u32("FATE_FAINT", Fate::Faint as u32)
+        .u32("FATE_CAUSTIC", Fate::Caustic as u32)
+        .u32("FATE_RETAIN", Fate::Retain as u32)
+        .u32("FATE_SPLIT", Fate::Split as u32)
+        .u32("INCIDENT_UNIFORM", INCIDENT_UNIFORM)
+        .u32("INCIDENT_POINT", INCIDENT_POINT)
+        .u32("INCIDENT_SPOT", INCIDENT_SPOT)
+        .u32("NONE", u32::MAX)
+        .u32("LOCAL_CELLS", LOCAL_CELLS);
+    format!(
+        "{}{}{}",
+        SimParams::declaration(),
+        PyramidLevel::declaration(),
+        c.wgsl()
+    )
+}
+
+/// The simulator's full WGSL: its generated declarations, the shared
+/// modules and `simulate.wgsl`.
+pub fn source() -> String {
+    compose(
+        &declarations(),
+        &[
+            &DISPATCH,
+            &VECTOR,
+            &eikon_grid::geometry::WGSL,
+            &eikon_grid::ray::WGSL,
+            &eikon_grid::interface::WGSL,
+            &eikon_optics::spot::WGSL,
+            &patch::WGSL,
+            &deposit::WGSL,
+            &propagate::WGSL,
+            &histopyramid::WGSL,
+        ],
+        SOURCE,
+    )
+}
 
 /// Bytes per patch of a list's arrays (see [`PatchSet`]): four corner
 /// positions with their optical path lengths, four gradients, and the
@@ -113,46 +281,61 @@ const FIRST_CAP: usize = 4096;
 /// Format of the medium's textures.
 const TEXEL: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 /// Storage buffers bound at once (groups 0 to 2 of `simulate.wgsl`).
-const STORAGE_BUFFERS: u32 = 24;
+const STORAGE_BUFFERS: u32 = 23;
 /// Most pyramid levels (4^15 entries).
 const MAX_LEVELS: usize = 16;
 
-const KERNELS: [&str; 14] = [
-    "propagate",
-    "analyse",
-    "reduce_splits",
-    "grant",
-    "reduce_counts",
-    "expand",
+/// The kernels, in the order a step runs them.
+#[derive(Clone, Copy)]
+enum Kernel {
+    /// The walk: the list the last step's grants asked for.
+    Rebuild,
+    /// The paper's deposit: midpoints (three passes), then corners.
+    MidMax,
+    MidOwner,
+    MidWrite,
+    CornerMax,
+    CornerOwner,
+    CornerWrite,
+    /// Step 1 (and 2 for the paper's deposit).
+    Propagate,
+    /// Step 1 with the fluence deposit of each patch's tube.
+    PropagateTube,
+    /// Step 3: fates and tallies.
+    Analyse,
+    /// One pyramid level.
+    Reduce,
+    /// The split grants.
+    Grant,
+    /// The patches left at the step limit.
+    CullRest,
+}
+
+const KERNELS: [&str; 13] = [
+    "rebuild",
     "mid_max",
     "mid_owner",
     "mid_write",
     "corner_max",
     "corner_owner",
     "corner_write",
-    "cull_rest",
+    "propagate",
     "propagate_tube",
+    "analyse",
+    "reduce",
+    "grant",
+    "cull_rest",
 ];
-const PROPAGATE: usize = 0;
-const ANALYSE: usize = 1;
-const REDUCE_SPLITS: usize = 2;
-const GRANT: usize = 3;
-const REDUCE_COUNTS: usize = 4;
-const EXPAND: usize = 5;
-const DEPOSIT: usize = 6; // six kernels: midpoints (3 passes), corners (3)
-const CULL_REST: usize = 12;
-const PROPAGATE_TUBE: usize = 13;
 
-/// Stats words (see `simulate.wgsl`): five energy categories (absorbed,
-/// exited, culled, reflected, trapped) per channel in 64-bit fixed point,
-/// then counts.
-const STATS_WORDS: usize = 37;
-const S_EXITED: usize = 30;
-const S_ABSORBED: usize = 31;
-const S_CAUSTIC: usize = 32;
-const S_HELD: usize = 33;
-const S_KEPT: u64 = 34;
-const S_FAINT: usize = 36;
+/// The paper's deposit's six kernels, in order.
+const PAPER_DEPOSIT: [Kernel; 6] = [
+    Kernel::MidMax,
+    Kernel::MidOwner,
+    Kernel::MidWrite,
+    Kernel::CornerMax,
+    Kernel::CornerOwner,
+    Kernel::CornerWrite,
+];
 
 /// Storage buffers of the light volume (group 2): the paper's deposit
 /// binds 9 of them, the fluence deposit's counters all 12.
@@ -255,20 +438,14 @@ fn texture(gpu: &Gpu, label: &str, dims: [usize; 3], data: &[f32]) -> Texture {
 /// read through its public lookup at each block's centre).
 fn empty_table(medium: &Medium, channel: usize) -> (Vec<f32>, [u32; 3], DVec3) {
     let empty = EmptySpace::new(medium, channel);
-    let g = &medium.geometry;
-    let b = EmptySpace::BLOCK;
-    let dims = g.dims.map(|d| d.div_ceil(b));
-    let block = g.spacing() * b as f64;
-    let mut out = Vec::with_capacity(dims[0] * dims[1] * dims[2]);
-    for i in 0..dims[0] {
-        for j in 0..dims[1] {
-            for k in 0..dims[2] {
-                let c = g.min + (DVec3::new(i as f64, j as f64, k as f64) + 0.5) * block;
-                out.push(empty.index_at(c).map_or(-1.0, |n| n as f32));
-            }
-        }
-    }
-    (out, dims.map(|d| d as u32), 1.0 / block)
+    let blocks = empty.blocks();
+    let out = (0..blocks.len())
+        .map(|f| {
+            let c = blocks.centre(blocks.coords(f));
+            empty.index_at(c).map_or(-1.0, |n| n as f32)
+        })
+        .collect();
+    (out, blocks.dims.map(|d| d as u32), blocks.inv_edge())
 }
 
 /// Growable GPU patch list.
@@ -296,25 +473,23 @@ impl PatchSet {
     }
 }
 
-/// Bytes of the per-patch scratch over `n` patches: the pyramids of the
-/// counts and of the split flags, the fates, and each patch's deposits
-/// (`dep_bytes` per patch).
-fn scratch_bytes(n: usize, dep_bytes: u64) -> [u64; 4] {
-    let pyramid = pyramid_size(n) as u64 * 4;
-    [pyramid, pyramid, n as u64 * 4, n as u64 * dep_bytes]
+/// Bytes of the per-patch scratch over `n` patches: the two pyramids (one
+/// buffer), the fates, and each patch's deposits (`dep_bytes` per patch).
+fn scratch_bytes(n: usize, dep_bytes: u64) -> [u64; 3] {
+    [
+        2 * pyramid_size(n) as u64 * 4,
+        n as u64 * 4,
+        n as u64 * dep_bytes,
+    ]
 }
 
 /// Entries of a pyramid over `n` entries (all levels).
 fn pyramid_size(n: usize) -> usize {
-    let mut len = n.max(1);
-    let mut total = len;
-    while len > 1 {
-        len = len.div_ceil(4);
-        total += len;
-    }
-    total
+    pyramid_levels(n).iter().map(|&(_, len)| len).sum()
 }
 
+/// `(offset, length)` of each level of a pyramid over `n` entries (the
+/// `histopyramid` module's `hp_offset`, `hp_len`).
 fn pyramid_levels(n: usize) -> Vec<(usize, usize)> {
     let mut out = Vec::new();
     let mut len = n.max(1);
@@ -339,25 +514,63 @@ fn dispatch(pass: &mut wgpu::ComputePass, k: &wgpu::ComputePipeline, items: usiz
     pass.dispatch_workgroups(x, y, 1);
 }
 
-/// Words of the uniform block of `simulate.wgsl` (`Params`).
-const PARAMS_WORDS: usize = 64;
+/// What one light's simulation holds on the device beside the patch lists:
+/// its light volume, tallies, uniforms and the word the list's length is
+/// read back through.
+struct Run {
+    volume: Vec<Buffer>,
+    volume_group: wgpu::BindGroup,
+    stats: Buffer,
+    params: Buffer,
+    top: Buffer,
+    /// Per pyramid (counts, then splits) and level, the uniform and its
+    /// bind group (the uniforms live as long as their bind groups, so the
+    /// tally of live bytes is what the device holds).
+    levels: [Vec<(Buffer, wgpu::BindGroup)>; 2],
+}
 
-/// The uniform block of `simulate.wgsl` (`Params`).
-#[derive(Clone, Copy)]
-struct Params([u32; PARAMS_WORDS]);
+/// The patch lists of one wavefront (the live one and the one the walk
+/// writes), their per-patch scratch, and the bind groups over them.
+struct Lists {
+    sets: [PatchSet; 2],
+    /// The live list.
+    cur: usize,
+    /// The most patches a list may hold: `max_patches`, or the emitted
+    /// wavefront if larger.
+    most: usize,
+    /// Patches the scratch holds.
+    scratch_cap: usize,
+    /// Scratch bytes per patch of the paper's deposits (0 for the
+    /// fluence deposit).
+    dep_bytes: u64,
+    /// The index channel and whether Fresnel's interfaces are bound.
+    channel: usize,
+    fresnel: bool,
+    /// The counts' pyramid from 0, the split flags' from `splits_base`.
+    pyramid: Buffer,
+    fates: Buffer,
+    deps: Buffer,
+    /// Group 0 (the medium and the scratch).
+    medium_group: wgpu::BindGroup,
+    /// Group 1, `sets[k]` to `sets[1 - k]` (empty while a list is
+    /// replaced).
+    patch_groups: Vec<wgpu::BindGroup>,
+}
 
-impl Params {
-    fn f(&mut self, at: usize, v: f64) {
-        self.0[at] = (v as f32).to_bits();
-    }
-    fn v(&mut self, at: usize, v: DVec3) {
-        self.f(at, v.x);
-        self.f(at + 1, v.y);
-        self.f(at + 2, v.z);
-    }
-    fn set_n(&mut self, n: usize, n_old: usize) {
-        self.0[3] = n as u32;
-        self.0[7] = n_old as u32;
+/// How one wavefront's steps went.
+#[derive(Default)]
+struct Traced {
+    steps: usize,
+    /// The longest list.
+    peak: usize,
+    /// Patches alive at the step limit.
+    left: usize,
+}
+
+impl Lists {
+    /// Where the split flags' pyramid starts.
+    fn splits_base(&self) -> u32 {
+        pyramid_size(self.scratch_cap) as u32
     }
 }
 
@@ -377,6 +590,28 @@ impl<'a> GpuSimulator<'a> {
         medium: &'a Medium,
         limit: u64,
     ) -> Result<Self, GpuError> {
+        let binding_limit = Self::check_limits(gpu, medium, limit)?;
+        let (layouts, kernels) = Self::compile(gpu)?;
+        let (_, empty_dims, inv_block) = empty_table(medium, 0);
+        let (index, extinction, no_fresnel) = Self::upload_medium(gpu, medium)?;
+        Ok(Self {
+            gpu,
+            medium,
+            layouts,
+            kernels,
+            index,
+            extinction,
+            fresnel: OnceLock::new(),
+            no_fresnel,
+            binding_limit,
+            empty_dims,
+            inv_block,
+        })
+    }
+
+    /// The device's limits against what the kernels and `medium` need;
+    /// the largest storage binding the lists may use.
+    fn check_limits(gpu: &Gpu, medium: &Medium, limit: u64) -> Result<u64, GpuError> {
         let limits = gpu.device.limits();
         let binding_limit = limit
             .min(limits.max_storage_buffer_binding_size as u64)
@@ -408,6 +643,15 @@ impl<'a> GpuSimulator<'a> {
                 "lower [grid] resolution or use --backend cpu",
             ));
         }
+        Ok(binding_limit)
+    }
+
+    /// The bind group layouts (medium and scratch, patch lists, light
+    /// volume, pyramid level) and one pipeline per kernel of [`source`].
+    #[allow(clippy::type_complexity)]
+    fn compile(
+        gpu: &Gpu,
+    ) -> Result<([wgpu::BindGroupLayout; 4], Vec<wgpu::ComputePipeline>), GpuError> {
         let layouts = gpu.checked("light simulator layouts", || {
             let make = |label, entries: &[wgpu::BindGroupLayoutEntry]| {
                 gpu.device
@@ -418,8 +662,8 @@ impl<'a> GpuSimulator<'a> {
             };
             let mut g0 = vec![uniform_entry(0), texture_entry(1), texture_entry(2)];
             g0.push(storage_entry(3, true));
-            g0.extend((4..9).map(|b| storage_entry(b, false)));
-            g0.push(texture_entry(9));
+            g0.extend((4..8).map(|b| storage_entry(b, false)));
+            g0.push(texture_entry(8));
             let g1: Vec<_> = (0..6).map(|b| storage_entry(b, false)).collect();
             let g2: Vec<_> = (0..VOLUME_BUFFERS as u32)
                 .map(|b| storage_entry(b, false))
@@ -436,7 +680,7 @@ impl<'a> GpuSimulator<'a> {
                 .device
                 .create_shader_module(wgpu::ShaderModuleDescriptor {
                     label: Some("simulate.wgsl"),
-                    source: wgpu::ShaderSource::Wgsl(SOURCE.into()),
+                    source: wgpu::ShaderSource::Wgsl(source().into()),
                 });
             let layout = gpu
                 .device
@@ -460,8 +704,19 @@ impl<'a> GpuSimulator<'a> {
                 })
                 .collect::<Vec<_>>()
         })?;
-        let (_, empty_dims, inv_block) = empty_table(medium, 0);
-        let (index, extinction, no_fresnel) = gpu.checked("uploading the medium", || {
+        Ok((layouts, kernels))
+    }
+
+    /// The medium as textures: per index channel its field and empty-space
+    /// table, the extinction, and the one-texel stand-in for the
+    /// interfaces.
+    #[allow(clippy::type_complexity)]
+    fn upload_medium(
+        gpu: &Gpu,
+        medium: &Medium,
+    ) -> Result<(Vec<(Texture, Buffer)>, Texture, Texture), GpuError> {
+        let g = &medium.geometry;
+        gpu.checked("uploading the medium", || {
             let index = (0..medium.channels())
                 .map(|c| {
                     let data = medium.index[c].as_slice().expect("contiguous");
@@ -477,20 +732,11 @@ impl<'a> GpuSimulator<'a> {
             }
             let none = texture(gpu, "no interfaces", [1, 1, 1], &[0.0; 4]);
             (index, texture(gpu, "extinction", g.dims, &rgba), none)
-        })?;
-        Ok(Self {
-            gpu,
-            medium,
-            layouts,
-            kernels,
-            index,
-            extinction,
-            fresnel: OnceLock::new(),
-            no_fresnel,
-            binding_limit,
-            empty_dims,
-            inv_block,
         })
+    }
+
+    fn kernel(&self, k: Kernel) -> &wgpu::ComputePipeline {
+        &self.kernels[k as usize]
     }
 
     /// Most patches the lists can hold.
@@ -512,13 +758,13 @@ impl<'a> GpuSimulator<'a> {
     ///   (kept by the simulator for later lights);
     /// * the light volume: one u32 per cell for each of its 12 arrays
     ///   (fluence deposit) or 9 (paper's, 3 unused placeholders);
-    /// * the uniforms (parameters, one per pyramid level), the stats and
-    ///   the word the list's length is read from;
+    /// * the uniforms (parameters, one per pyramid and level), the stats
+    ///   and the word the list's length is read from;
     /// * the two patch lists at `opts.max_patches` (the grants never let a
     ///   list grow past it; the device may lower it to
     ///   [`Self::patch_limit`], which only lowers the need);
-    /// * the per-patch scratch at that cap: two pyramids, the fates and,
-    ///   with the paper's deposit, the deposits;
+    /// * the per-patch scratch at that cap: the two pyramids, the fates
+    ///   and, with the paper's deposit, the deposits;
     /// * the largest transient: the old scratch while it is copied into a
     ///   larger one, or the staging buffer one volume array is read back
     ///   through.
@@ -533,7 +779,7 @@ impl<'a> GpuSimulator<'a> {
         let buffer = |bytes: u64| bytes.max(MIN_BUFFER_BYTES);
         let blocks = dims
             .iter()
-            .map(|&d| d.div_ceil(EmptySpace::BLOCK) as u64)
+            .map(|&d| d.div_ceil(BLOCK) as u64)
             .product::<u64>();
         let field = texture_bytes(dims, TEXEL);
         let channels = channels as u64;
@@ -550,8 +796,8 @@ impl<'a> GpuSimulator<'a> {
             PAPER_VOLUME_BUFFERS as u64 * word
                 + (VOLUME_BUFFERS - PAPER_VOLUME_BUFFERS) as u64 * MIN_BUFFER_BYTES
         };
-        let small = buffer(PARAMS_WORDS as u64 * 4)
-            + MAX_LEVELS as u64 * std::mem::size_of::<[u32; 4]>() as u64
+        let small = buffer(SimParams::size() as u64)
+            + 2 * MAX_LEVELS as u64 * PyramidLevel::size() as u64
             + buffer(STATS_WORDS as u64 * 4)
             + MIN_BUFFER_BYTES;
         let cap = opts.max_patches;
@@ -621,7 +867,10 @@ impl<'a> GpuSimulator<'a> {
     }
 
     /// Simulate one light (see [`crate::simulate_light`]): the same
-    /// wavefronts, deposit rule and Fresnel transmission as the CPU.
+    /// wavefronts, deposit rule and Fresnel transmission as the CPU. Per
+    /// wavefront group: the CPU starts the wavefront
+    /// ([`crate::start_wavefront`]), the list is uploaded, the steps run on
+    /// the GPU ([`Self::trace`]), and the tallies come back.
     pub fn simulate(
         &self,
         light: &Light,
@@ -631,9 +880,7 @@ impl<'a> GpuSimulator<'a> {
         opts.check()?;
         let medium = self.medium;
         let grid = &medium.geometry;
-        let gpu = self.gpu;
         let ngroups = medium.channels();
-        let cells = grid.voxel_count();
         let fluence = opts.deposit == DepositRule::Fluence;
         let mut summary = Summary::default();
         let crate::Plan {
@@ -641,8 +888,8 @@ impl<'a> GpuSimulator<'a> {
             dt,
             max_steps,
         } = crate::Plan::new(light, medium, opts);
-        let max_patches = opts.max_patches.min(self.patch_limit());
-        let fresnel = if opts.fresnel {
+        rules.max_patches = opts.max_patches.min(self.patch_limit());
+        let faces = if opts.fresnel {
             Some(self.fresnel_textures()?)
         } else {
             None
@@ -659,24 +906,88 @@ impl<'a> GpuSimulator<'a> {
                 units_per_crossing(crossings_bound(medium, opts.step, max_steps)),
             )
         });
-        let (fl_scale, flux_scale) = tally.as_ref().map_or(([0.0; 3], 0.0), Counters::scales);
+        let run = self.open_run(fluence);
+        let mut directions = Vec::with_capacity(ngroups);
+        let mut stamp = 1u32;
+        let (mut p, mut next) = (Patches::default(), Patches::default());
+        let mut scratch = refine::Scratch::default();
+        for g in 0..ngroups {
+            let (mask, group) = crate::group(g, ngroups);
+            rules.incident = Incident::new(light, mask);
+            // Emission, the start sphere's deposit and the pre-step
+            // tessellation are the CPU's own.
+            let field = propagate::Bounded::new(medium, g);
+            crate::start_wavefront(
+                light,
+                medium,
+                &field,
+                opts,
+                &rules,
+                (mask, group),
+                (&mut p, &mut next, &mut scratch),
+                tally.as_ref(),
+                &mut summary,
+            );
+            if p.is_empty() {
+                directions.push(Array4::zeros((grid.dims[0], grid.dims[1], grid.dims[2], 3)));
+                continue;
+            }
+            if p.len() > self.patch_limit() {
+                return Err(too_large(
+                    "the emitted wavefront (patches)",
+                    p.len() as u64,
+                    self.patch_limit() as u64,
+                    "raise patch-size or use --backend cpu",
+                )
+                .into());
+            }
+            let mut params = self.params(&rules, dt, opts, group, tally.as_ref(), &p);
+            let mut lists = self.upload(&run, g, faces.is_some(), &p, rules.max_patches, fluence);
+            self.begin_group(&run, fluence);
+            let traced = self.trace(
+                &run,
+                &mut lists,
+                (&mut params, &mut stamp),
+                p.len(),
+                max_steps,
+                progress,
+            )?;
+            summary.step_limit += traced.left;
+            summary.peak_patches = summary.peak_patches.max(traced.peak);
+            summary.steps = summary.steps.max(traced.steps);
+            self.end_group(
+                &run,
+                &params,
+                &mut summary,
+                g,
+                tally.as_mut(),
+                &mut directions,
+            )?;
+            drop(lists);
+        }
+        let volume = match tally {
+            Some(t) => self.fluence_volume(&run, t)?,
+            None => {
+                let irradiance = read_rgb(self.gpu, &run.volume[3..6], grid.dims)?;
+                LightVolume::from_rays(irradiance, directions)
+            }
+        };
+        crate::check_finite(&volume, &summary)?;
+        Ok((volume, summary))
+    }
 
-        // The light volume: one buffer of one word per cell for each array
-        // (see `simulate.wgsl`, group 2).
-        let vol = |label: &str| gpu.storage_empty(label, cells as u64 * 4);
+    /// The light volume's buffers (see `simulate.wgsl`, group 2), the
+    /// tallies, the uniforms and the read-back word of one light.
+    fn open_run(&self, fluence: bool) -> Run {
+        let gpu = self.gpu;
+        let cells = self.medium.geometry.voxel_count() as u64;
+        let vol = |label: &str| gpu.storage_empty(label, cells * 4);
         let volume: Vec<Buffer> = if fluence {
-            let mut v: Vec<_> = ["fluence lo", "fluence hi"]
+            ["fluence lo", "fluence hi", "flux lo", "flux hi"]
                 .into_iter()
                 .flat_map(|w| (0..3).map(move |c| (w, c)))
                 .map(|(w, c)| vol(&format!("{w} {c}")))
-                .collect();
-            v.extend(
-                ["flux lo", "flux hi"]
-                    .into_iter()
-                    .flat_map(|w| (0..3).map(move |c| (w, c)))
-                    .map(|(w, c)| vol(&format!("{w} {c}"))),
-            );
-            v
+                .collect()
         } else {
             let mut v: Vec<_> = [
                 "deposit keys",
@@ -704,358 +1015,439 @@ impl<'a> GpuSimulator<'a> {
                 .map(|b| b.as_entire_binding())
                 .collect::<Vec<_>>(),
         );
-        // The level uniforms live as long as their bind groups (so that the
-        // tally of live bytes is what the device holds).
-        let level_uniforms: Vec<Buffer> = (0..MAX_LEVELS as u32)
-            .map(|l| gpu.uniform("pyramid level", &[l, 0, 0, 0]))
-            .collect();
-        let level_groups: Vec<wgpu::BindGroup> = level_uniforms
+        let levels = [0u32, 1].map(|splits| {
+            (0..MAX_LEVELS as u32)
+                .map(|level| {
+                    let u = gpu.uniform(
+                        "pyramid level",
+                        &[PyramidLevel {
+                            level,
+                            splits,
+                            ..Default::default()
+                        }],
+                    );
+                    let group = self.bind(3, &[u.as_entire_binding()]);
+                    (u, group)
+                })
+                .collect()
+        });
+        Run {
+            volume,
+            volume_group,
+            stats: gpu.storage_empty("stats", STATS_WORDS as u64 * 4),
+            params: gpu.uniform("params", &[SimParams::default()]),
+            top: gpu.storage_empty("pyramid top", 4),
+            levels,
+        }
+    }
+
+    /// The uniform block of a wavefront: the grid, the rules, the
+    /// incident light, the deposit's scales and the tallies' fixed point
+    /// (the largest channel's power at 2^52 units).
+    fn params(
+        &self,
+        rules: &Rules,
+        dt: f64,
+        opts: &Options,
+        group: Option<usize>,
+        tally: Option<&Counters>,
+        p: &Patches,
+    ) -> SimParams {
+        let grid = &self.medium.geometry;
+        let f3 = |v: DVec3| v.to_array().map(|x| x as f32);
+        let biggest = p
+            .flux
             .iter()
-            .map(|u| self.bind(3, &[u.as_entire_binding()]))
-            .collect();
-        let stats = gpu.storage_empty("stats", STATS_WORDS as u64 * 4);
-        let params_buf = gpu.uniform("params", &[0u32; PARAMS_WORDS]);
-        let top = gpu.storage_empty("pyramid top", 4);
-
-        let mut directions = Vec::with_capacity(ngroups);
-        let mut stamp_next = 1u32;
-        let (mut p, mut next) = (Patches::default(), Patches::default());
-        let mut scratch = refine::Scratch::default();
-        for g in 0..ngroups {
-            let (mask, group) = crate::group(g, ngroups);
-            rules.incident = Incident::new(light, mask);
-            // Emission, the start sphere's deposit and the pre-step
-            // tessellation are the CPU's own.
-            let field = propagate::Bounded::new(medium, g);
-            crate::start_wavefront(
-                light,
-                medium,
-                &field,
-                opts,
-                &rules,
-                (mask, group),
-                (&mut p, &mut next, &mut scratch),
-                tally.as_ref(),
-                &mut summary,
-            );
-            let n0 = p.len();
-            if n0 == 0 {
-                directions.push(Array4::zeros((grid.dims[0], grid.dims[1], grid.dims[2], 3)));
-                continue;
-            }
-            if n0 > self.patch_limit() {
-                return Err(too_large(
-                    "the emitted wavefront (patches)",
-                    n0 as u64,
-                    self.patch_limit() as u64,
-                    "raise patch-size or use --backend cpu",
-                )
-                .into());
-            }
-            // Fixed point: the largest channel's power at 2^52 units.
-            let biggest = p
-                .flux
-                .iter()
-                .fold([0.0f64; 3], |a, f| [0, 1, 2].map(|c| a[c] + f[c]))
-                .into_iter()
-                .fold(0.0, f64::max)
-                .max(1e-300);
-            let scale = 2f64.powi((52.0 - biggest.log2().ceil()).clamp(-120.0, 120.0) as i32);
-
-            let mut params = Params([0; PARAMS_WORDS]);
-            params.v(0, grid.min);
-            params.v(4, grid.spacing());
-            params.v(8, 1.0 / grid.spacing());
-            params.0[11] = u32::from(opts.method != Method::Euler);
-            for a in 0..3 {
-                params.0[12 + a] = grid.dims[a] as u32;
-                params.0[20 + a] = (grid.dims[a] as f32 - 1.0).to_bits();
-                params.0[24 + a] = grid.dims[a].saturating_sub(2) as u32;
-            }
-            params.0[15] = group.map_or(-1i32, |c| c as i32) as u32;
-            params.v(16, grid.max);
-            params.f(19, dt);
-            params.0[23] = rules.max_depth as u32;
-            params.0[27] = max_patches as u32;
-            params.v(28, self.inv_block);
-            params.f(31, opts.threshold);
-            params.0[32..35].copy_from_slice(&self.empty_dims);
+            .fold([0.0f64; 3], |a, f| [0, 1, 2].map(|c| a[c] + f[c]))
+            .into_iter()
+            .fold(0.0, f64::max)
+            .max(1e-300);
+        let scale = 2f64.powi((52.0 - biggest.log2().ceil()).clamp(-120.0, 120.0) as i32);
+        let (fl_scale, flux_scale) = tally.map_or(([0.0; 3], 0.0), Counters::scales);
+        let mut params = SimParams {
+            grid: GridGpu::new(grid),
+            group: group.map_or(-1, |c| c as i32),
+            integrator: if opts.integrator == Integrator::Euler {
+                Integrator::Euler as u32
+            } else {
+                Integrator::Rk4 as u32
+            },
+            empty_dims: self.empty_dims,
+            max_depth: rules.max_depth as u32,
+            inv_block: f3(self.inv_block),
+            max_patches: rules.max_patches as u32,
+            fl_scale: fl_scale.map(|x| x as f32),
+            flux_scale: flux_scale as f32,
+            incident_kind: INCIDENT_UNIFORM,
+            dim: rules.dim as f32,
+            faint: rules.faint as f32,
+            dt: dt as f32,
+            threshold: opts.threshold as f32,
             // The CPU's `span > split_span (1 + 1e-9)` with the tolerance
             // widened to f32's rounding: a patch emitted exactly at the
             // split size must not split on a rounding error.
-            params.f(35, rules.split_span * (1.0 + 1e-5));
-            params.f(36, scale);
-            params.0[38] = u32::from(fluence);
-            params.0[39] = u32::from(opts.fresnel);
-            params.v(40, DVec3::from_array(fl_scale));
-            params.f(43, flux_scale);
-            match rules.incident {
-                Incident::Uniform(e) => params.f(47, e),
-                Incident::Point {
-                    position,
-                    power,
-                    cone,
-                } => {
-                    params.v(44, position);
-                    params.f(47, power);
-                    params.0[51] = 1;
-                    if let Some((axis, angle, falloff)) = cone {
-                        params.v(48, axis);
-                        params.0[51] = 2;
-                        params.f(52, angle);
-                        params.f(53, falloff);
-                    }
+            split_span: (rules.split_span * (1.0 + 1e-5)) as f32,
+            scale: scale as f32,
+            fluence: u32::from(tally.is_some()),
+            fresnel: u32::from(opts.fresnel),
+            ..Default::default()
+        };
+        match rules.incident {
+            Incident::Uniform(e) => params.incident_power = e as f32,
+            Incident::Point {
+                position,
+                power,
+                cone,
+            } => {
+                params.incident_position = f3(position);
+                params.incident_power = power as f32;
+                params.incident_kind = INCIDENT_POINT;
+                if let Some((axis, angle, falloff)) = cone {
+                    params.incident_kind = INCIDENT_SPOT;
+                    params.cone_axis = f3(axis);
+                    params.cone_angle = angle as f32;
+                    params.cone_falloff = falloff as f32;
                 }
-            }
-            params.f(54, rules.dim);
-            params.f(55, rules.faint);
-            params.f(56, grid.voxel_size());
-
-            // Upload the list.
-            // The lists never hold more than `max_patches` (the grants
-            // refuse splits beyond it) or the emitted wavefront.
-            let most = max_patches.max(n0);
-            let cap = (2 * n0).max(FIRST_CAP).min(most);
-            let mut sets = [PatchSet::new(gpu, cap), PatchSet::new(gpu, cap)];
-            {
-                let mut pos = Vec::with_capacity(n0 * 16);
-                let mut vel = Vec::with_capacity(n0 * 16);
-                let mut aux = Vec::with_capacity(n0 * 12);
-                for i in 0..n0 {
-                    let x0 = p.corner[0][i].x;
-                    for c in 0..4 {
-                        let r = &p.corner[c][i];
-                        // Corner 0 absolute, the others relative to it.
-                        let x = if c == 0 { x0 } else { r.x - x0 };
-                        pos.extend([x.x, x.y, x.z, r.opl].map(|v| v as f32));
-                        vel.extend([r.v.x, r.v.y, r.v.z, 0.0].map(|v| v as f32));
-                    }
-                    let (f, f0, e) = (p.flux[i], p.flux0[i], p.irradiance[i]);
-                    aux.extend([f[0], f[1], f[2], p.area0[i]].map(|v| v as f32));
-                    aux.extend([f0[0], f0[1], f0[2], p.depth[i] as f64].map(|v| v as f32));
-                    aux.extend([e[0], e[1], e[2], 0.0].map(|v| v as f32));
-                }
-                gpu.queue
-                    .write_buffer(&sets[0].pos, 0, bytemuck::cast_slice(&pos));
-                gpu.queue
-                    .write_buffer(&sets[0].vel, 0, bytemuck::cast_slice(&vel));
-                gpu.queue
-                    .write_buffer(&sets[0].aux, 0, bytemuck::cast_slice(&aux));
-            }
-            let mut pyr_cap = cap;
-            // The paper's deposit keeps each patch's five deposits of a step.
-            let dep_bytes = if fluence { 0 } else { DEPOSIT_BYTES };
-            let make_pyramid = |n: usize| {
-                let [l, s, f, d] = scratch_bytes(n, dep_bytes);
-                (
-                    gpu.storage_empty("counts pyramid", l),
-                    gpu.storage_empty("splits pyramid", s),
-                    gpu.storage_empty("fates", f),
-                    gpu.storage_empty("deposits", d),
-                )
-            };
-            let (mut levels, mut splits, mut fates, mut deps) = make_pyramid(pyr_cap);
-            let (view, empty) = &self.index[g];
-            let faces = fresnel.map_or(&self.no_fresnel, |f| &f[g]);
-            let bind_medium = |levels: &wgpu::Buffer,
-                               splits: &wgpu::Buffer,
-                               fates: &wgpu::Buffer,
-                               deps: &wgpu::Buffer| {
-                self.bind(
-                    0,
-                    &[
-                        params_buf.as_entire_binding(),
-                        wgpu::BindingResource::TextureView(&view.view),
-                        wgpu::BindingResource::TextureView(&self.extinction.view),
-                        empty.as_entire_binding(),
-                        stats.as_entire_binding(),
-                        levels.as_entire_binding(),
-                        splits.as_entire_binding(),
-                        fates.as_entire_binding(),
-                        deps.as_entire_binding(),
-                        wgpu::BindingResource::TextureView(&faces.view),
-                    ],
-                )
-            };
-            let mut medium_group = bind_medium(&levels, &splits, &fates, &deps);
-            // forward: sets[cur] -> sets[1 - cur].
-            let mut cur = 0usize;
-            let mut patch_groups = [
-                self.bind_patches(&sets[0], &sets[1]),
-                self.bind_patches(&sets[1], &sets[0]),
-            ];
-            {
-                let mut enc = gpu.device.create_command_encoder(&Default::default());
-                enc.clear_buffer(&stats, 0, None);
-                if fluence {
-                    // This group's flux vectors (the fluence adds up over
-                    // the groups).
-                    for b in &volume[6..12] {
-                        enc.clear_buffer(b, 0, None);
-                    }
-                } else {
-                    // The keys and the directions (the irradiance of the
-                    // other channels stays).
-                    enc.clear_buffer(&volume[0], 0, None);
-                    for b in &volume[6..9] {
-                        enc.clear_buffer(b, 0, None);
-                    }
-                }
-                gpu.queue.submit([enc.finish()]);
-            }
-            let step_kernel = if fluence { PROPAGATE_TUBE } else { PROPAGATE };
-
-            // The loop: one submission and one read-back (the new list's
-            // length) per step.
-            let mut n = n0;
-            let mut n_old = 0usize;
-            let mut step = 0usize;
-            let mut expand_first = false;
-            loop {
-                let stepping = n > 0 && step < max_steps;
-                params.set_n(n, n_old);
-                params.0[37] = stamp_next;
-                stamp_next += 2;
-                gpu.queue
-                    .write_buffer(&params_buf, 0, bytemuck::cast_slice(&params.0));
-                let levels_n = pyramid_levels(n);
-                gpu.checked("light simulation step", || {
-                    let mut enc = gpu.device.create_command_encoder(&Default::default());
-                    enc.clear_buffer(&stats, S_KEPT * 4, Some(8));
-                    {
-                        let mut pass = enc.begin_compute_pass(&Default::default());
-                        pass.set_bind_group(0, &medium_group, &[]);
-                        pass.set_bind_group(2, &volume_group, &[]);
-                        pass.set_bind_group(3, &level_groups[0], &[]);
-                        if expand_first {
-                            pass.set_bind_group(1, &patch_groups[1 - cur], &[]);
-                            dispatch(&mut pass, &self.kernels[EXPAND], n);
-                        }
-                        pass.set_bind_group(1, &patch_groups[cur], &[]);
-                        if !fluence {
-                            for k in DEPOSIT..DEPOSIT + 6 {
-                                dispatch(&mut pass, &self.kernels[k], n);
-                            }
-                        }
-                        if stepping {
-                            dispatch(&mut pass, &self.kernels[step_kernel], n);
-                            dispatch(&mut pass, &self.kernels[ANALYSE], n);
-                            for (kernel, base) in [(REDUCE_SPLITS, false), (REDUCE_COUNTS, true)] {
-                                if base {
-                                    pass.set_bind_group(3, &level_groups[0], &[]);
-                                    dispatch(&mut pass, &self.kernels[GRANT], n);
-                                }
-                                for (l, &(_, len)) in levels_n.iter().enumerate().skip(1) {
-                                    pass.set_bind_group(3, &level_groups[l], &[]);
-                                    dispatch(&mut pass, &self.kernels[kernel], len);
-                                }
-                            }
-                        } else {
-                            dispatch(&mut pass, &self.kernels[CULL_REST], n);
-                        }
-                    }
-                    if stepping {
-                        let (off, _) = *levels_n.last().expect("a level");
-                        enc.copy_buffer_to_buffer(&levels, off as u64 * 4, &top, 0, 4);
-                    }
-                    gpu.queue.submit([enc.finish()]);
-                })?;
-                if !stepping {
-                    summary.step_limit += n;
-                    break;
-                }
-                step += 1;
-                let total = gpu.read::<u32>(&top, 1)?[0] as usize;
-                summary.peak_patches = summary.peak_patches.max(total);
-                progress(step, total);
-                // The walk writes `total` patches into the other list.
-                let dst = 1 - cur;
-                if total > sets[dst].cap {
-                    let cap = total.max(2 * sets[dst].cap).min(most);
-                    if total > cap {
-                        return Err(too_large(
-                            "the wavefront (patches)",
-                            total as u64,
-                            cap as u64,
-                            "lower max-patches",
-                        )
-                        .into());
-                    }
-                    // The walk overwrites the other list: free it, with the
-                    // bind groups that hold it, before making the larger.
-                    drop(patch_groups);
-                    sets[dst] = PatchSet::new(gpu, 0);
-                    sets[dst] = PatchSet::new(gpu, cap);
-                    patch_groups = [
-                        self.bind_patches(&sets[0], &sets[1]),
-                        self.bind_patches(&sets[1], &sets[0]),
-                    ];
-                }
-                if total > pyr_cap {
-                    // The walk still reads the old pyramid: carry it over.
-                    let new_cap = total.max(2 * pyr_cap).min(most);
-                    let (l2, s2, f2, d2) = make_pyramid(new_cap);
-                    let mut enc = gpu.device.create_command_encoder(&Default::default());
-                    enc.copy_buffer_to_buffer(&levels, 0, &l2, 0, levels.size());
-                    gpu.queue.submit([enc.finish()]);
-                    (levels, splits, fates, deps) = (l2, s2, f2, d2);
-                    pyr_cap = new_cap;
-                    medium_group = bind_medium(&levels, &splits, &fates, &deps);
-                }
-                n_old = n;
-                n = total;
-                expand_first = true;
-                cur = dst;
-                if n == 0 {
-                    break;
-                }
-            }
-            summary.steps = summary.steps.max(step);
-
-            // Tallies.
-            let s = gpu.read::<u32>(&stats, STATS_WORDS)?;
-            let energy = |cat: usize, c: usize| {
-                let w = 2 * (3 * cat + c);
-                (s[w] as f64 + s[w + 1] as f64 * 4294967296.0) / scale
-            };
-            for c in 0..3 {
-                summary.absorbed_power[c] += energy(0, c);
-                summary.exited_power[c] += energy(1, c);
-                summary.culled_power[c] += energy(2, c);
-                summary.reflected_power[c] += energy(3, c);
-                summary.trapped_power[c] += energy(4, c);
-            }
-            summary.exited += s[S_EXITED] as usize;
-            summary.absorbed += s[S_ABSORBED] as usize;
-            summary.faint += s[S_FAINT] as usize;
-            summary.caustic += s[S_CAUSTIC] as usize;
-            summary.held += s[S_HELD] as usize;
-            match tally.as_mut() {
-                Some(t) => {
-                    for a in 0..3 {
-                        let units = read_u64(gpu, &volume[6 + a], &volume[9 + a], cells)?;
-                        let units: Vec<i64> = units.into_iter().map(|u| u as i64).collect();
-                        t.add_flux_units(g, a, &units);
-                    }
-                }
-                None => directions.push(read_rgb(gpu, &volume[6..9], grid.dims)?),
             }
         }
-        let volume = match tally {
-            Some(mut t) => {
-                for c in 0..3 {
-                    let units = read_u64(gpu, &volume[c], &volume[3 + c], cells)?;
-                    t.add_fluence_units(c, &units);
-                }
-                t.into_volume()
+        params
+    }
+
+    /// Upload the wavefront `p` of index channel `g` into new lists (never
+    /// larger than `max_patches` or the emitted wavefront) with their
+    /// scratch and bind groups, the interfaces bound with `fresnel`.
+    fn upload(
+        &self,
+        run: &Run,
+        g: usize,
+        fresnel: bool,
+        p: &Patches,
+        max_patches: usize,
+        fluence: bool,
+    ) -> Lists {
+        let gpu = self.gpu;
+        let n0 = p.len();
+        let most = max_patches.max(n0);
+        let cap = (2 * n0).max(FIRST_CAP).min(most);
+        let sets = [PatchSet::new(gpu, cap), PatchSet::new(gpu, cap)];
+        let mut pos = Vec::with_capacity(n0 * 16);
+        let mut vel = Vec::with_capacity(n0 * 16);
+        let mut aux = Vec::with_capacity(n0 * 12);
+        for i in 0..n0 {
+            let x0 = p.corner[0][i].x;
+            for c in 0..4 {
+                let r = &p.corner[c][i];
+                // Corner 0 absolute, the others relative to it.
+                let x = if c == 0 { x0 } else { r.x - x0 };
+                pos.extend([x.x, x.y, x.z, r.opl].map(|v| v as f32));
+                vel.extend([r.v.x, r.v.y, r.v.z, 0.0].map(|v| v as f32));
             }
-            None => {
-                let irradiance = read_rgb(gpu, &volume[3..6], grid.dims)?;
-                LightVolume::from_rays(irradiance, directions)
-            }
+            let (f, f0, e) = (p.flux[i], p.flux0[i], p.irradiance[i]);
+            aux.extend([f[0], f[1], f[2], p.area0[i]].map(|v| v as f32));
+            aux.extend([f0[0], f0[1], f0[2], p.depth[i] as f64].map(|v| v as f32));
+            aux.extend([e[0], e[1], e[2], 0.0].map(|v| v as f32));
+        }
+        gpu.queue
+            .write_buffer(&sets[0].pos, 0, bytemuck::cast_slice(&pos));
+        gpu.queue
+            .write_buffer(&sets[0].vel, 0, bytemuck::cast_slice(&vel));
+        gpu.queue
+            .write_buffer(&sets[0].aux, 0, bytemuck::cast_slice(&aux));
+        let dep_bytes = if fluence { 0 } else { DEPOSIT_BYTES };
+        let [pb, fb, db] = scratch_bytes(cap, dep_bytes);
+        let (pyramid, fates, deps) = (
+            gpu.storage_empty("pyramids", pb),
+            gpu.storage_empty("fates", fb),
+            gpu.storage_empty("deposits", db),
+        );
+        let medium_group = self.bind_medium(run, g, fresnel, [&pyramid, &fates, &deps]);
+        let patch_groups = vec![
+            self.bind_patches(&sets[0], &sets[1]),
+            self.bind_patches(&sets[1], &sets[0]),
+        ];
+        Lists {
+            sets,
+            cur: 0,
+            most,
+            scratch_cap: cap,
+            dep_bytes,
+            channel: g,
+            fresnel,
+            pyramid,
+            fates,
+            deps,
+            medium_group,
+            patch_groups,
+        }
+    }
+
+    /// Group 0: the medium of index channel `g` (with its interfaces when
+    /// `fresnel`), the uniforms, tallies and the scratch.
+    fn bind_medium(
+        &self,
+        run: &Run,
+        g: usize,
+        fresnel: bool,
+        [pyramid, fates, deps]: [&wgpu::Buffer; 3],
+    ) -> wgpu::BindGroup {
+        let (view, empty) = &self.index[g];
+        let faces = match self.fresnel.get() {
+            Some(f) if fresnel => &f[g],
+            _ => &self.no_fresnel,
         };
-        crate::check_finite(&volume, &summary)?;
-        Ok((volume, summary))
+        self.bind(
+            0,
+            &[
+                run.params.as_entire_binding(),
+                wgpu::BindingResource::TextureView(&view.view),
+                wgpu::BindingResource::TextureView(&self.extinction.view),
+                empty.as_entire_binding(),
+                run.stats.as_entire_binding(),
+                pyramid.as_entire_binding(),
+                fates.as_entire_binding(),
+                deps.as_entire_binding(),
+                wgpu::BindingResource::TextureView(&faces.view),
+            ],
+        )
+    }
+
+    /// Clear the tallies and what a wavefront group deposits on its own:
+    /// the flux vectors (the fluence adds up over the groups), or the
+    /// paper's keys and directions (the other channels' irradiance stays).
+    fn begin_group(&self, run: &Run, fluence: bool) {
+        let gpu = self.gpu;
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        enc.clear_buffer(&run.stats, 0, None);
+        if fluence {
+            for b in &run.volume[6..12] {
+                enc.clear_buffer(b, 0, None);
+            }
+        } else {
+            enc.clear_buffer(&run.volume[0], 0, None);
+            for b in &run.volume[6..9] {
+                enc.clear_buffer(b, 0, None);
+            }
+        }
+        gpu.queue.submit([enc.finish()]);
+    }
+
+    /// The steps of one wavefront, one submission and one read-back (the
+    /// new list's length) each, until no patch is left or the step limit.
+    fn trace(
+        &self,
+        run: &Run,
+        lists: &mut Lists,
+        (params, stamp): (&mut SimParams, &mut u32),
+        n0: usize,
+        max_steps: usize,
+        progress: Progress,
+    ) -> Result<Traced, Error> {
+        let gpu = self.gpu;
+        let mut out = Traced::default();
+        let mut n = n0;
+        let mut n_old = 0usize;
+        let mut rebuild = false;
+        loop {
+            let stepping = n > 0 && out.steps < max_steps;
+            params.n = n as u32;
+            params.n_old = n_old as u32;
+            params.stamp = *stamp;
+            params.splits_base = lists.splits_base();
+            *stamp += 2;
+            gpu.queue
+                .write_buffer(&run.params, 0, bytemuck::bytes_of(params));
+            gpu.checked("light simulation step", || {
+                self.encode_step(run, lists, n, rebuild, stepping, params.fluence != 0)
+            })?;
+            if !stepping {
+                out.left = n;
+                return Ok(out);
+            }
+            out.steps += 1;
+            let total = gpu.read::<u32>(&run.top, 1)?[0] as usize;
+            out.peak = out.peak.max(total);
+            progress(out.steps, total);
+            self.fit(run, lists, total)?;
+            n_old = n;
+            n = total;
+            rebuild = true;
+            lists.cur = 1 - lists.cur;
+            if n == 0 {
+                return Ok(out);
+            }
+        }
+    }
+
+    /// One step in one submission, in the CPU loop's order: the walk that
+    /// rebuilds the list the last step's grants asked for, the paper's
+    /// deposit, step 1 (propagate, with the fluence deposit), and
+    /// `refine`: its tallies (`analyse`), the split grants (the split
+    /// flags' pyramid, `grant`) and the counts' pyramid the next walk
+    /// reads, whose top is copied out; at the step limit, the patches
+    /// left are tallied as trapped instead.
+    fn encode_step(
+        &self,
+        run: &Run,
+        lists: &Lists,
+        n: usize,
+        rebuild: bool,
+        stepping: bool,
+        fluence: bool,
+    ) {
+        let gpu = self.gpu;
+        let levels = pyramid_levels(n);
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        enc.clear_buffer(&run.stats, S_KEPT as u64 * 4, Some(8));
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_bind_group(0, &lists.medium_group, &[]);
+            pass.set_bind_group(2, &run.volume_group, &[]);
+            pass.set_bind_group(3, &run.levels[0][0].1, &[]);
+            let cur = lists.cur;
+            if rebuild {
+                // The walk writes the live list from the previous one.
+                pass.set_bind_group(1, &lists.patch_groups[1 - cur], &[]);
+                dispatch(&mut pass, self.kernel(Kernel::Rebuild), n);
+            }
+            pass.set_bind_group(1, &lists.patch_groups[cur], &[]);
+            if !fluence {
+                for k in PAPER_DEPOSIT {
+                    dispatch(&mut pass, self.kernel(k), n);
+                }
+            }
+            if stepping {
+                let step = if fluence {
+                    Kernel::PropagateTube
+                } else {
+                    Kernel::Propagate
+                };
+                dispatch(&mut pass, self.kernel(step), n);
+                dispatch(&mut pass, self.kernel(Kernel::Analyse), n);
+                for (splits, pyramid) in run.levels.iter().enumerate().rev() {
+                    if splits == 0 {
+                        dispatch(&mut pass, self.kernel(Kernel::Grant), n);
+                    }
+                    for (l, &(_, len)) in levels.iter().enumerate().skip(1) {
+                        pass.set_bind_group(3, &pyramid[l].1, &[]);
+                        dispatch(&mut pass, self.kernel(Kernel::Reduce), len);
+                    }
+                }
+            } else {
+                dispatch(&mut pass, self.kernel(Kernel::CullRest), n);
+            }
+        }
+        if stepping {
+            let (off, _) = *levels.last().expect("a level");
+            enc.copy_buffer_to_buffer(&lists.pyramid, off as u64 * 4, &run.top, 0, 4);
+        }
+        gpu.queue.submit([enc.finish()]);
+    }
+
+    /// Make room for the `total` patches the next walk writes: the list it
+    /// writes, and the scratch (carrying the counts' pyramid over, which
+    /// the walk still reads).
+    fn fit(&self, run: &Run, lists: &mut Lists, total: usize) -> Result<(), Error> {
+        let gpu = self.gpu;
+        let dst = 1 - lists.cur;
+        if total > lists.sets[dst].cap {
+            let cap = total.max(2 * lists.sets[dst].cap).min(lists.most);
+            if total > cap {
+                return Err(too_large(
+                    "the wavefront (patches)",
+                    total as u64,
+                    cap as u64,
+                    "lower max-patches",
+                )
+                .into());
+            }
+            // The walk overwrites the other list: free it, with the bind
+            // groups that hold it, before making the larger.
+            lists.patch_groups.clear();
+            lists.sets[dst] = PatchSet::new(gpu, 0);
+            lists.sets[dst] = PatchSet::new(gpu, cap);
+            lists.patch_groups = vec![
+                self.bind_patches(&lists.sets[0], &lists.sets[1]),
+                self.bind_patches(&lists.sets[1], &lists.sets[0]),
+            ];
+        }
+        if total > lists.scratch_cap {
+            let cap = total.max(2 * lists.scratch_cap).min(lists.most);
+            let [pb, fb, db] = scratch_bytes(cap, lists.dep_bytes);
+            let pyramid = gpu.storage_empty("pyramids", pb);
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            let counts = pyramid_size(lists.scratch_cap) as u64 * 4;
+            enc.copy_buffer_to_buffer(&lists.pyramid, 0, &pyramid, 0, counts);
+            gpu.queue.submit([enc.finish()]);
+            lists.pyramid = pyramid;
+            lists.fates = gpu.storage_empty("fates", fb);
+            lists.deps = gpu.storage_empty("deposits", db);
+            lists.scratch_cap = cap;
+            lists.medium_group = self.bind_medium(
+                run,
+                lists.channel,
+                lists.fresnel,
+                [&lists.pyramid, &lists.fates, &lists.deps],
+            );
+        }
+        Ok(())
+    }
+
+    /// Read back a wavefront group's tallies into `summary` and its share
+    /// of the light volume: the flux vectors into `tally` (the fluence
+    /// deposit), or the paper's directions into `directions`.
+    fn end_group(
+        &self,
+        run: &Run,
+        params: &SimParams,
+        summary: &mut Summary,
+        g: usize,
+        tally: Option<&mut Counters>,
+        directions: &mut Vec<Array4<f32>>,
+    ) -> Result<(), Error> {
+        let gpu = self.gpu;
+        let grid = &self.medium.geometry;
+        let s = gpu.read::<u32>(&run.stats, STATS_WORDS)?;
+        let scale = params.scale as f64;
+        let energy = |cat: usize, c: usize| {
+            let w = 2 * (3 * cat + c);
+            (s[w] as f64 + s[w + 1] as f64 * 4294967296.0) / scale
+        };
+        for c in 0..3 {
+            summary.absorbed_power[c] += energy(0, c);
+            summary.exited_power[c] += energy(1, c);
+            summary.culled_power[c] += energy(2, c);
+            summary.reflected_power[c] += energy(3, c);
+            summary.trapped_power[c] += energy(4, c);
+        }
+        summary.exited += s[S_EXITED] as usize;
+        summary.absorbed += s[S_ABSORBED] as usize;
+        summary.faint += s[S_FAINT] as usize;
+        summary.caustic += s[S_CAUSTIC] as usize;
+        summary.held += s[S_HELD] as usize;
+        match tally {
+            Some(t) => {
+                let cells = grid.voxel_count();
+                for a in 0..3 {
+                    let units = read_u64(gpu, &run.volume[6 + a], &run.volume[9 + a], cells)?;
+                    let units: Vec<i64> = units.into_iter().map(|u| u as i64).collect();
+                    t.add_flux_units(g, a, &units);
+                }
+            }
+            None => directions.push(read_rgb(gpu, &run.volume[6..9], grid.dims)?),
+        }
+        Ok(())
+    }
+
+    /// The fluence deposit's light volume: the GPU's fluence counters
+    /// added to `tally` (which holds the start spheres' chords and the
+    /// flux vectors), converted as on the CPU.
+    fn fluence_volume(&self, run: &Run, mut tally: Counters) -> Result<LightVolume, Error> {
+        let cells = self.medium.geometry.voxel_count();
+        for c in 0..3 {
+            let units = read_u64(self.gpu, &run.volume[c], &run.volume[3 + c], cells)?;
+            tally.add_fluence_units(c, &units);
+        }
+        Ok(tally.into_volume())
     }
 }
 
@@ -1086,4 +1478,34 @@ fn read_rgb(gpu: &Gpu, bufs: &[Buffer], dims: [usize; 3]) -> Result<Array4<f32>,
         }
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The composed source parses and validates as wgpu compiles it, and
+    /// its uniform blocks have the Rust structs' offsets (no device
+    /// needed).
+    #[test]
+    fn the_kernels_validate_and_their_layouts_match_rust() {
+        let module = eikon_gpu::layout::validate(&source()).unwrap_or_else(|e| panic!("{e}"));
+        eikon_gpu::layout::check::<SimParams>(&module).unwrap();
+        eikon_gpu::layout::check::<PyramidLevel>(&module).unwrap();
+        eikon_gpu::layout::check::<GridGpu>(&module).unwrap();
+        for k in KERNELS {
+            assert!(
+                module.entry_points.iter().any(|e| e.name == k),
+                "no entry point {k}"
+            );
+        }
+    }
+
+    #[test]
+    fn pyramid_levels_tile_its_size() {
+        let l = pyramid_levels(17);
+        assert_eq!(l, vec![(0, 17), (17, 5), (22, 2), (24, 1)]);
+        assert_eq!(pyramid_size(17), 25);
+        assert_eq!(pyramid_levels(0), vec![(0, 1)]);
+    }
 }

@@ -1,0 +1,649 @@
+//! Function-level parity of the wavefront crate's WGSL modules (the ones
+//! the GPU simulator is composed from) with the Rust they mirror: each
+//! test evaluates one shared WGSL function on a batch of inputs in a small
+//! kernel and compares it with the CPU function at f32 tolerance, so a
+//! drift names the function that drifted. They need a Vulkan, Metal or
+//! DX12 adapter (lavapipe in CI, where a missing adapter fails them; elsewhere
+//! they are reported as ignored).
+
+use eikon_gpu::Gpu;
+use eikon_gpu::DISPATCH;
+use eikon_grid::geometry::{GridGpu, WGSL as GRID};
+use eikon_grid::GridGeometry;
+use eikon_shader::compose;
+use eikon_testkit::parity::{bits, v4, xyz, Cases, IO};
+use eikon_testkit::Tests;
+use eikon_wavefront::deposit::{self, Counters};
+use eikon_wavefront::patch::{area, normal, span, Split};
+use eikon_wavefront::propagate::step_depth;
+use eikon_wavefront::{histopyramid, patch, propagate, HistoPyramid};
+use glam::DVec3;
+
+// ---------------------------------------------------------------------
+// The HistoPyramid: the module the simulator runs, against the CPU's.
+
+fn pyramid_source() -> String {
+    let main = format!(
+        "{IO}
+@group(0) @binding(2) var<storage, read_write> pyramid: array<u32>;
+
+// Input (level, n, entry): one reduction step.
+@compute @workgroup_size(WORKGROUP)
+fn reduce(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if i >= arrayLength(&input) {{
+        return;
+    }}
+    let a = bitcast<vec4<u32>>(input[i]);
+    hp_reduce(0u, a.y, a.x, a.z);
+    output[i] = vec4<f32>(0.0);
+}}
+
+// Input (slot k, n): its source, part, the total, and the rank of entry k.
+@compute @workgroup_size(WORKGROUP)
+fn walk(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if i >= arrayLength(&input) {{
+        return;
+    }}
+    let a = bitcast<vec4<u32>>(input[i]);
+    var found = vec2<u32>(0u);
+    if a.x < hp_total(0u, a.y) {{
+        found = hp_locate(0u, a.y, a.x);
+    }}
+    var rank = 0u;
+    if a.x < a.y {{
+        rank = hp_rank(0u, a.y, a.x);
+    }}
+    output[i] = bitcast<vec4<f32>>(vec4<u32>(found, hp_total(0u, a.y), rank));
+}}
+"
+    );
+    compose("", &[&DISPATCH, &histopyramid::WGSL], &main)
+}
+
+/// Counts from {0, 1, 4} in the proportions `mix`.
+fn counts(n: usize, seed: u64, mix: [u64; 3]) -> Vec<u8> {
+    let mut r = Cases::new(seed.max(1));
+    (0..n)
+        .map(|_| {
+            let x = r.next_u64() % (mix[0] + mix[1] + mix[2]);
+            if x < mix[0] {
+                0
+            } else if x < mix[0] + mix[1] {
+                1
+            } else {
+                4
+            }
+        })
+        .collect()
+}
+
+fn histopyramid_module_equals_the_cpu_pyramid(gpu: &Gpu) {
+    let source = pyramid_source();
+    let reduce = gpu.eval_kernel(&source, "reduce").unwrap();
+    let walk = gpu.eval_kernel(&source, "walk").unwrap();
+    let mut cases: Vec<Vec<u8>> = vec![vec![], vec![0], vec![4], vec![0; 1000], vec![4; 4097]];
+    for (i, n) in [
+        1usize, 3, 5, 17, 63, 64, 65, 255, 1023, 4099, 100_003, 1_000_001,
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        cases.push(counts(n, 7 + i as u64, [1, 5, 1]));
+        cases.push(counts(n, 99 + i as u64, [3, 1, 3]));
+    }
+    let mut cpu = HistoPyramid::new();
+    let mut slots = 0;
+    for c in &cases {
+        let n = c.len() as u32;
+        // Level 0 the counts, the rest built by the module level by level.
+        let mut base: Vec<u32> = c.iter().map(|&x| x as u32).collect();
+        let (mut len, mut size, mut depth) = (c.len().max(1), 0, 1);
+        base.resize(len, 0);
+        while len > 1 {
+            size += len;
+            len = len.div_ceil(4);
+            depth += 1;
+        }
+        size += 1;
+        base.resize(size, 0);
+        let pyramid = gpu.storage("pyramid", &base);
+        let mut len = c.len().max(1);
+        for level in 1..depth as u32 {
+            len = len.div_ceil(4);
+            let inputs: Vec<[f32; 4]> = (0..len as u32).map(|j| bits([level, n, j, 0])).collect();
+            reduce
+                .run(gpu, &inputs, 1, &[pyramid.as_entire_binding()])
+                .unwrap();
+        }
+        cpu.build(c);
+        let total = cpu.total();
+        let threads = total.max(c.len()).max(1) as u32;
+        let inputs: Vec<[f32; 4]> = (0..threads).map(|k| bits([k, n, 0, 0])).collect();
+        let out = walk
+            .run(gpu, &inputs, 1, &[pyramid.as_entire_binding()])
+            .unwrap();
+        let mut prefix = 0u32;
+        for (k, o) in out.iter().enumerate() {
+            let o = o.map(f32::to_bits);
+            assert_eq!(o[2] as usize, total, "total of {} counts", c.len());
+            if k < total {
+                let (src, part) = cpu.locate(k);
+                assert_eq!(
+                    (o[0], o[1]),
+                    (src as u32, part),
+                    "slot {k} of {} counts",
+                    c.len()
+                );
+            }
+            if k < c.len() {
+                assert_eq!(o[3], prefix, "rank of entry {k} of {} counts", c.len());
+                prefix += c[k] as u32;
+            }
+        }
+        slots += total;
+    }
+    println!("{} cases, {slots} output slots: module == CPU", cases.len());
+}
+
+// ---------------------------------------------------------------------
+// Patch geometry.
+
+fn patch_geometry_matches_the_cpu(gpu: &Gpu) {
+    let main = format!(
+        "{IO}
+@compute @workgroup_size(WORKGROUP)
+fn geometry(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if 4u * i >= arrayLength(&input) {{
+        return;
+    }}
+    var x: array<vec3<f32>, 4>;
+    for (var c = 0u; c < 4u; c++) {{
+        x[c] = input[4u * i + c].xyz;
+    }}
+    let split = patch_split(x);
+    output[6u * i] = vec4<f32>(patch_normal(x[0], x[1], x[2], x[3]), patch_area(x[0], x[1], x[2], x[3]));
+    output[6u * i + 1u] = vec4<f32>(patch_span(x[0], x[1], x[2], x[3]), f32(split), 0.0, 0.0);
+    for (var q = 0u; q < 4u; q++) {{
+        output[6u * i + 2u + q] = patch_split_rect(split, q);
+    }}
+}}
+"
+    );
+    let source = compose("", &[&DISPATCH, &patch::WGSL], &main);
+    let mut r = Cases::new(11);
+    let mut quads = Vec::new();
+    for k in 0..2000 {
+        // Near-squares, slivers both ways, and twisted quads.
+        let (w, h) = match k % 4 {
+            0 => (1.0, 1.0),
+            1 => (3.0, 0.7),
+            2 => (0.6, 2.5),
+            _ => (1.0, 1.0),
+        };
+        let o = r.v(-2.0, 2.0);
+        let jit = if k % 4 == 3 { 0.8 } else { 0.1 };
+        quads.push([
+            o + r.v(-jit, jit) * 0.1,
+            o + DVec3::new(w, 0.0, 0.0) + r.v(-jit, jit) * 0.1,
+            o + DVec3::new(w, h, 0.0) + r.v(-jit, jit) * 0.1,
+            o + DVec3::new(0.0, h, 0.3) + r.v(-jit, jit) * 0.1,
+        ]);
+    }
+    let inputs: Vec<[f32; 4]> = quads.iter().flatten().map(|&p| v4(p, 0.0)).collect();
+    let out = gpu.eval(&source, "geometry", &inputs, 6, &[]).unwrap();
+    for (k, p) in quads.iter().enumerate() {
+        let o = &out[6 * k..];
+        let n = normal(p);
+        assert!(
+            (xyz(o[0]) - n).length() < 1e-5 * (1.0 + n.length()),
+            "normal {k}"
+        );
+        assert!(
+            (o[0][3] as f64 - area(p)).abs() < 1e-5 * (1.0 + area(p)),
+            "area {k}"
+        );
+        assert!(
+            (o[1][0] as f64 - span(p)).abs() < 1e-5 * span(p),
+            "span {k}"
+        );
+        let split = Split::of(p);
+        assert_eq!(o[1][1] as u32, split as u32, "split {k}");
+        for q in 0..4 {
+            let (s0, t0, s1, t1) = split.rect(q);
+            let want = [s0, t0, s1, t1].map(|x| x as f32);
+            assert_eq!(o[2 + q], want, "rect {q} of {k}");
+        }
+    }
+}
+
+// ---------------------------------------------------------------------
+// The deposit geometry: sub-patches, box footprints, a chord's pieces.
+
+fn grid() -> GridGeometry {
+    GridGeometry::new(
+        [6, 5, 4],
+        DVec3::new(-1.0, -0.5, 0.0),
+        DVec3::new(2.0, 2.0, 1.6),
+    )
+}
+
+fn subpatches_and_box_footprints_match_the_cpu(gpu: &Gpu) {
+    let main = format!(
+        "{IO}
+// Input: a tube's corners before (4) and after (4), the voxel in w of the
+// first: its sub-patches.
+@compute @workgroup_size(WORKGROUP)
+fn subpatches(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if 8u * i >= arrayLength(&input) {{
+        return;
+    }}
+    var x0: array<vec3<f32>, 4>;
+    var x1: array<vec3<f32>, 4>;
+    for (var c = 0u; c < 4u; c++) {{
+        x0[c] = input[8u * i + c].xyz;
+        x1[c] = input[8u * i + 4u + c].xyz;
+    }}
+    let k = deposit_subpatches(x0, x1, input[8u * i].w);
+    output[8u * i] = vec4<f32>(f32(k.x), f32(k.y), 0.0, 0.0);
+}}
+
+// Input (centre, width): the footprint's count and parts.
+@compute @workgroup_size(WORKGROUP)
+fn boxes(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if i >= arrayLength(&input) {{
+        return;
+    }}
+    let span = deposit_box_span(input[i].x, input[i].y);
+    let n = deposit_box_count(span);
+    // Offsets relative to the footprint's centre, whatever the cell.
+    for (var k = 0u; k < MAX_PARTS; k++) {{
+        var p = vec2<f32>(0.0);
+        if k < n {{
+            p = deposit_box_part(span, k);
+        }}
+        output[MAX_PARTS * i + k] = vec4<f32>(p, f32(n), 0.0);
+    }}
+}}
+
+fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>) {{}}
+"
+    );
+    let source = compose("", &[&DISPATCH, &GRID, &patch::WGSL, &deposit::WGSL], &main);
+    let mut r = Cases::new(5);
+    let voxel = 0.25;
+    let mut tubes = Vec::new();
+    let mut inputs = Vec::new();
+    for k in 0..3000 {
+        let size = [0.05, 0.3, 1.2, 2.5][k % 4];
+        let o = r.v(-1.0, 1.0);
+        let x0: [DVec3; 4] = [0.0, 1.0, 1.0, 0.0]
+            .into_iter()
+            .zip([0.0, 0.0, 1.0, 1.0])
+            .map(|(s, t)| {
+                o + DVec3::new(s * size, t * size * r.f(0.3, 1.5), 0.0) + r.v(-0.02, 0.02)
+            })
+            .collect::<Vec<_>>()
+            .try_into()
+            .unwrap();
+        let step = r.v(-0.1, 0.1) + DVec3::Z * 0.1;
+        let x1 = x0.map(|x| x + step + r.v(-0.05, 0.05) * size);
+        let x1 = x1.map(|x| DVec3::new(x.x as f32 as f64, x.y as f32 as f64, x.z as f32 as f64));
+        for (c, x) in x0.iter().chain(&x1).enumerate() {
+            inputs.push(v4(*x, if c == 0 { voxel } else { 0.0 }));
+        }
+        tubes.push((x0, x1));
+    }
+    let out = gpu.eval(&source, "subpatches", &inputs, 1, &[]).unwrap();
+    let mut checked = 0;
+    for (k, (x0, x1)) in tubes.iter().enumerate() {
+        let got = (out[8 * k][0] as usize, out[8 * k][1] as usize);
+        let want = deposit::subpatches(x0, x1, voxel).unwrap_or((0, 0));
+        // A side within f32 rounding of a sub-patch boundary may round
+        // either way; every other case must agree exactly.
+        let near = |a: usize, b: usize, c: usize, d: usize| {
+            let l = (x0[a] - x0[b]).length().max((x0[c] - x0[d]).length());
+            let l = l
+                .max((x1[a] - x1[b]).length())
+                .max((x1[c] - x1[d]).length());
+            let u = l / (deposit::SUBPATCH_SIZE * voxel);
+            (u - u.round()).abs() < 1e-4
+        };
+        if near(1, 0, 2, 3) || near(3, 0, 2, 1) {
+            continue;
+        }
+        assert_eq!(got, want, "tube {k}");
+        checked += 1;
+    }
+    assert!(checked > 2900, "{checked}");
+
+    let cases: Vec<(f64, f64)> = (0..4000)
+        .map(|k| {
+            let width = match k % 5 {
+                0 => 0.0,
+                1 => r.f(0.0, 0.9),
+                2 => r.f(0.9, 2.0),
+                3 => r.f(2.0, 3.0),
+                _ => r.f(3.0, 5.0),
+            };
+            (r.f(0.0, 40.0), width)
+        })
+        .collect();
+    let inputs: Vec<[f32; 4]> = cases
+        .iter()
+        .map(|&(c, w)| [c as f32, w as f32, 0.0, 0.0])
+        .collect();
+    let parts = deposit::MAX_PARTS;
+    let out = gpu.eval(&source, "boxes", &inputs, parts, &[]).unwrap();
+    for (k, &(c, w)) in cases.iter().enumerate() {
+        let want = deposit::box_parts(c, w);
+        let n = want.iter().filter(|p| p.0 > 0.0).count();
+        let got = &out[parts * k..parts * (k + 1)];
+        // An edge within f32 rounding of a cell face may cut a sliver
+        // either side of it.
+        let lo = c - 0.5 * w.min((parts - 1) as f64);
+        let hi = c + 0.5 * w.min((parts - 1) as f64);
+        let on_face = |x: f64| (x - x.round()).abs() < 1e-4;
+        if w > 1e-9 && (on_face(lo) || on_face(hi)) {
+            continue;
+        }
+        assert_eq!(got[0][2] as usize, n, "parts of ({c}, {w})");
+        for (p, g) in want.iter().take(n).zip(got) {
+            assert!(
+                (g[0] as f64 - p.0).abs() < 1e-5,
+                "fraction of ({c}, {w}): {g:?} vs {p:?}"
+            );
+            assert!(
+                (g[1] as f64 - p.1).abs() < 1e-5,
+                "offset of ({c}, {w}): {g:?} vs {p:?}"
+            );
+        }
+    }
+}
+
+fn a_chords_pieces_match_the_cpu_deposit(gpu: &Gpu) {
+    const PIECES: usize = 16;
+    let main = format!(
+        "{IO}
+@group(0) @binding(2) var<uniform> G: GridGpu;
+@group(0) @binding(3) var<uniform> S: vec4<f32>;
+
+var<private> pieces: u32;
+var<private> first: u32;
+
+// Each piece as (cell, fluence) and (flux vector, 0).
+fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>) {{
+    if pieces < {PIECES}u {{
+        output[first + 2u * pieces] = vec4<f32>(bitcast<f32>(cell), fluence);
+        output[first + 2u * pieces + 1u] = vec4<f32>(flux, 0.0);
+        pieces += 1u;
+    }}
+}}
+
+// Input: a, b, flux, depth: the chord's pieces, the cell NONE after the last.
+@compute @workgroup_size(WORKGROUP)
+fn chord(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if 4u * i >= arrayLength(&input) {{
+        return;
+    }}
+    first = 8u * {PIECES}u * i;
+    pieces = 0u;
+    let sc = ChordScales(S.xyz, S.w, -1);
+    deposit_chord(G, sc, input[4u * i].xyz, input[4u * i + 1u].xyz, input[4u * i + 2u].xyz, input[4u * i + 3u].xyz);
+    if pieces < {PIECES}u {{
+        output[first + 2u * pieces] = vec4<f32>(bitcast<f32>(0xffffffffu), 0.0, 0.0, 0.0);
+    }}
+}}
+"
+    );
+    let source = compose("", &[&DISPATCH, &GRID, &patch::WGSL, &deposit::WGSL], &main);
+    let g = grid();
+    let cells = g.voxel_count();
+    let volume = {
+        let s = g.spacing();
+        s.x * s.y * s.z
+    };
+    let mut r = Cases::new(23);
+    let mut chords = Vec::new();
+    for k in 0..400 {
+        // Inside, through the bounds, along an axis, within one cell.
+        let a = r.v(-1.5, 2.5);
+        let b = match k % 4 {
+            0 => a + r.v(-1.0, 1.0),
+            1 => r.v(-1.5, 2.5),
+            2 => a + DVec3::X * r.f(0.1, 2.0),
+            _ => a + r.v(-0.05, 0.05),
+        };
+        let b = DVec3::new(b.x as f32 as f64, b.y as f32 as f64, b.z as f32 as f64);
+        let flux = [r.f(0.1, 1.0), r.f(0.0, 1.0), r.f(0.1, 1.0)];
+        let depth = if k % 3 == 0 {
+            DVec3::ZERO
+        } else {
+            r.v(0.0, 3.0)
+        };
+        chords.push((a, b, flux, depth));
+    }
+    // One chord per CPU tally, so each compares on its own.
+    let counters = |_: usize| Counters::new(&g, 1, [1.0; 3], 1e9);
+    let (scale, flux_scale) = counters(0).scales();
+    let inputs: Vec<[f32; 4]> = chords
+        .iter()
+        .flat_map(|&(a, b, f, d)| {
+            [
+                v4(a, 0.0),
+                v4(b, 0.0),
+                v4(DVec3::from_array(f), 0.0),
+                v4(d, 0.0),
+            ]
+        })
+        .collect();
+    let grid_buf = gpu.uniform("grid", &[GridGpu::new(&g)]);
+    let scales = gpu.uniform(
+        "scales",
+        &[[
+            scale[0] as f32,
+            scale[1] as f32,
+            scale[2] as f32,
+            flux_scale as f32,
+        ]],
+    );
+    let out = gpu
+        .eval(
+            &source,
+            "chord",
+            &inputs,
+            2 * PIECES,
+            &[grid_buf.as_entire_binding(), scales.as_entire_binding()],
+        )
+        .unwrap();
+    let mut pieces = 0;
+    for (k, &(a, b, f, d)) in chords.iter().enumerate() {
+        let t = counters(k);
+        t.chord(a, b, &f, d, None);
+        let cpu = t.into_volume();
+        let mut fl = vec![[0.0f64; 3]; cells];
+        let mut fx = vec![DVec3::ZERO; cells];
+        let got = &out[8 * PIECES * k..];
+        for p in 0..PIECES {
+            let cell = got[2 * p][0].to_bits();
+            if cell == u32::MAX {
+                break;
+            }
+            pieces += 1;
+            for c in 0..3 {
+                fl[cell as usize][c] += got[2 * p][1 + c] as f64 / scale[c] / volume;
+            }
+            fx[cell as usize] += xyz(got[2 * p + 1]) / flux_scale / volume;
+        }
+        let total: f64 = f.iter().sum::<f64>() * (b - a).length() / volume;
+        for (cell, (fl, fx)) in fl.iter().zip(&fx).enumerate() {
+            let [i, j, kk] = [cell / 20, (cell / 4) % 5, cell % 4];
+            for (c, got) in fl.iter().enumerate() {
+                let want = cpu.fluence[[i, j, kk, c]] as f64;
+                assert!(
+                    (got - want).abs() < 1e-5 * total + 1e-7,
+                    "chord {k} cell {cell} channel {c}: {got} vs {want}"
+                );
+            }
+            let want = DVec3::new(
+                cpu.flux[0][[i, j, kk, 0]] as f64,
+                cpu.flux[0][[i, j, kk, 1]] as f64,
+                cpu.flux[0][[i, j, kk, 2]] as f64,
+            );
+            assert!(
+                (*fx - want).length() < 1e-5 * total + 1e-7,
+                "chord {k} cell {cell} flux"
+            );
+        }
+    }
+    println!("{} chords, {pieces} pieces: module == CPU", chords.len());
+}
+
+// ---------------------------------------------------------------------
+// [Ihrke07 eq 18]'s step depth and the spot cone.
+
+fn step_depth_and_the_spot_cone_match_the_cpu(gpu: &Gpu) {
+    let main = format!(
+        "{IO}
+@group(0) @binding(2) var<uniform> G: GridGpu;
+
+// Input: (x0, dt), x1, before, after.
+@compute @workgroup_size(WORKGROUP)
+fn depth(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if 4u * i >= arrayLength(&input) {{
+        return;
+    }}
+    let x0 = input[4u * i];
+    output[4u * i] = vec4<f32>(step_depth(G, x0.xyz, input[4u * i + 1u].xyz, input[4u * i + 2u].xyz, input[4u * i + 3u].xyz, x0.w), 0.0);
+}}
+
+// Input: (dir, angle), (axis, falloff).
+@compute @workgroup_size(WORKGROUP)
+fn cone(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if 2u * i >= arrayLength(&input) {{
+        return;
+    }}
+    let a = input[2u * i];
+    let b = input[2u * i + 1u];
+    output[2u * i] = vec4<f32>(spot_cone_weight(a.xyz, b.xyz, a.w, b.w));
+}}
+"
+    );
+    let source = compose(
+        "",
+        &[
+            &DISPATCH,
+            &GRID,
+            &propagate::WGSL,
+            &eikon_optics::spot::WGSL,
+        ],
+        &main,
+    );
+    let g = grid();
+    let grid_buf = gpu.uniform("grid", &[GridGpu::new(&g)]);
+    let mut r = Cases::new(31);
+    let steps: Vec<_> = (0..3000)
+        .map(|_| {
+            let x0 = r.v(-1.5, 2.5);
+            let x1 = x0 + r.v(-0.4, 0.4);
+            let x1 = DVec3::new(x1.x as f32 as f64, x1.y as f32 as f64, x1.z as f32 as f64);
+            (x0, x1, r.v(0.0, 2.0), r.v(0.0, 2.0), r.f(0.01, 0.5))
+        })
+        .collect();
+    let inputs: Vec<[f32; 4]> = steps
+        .iter()
+        .flat_map(|&(x0, x1, b, a, dt)| [v4(x0, dt), v4(x1, 0.0), v4(b, 0.0), v4(a, 0.0)])
+        .collect();
+    let out = gpu
+        .eval(
+            &source,
+            "depth",
+            &inputs,
+            1,
+            &[grid_buf.as_entire_binding()],
+        )
+        .unwrap();
+    let mut crossing = 0;
+    for (k, &(x0, x1, b, a, dt)) in steps.iter().enumerate() {
+        let want = step_depth(&g, x0, x1, b, a, dt);
+        crossing += usize::from(g.contains(x0) != g.contains(x1));
+        let got = xyz(out[4 * k]);
+        assert!(
+            (got - want).length() < 1e-5 * (1.0 + want.length()),
+            "step {k}: {got} vs {want}"
+        );
+    }
+    assert!(crossing > 100, "{crossing} steps across the bounds");
+
+    let cones: Vec<_> = (0..4000)
+        .map(|k| {
+            let axis = r.v(-1.0, 1.0).normalize();
+            let angle = r.f(5.0, 80.0);
+            let falloff = if k % 4 == 0 { 0.0 } else { r.f(1.0, angle) };
+            // Directions spread around the cone's edge.
+            let theta = (angle + r.f(-1.5 * falloff - 5.0, 5.0)).clamp(0.0, 179.0);
+            let side = axis.any_orthonormal_vector();
+            let t = theta.to_radians();
+            let dir = axis * t.cos() + side * t.sin();
+            let f = |v: DVec3| DVec3::new(v.x as f32 as f64, v.y as f32 as f64, v.z as f32 as f64);
+            (f(dir), f(axis), angle, falloff)
+        })
+        .collect();
+    let inputs: Vec<[f32; 4]> = cones
+        .iter()
+        .flat_map(|&(d, a, angle, fall)| [v4(d, angle), v4(a, fall)])
+        .collect();
+    let out = gpu.eval(&source, "cone", &inputs, 1, &[]).unwrap();
+    let mut checked = 0;
+    for (k, &(d, a, angle, fall)) in cones.iter().enumerate() {
+        let want = eikon_optics::spot::cone_weight(d, Some((a, angle, fall)));
+        let got = out[2 * k][0] as f64;
+        // Within f32 rounding of the edge or of the band's inner edge the
+        // weight may fall either side of a kink.
+        let theta = d.dot(a).clamp(-1.0, 1.0).acos().to_degrees();
+        if (theta - angle).abs() < 0.01 || (theta - (angle - fall)).abs() < 0.01 {
+            continue;
+        }
+        // Vulkan allows acos an error of 4096 ulp of the angle (it is
+        // inherited from atan2), and the band's slope is at most
+        // 1.5 / falloff per degree.
+        let ulp = theta.to_radians() * f32::EPSILON as f64;
+        let slope = if fall > 0.0 { 1.5 / fall } else { 0.0 };
+        let tol = slope * (4096.0 * ulp).to_degrees() + 1e-6;
+        assert!((got - want).abs() < tol, "cone {k}: {got} vs {want}");
+        checked += 1;
+    }
+    assert!(checked > 3800, "{checked}");
+}
+
+fn main() {
+    Tests::new()
+        .gpu(
+            "histopyramid_module_equals_the_cpu_pyramid",
+            histopyramid_module_equals_the_cpu_pyramid,
+        )
+        .gpu(
+            "patch_geometry_matches_the_cpu",
+            patch_geometry_matches_the_cpu,
+        )
+        .gpu(
+            "subpatches_and_box_footprints_match_the_cpu",
+            subpatches_and_box_footprints_match_the_cpu,
+        )
+        .gpu(
+            "a_chords_pieces_match_the_cpu_deposit",
+            a_chords_pieces_match_the_cpu_deposit,
+        )
+        .gpu(
+            "step_depth_and_the_spot_cone_match_the_cpu",
+            step_depth_and_the_spot_cone_match_the_cpu,
+        )
+        .run()
+}
