@@ -14,7 +14,7 @@ use anyhow::Result;
 use clap::ValueEnum;
 #[cfg(feature = "gpu")]
 use eikon_gpu::{Gpu, GpuError};
-use eikon_grid::{Light, Medium, Progress};
+use eikon_grid::{Light, Medium, Progress, Scene};
 use eikon_optics::{Camera, Environment};
 use eikon_wavefront::{LightVolume, Summary};
 use std::sync::Mutex;
@@ -70,13 +70,24 @@ impl Backend {
 impl Backend {
     /// The light simulator of this backend for `medium`: on the GPU the
     /// medium is uploaded here, once for every light.
-    pub fn simulator<'a>(&'a self, medium: &'a Medium) -> Result<Simulator<'a>> {
+    /// With `[grid] interfaces = "sharp"` the simulation crosses the
+    /// scene's exact surfaces (CPU only so far).
+    pub fn simulator<'a>(&'a self, medium: &'a Medium, scene: &'a Scene) -> Result<Simulator<'a>> {
+        let sharp = scene.grid.interfaces == eikon_grid::Interfaces::Sharp;
         Ok(match self {
-            Backend::Cpu => Simulator::Cpu(medium),
+            Backend::Cpu => Simulator::Cpu(medium, sharp.then(|| eikon_grid::Regions::new(scene))),
             #[cfg(feature = "gpu")]
-            Backend::Gpu(g) => Simulator::Gpu(Box::new(eikon_wavefront::gpu::GpuSimulator::new(
-                g, medium,
-            )?)),
+            Backend::Gpu(g) => {
+                if sharp {
+                    anyhow::bail!(
+                        "{}: [grid] interfaces = \"sharp\" is simulated on the CPU backend only so far; use --backend cpu, or --interfaces smoothed for the GPU",
+                        scene.origin
+                    );
+                }
+                Simulator::Gpu(Box::new(eikon_wavefront::gpu::GpuSimulator::new(
+                    g, medium,
+                )?))
+            }
         })
     }
 
@@ -128,8 +139,9 @@ impl Backend {
 
 /// Where each light of a run is simulated.
 pub enum Simulator<'a> {
-    /// [`eikon_wavefront::simulate_light`] on the CPU cores.
-    Cpu(&'a Medium),
+    /// [`eikon_wavefront::simulate_light_in`] on the CPU cores, with the
+    /// scene's regions for sharp interfaces.
+    Cpu(&'a Medium, Option<eikon_grid::Regions<'a>>),
     /// The wgpu compute simulation, the medium uploaded.
     #[cfg(feature = "gpu")]
     Gpu(Box<eikon_wavefront::gpu::GpuSimulator<'a>>),
@@ -144,8 +156,8 @@ impl Simulator<'_> {
         progress: Progress,
     ) -> Result<(LightVolume, Summary), eikon_wavefront::Error> {
         match self {
-            Simulator::Cpu(medium) => {
-                eikon_wavefront::simulate_light(light, medium, opts, progress)
+            Simulator::Cpu(medium, regions) => {
+                eikon_wavefront::simulate_light_in(light, medium, regions.as_ref(), opts, progress)
             }
             #[cfg(feature = "gpu")]
             Simulator::Gpu(sim) => sim.simulate(light, opts, progress),

@@ -93,7 +93,7 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
     let mut volumes = Vec::new();
     let mut patches = 0;
     // The GPU uploads the medium once, untimed.
-    let sim = backend.simulator(&medium)?;
+    let sim = backend.simulator(&medium, &scene)?;
     let bname = backend.name();
     eprintln!("  {name} on {bname}: {}", crate::grid::describe(&scene));
     for run in 0..runs.max(1) {

@@ -3,7 +3,7 @@
 
 use anyhow::{bail, Result};
 use eikon_grid::field::{available_memory, format_bytes};
-use eikon_grid::{GridOverride, Medium, Scene};
+use eikon_grid::{GridOverride, Interfaces, Medium, Scene};
 use std::path::Path;
 use std::sync::OnceLock;
 
@@ -54,6 +54,15 @@ pub const PREVIEW_RESOLUTION: u64 = 48;
 /// The image width `--preview` renders at most, in pixels.
 pub const PREVIEW_WIDTH: u32 = 320;
 
+/// `--interfaces`: `sharp` or `smoothed`.
+pub fn parse_interfaces(s: &str) -> Result<Interfaces, String> {
+    match s {
+        "sharp" => Ok(Interfaces::Sharp),
+        "smoothed" => Ok(Interfaces::Smoothed),
+        _ => Err(format!("expected `sharp` or `smoothed`, got `{s}`")),
+    }
+}
+
 fn parse_smoothing(s: &str) -> Result<f64, String> {
     let v: f64 = s.parse().map_err(|e| format!("{e}"))?;
     if (0.0..=8.0).contains(&v) {
@@ -75,6 +84,11 @@ pub struct GridFlags {
     /// voxels, instead of the scene's `[grid] smoothing`.
     #[arg(long, value_parser = parse_smoothing)]
     pub smoothing: Option<f64>,
+    /// How rays meet the surfaces between materials, instead of the scene's
+    /// `[grid] interfaces`: `sharp` (exact surfaces, the index of each
+    /// region inside it) or `smoothed` (the paper's smoothed index).
+    #[arg(long, value_parser = parse_interfaces)]
+    pub interfaces: Option<Interfaces>,
     /// A fast first look: at most 48 voxels along the longest axis and, for
     /// images, at most 320 pixels wide with one sample per pixel.
     #[arg(long)]
@@ -92,6 +106,7 @@ impl GridFlags {
             resolution: self.resolution,
             max_resolution: self.preview.then_some(PREVIEW_RESOLUTION),
             smoothing: self.smoothing,
+            interfaces: self.interfaces,
         }
     }
 
@@ -103,7 +118,10 @@ impl GridFlags {
 
     /// Whether any flag changes the scene.
     pub fn any(&self) -> bool {
-        self.resolution.is_some() || self.smoothing.is_some() || self.preview
+        self.resolution.is_some()
+            || self.smoothing.is_some()
+            || self.interfaces.is_some()
+            || self.preview
     }
 
     /// Read `path` with these flags applied; when they change the grid, say

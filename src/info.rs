@@ -108,6 +108,7 @@ pub fn run(args: Args) -> Result<()> {
             "bounds": { "min": g.min.to_array(), "max": g.max.to_array() },
             "voxel_size": g.spacing().to_array(),
             "smoothing": scene.grid.smoothing,
+            "interfaces": scene.grid.interfaces.name(),
             "supersample": scene.grid.supersample,
             "dispersion": scene.grid.dispersion,
             "memory_bytes": { "resident": mem.resident as f64, "peak": mem.peak as f64 },
@@ -147,6 +148,7 @@ pub fn run(args: Args) -> Result<()> {
             "off"
         }
     );
+    println!("interfaces   {}", scene.grid.interfaces.name());
     let (light, counters) = crate::grid::light_volume_bytes(&scene);
     println!(
         "memory       {} resident, {} peak while building; light volumes {} (+{} while simulating one light)",

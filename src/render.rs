@@ -511,13 +511,22 @@ pub fn render_image(
     crate::backend::announce();
     #[cfg(feature = "gpu")]
     if let Backend::Gpu(gpu) = backend {
+        if scene.grid.interfaces == eikon_grid::Interfaces::Sharp {
+            anyhow::bail!(
+                "{}: [grid] interfaces = \"sharp\" renders on the CPU backend only so far; use --backend cpu, or --interfaces smoothed for the GPU",
+                scene.origin
+            );
+        }
         let started = Instant::now();
         let renderer =
             eikon_view::gpu::GpuRenderer::new(gpu, medium, volumes, &surroundings, &camera, opts)?;
         let (image, stats) = renderer.render_with_stats()?;
         return Ok((image, stats, started.elapsed().as_secs_f64()));
     }
-    let renderer = Renderer::new(medium, volumes, &surroundings, &camera, opts);
+    let mut renderer = Renderer::new(medium, volumes, &surroundings, &camera, opts);
+    if scene.grid.interfaces == eikon_grid::Interfaces::Sharp {
+        renderer = renderer.sharp(scene);
+    }
 
     let bar = indicatif::ProgressBar::new(0);
     bar.set_style(

@@ -6,7 +6,7 @@ use anyhow::{bail, Result};
 use clap::ValueEnum;
 use eikon_grid::{ray, Medium, Scene};
 use eikon_wavefront::lightdir::{self, LightSummary, Run, RunOptions};
-use eikon_wavefront::photons::simulate_photons;
+use eikon_wavefront::photons::simulate_photons_in;
 use eikon_wavefront::{check_scene, DepositRule, LightVolume, Options, Summary};
 use serde_json::{json, Value};
 use std::path::PathBuf;
@@ -168,6 +168,13 @@ fn print_summary(i: usize, s: &Summary, seconds: f64) {
     println!("  exited         {} W", rgb(s.exited_power));
     println!("  reflected      {} W", rgb(s.reflected_power));
     println!("  culled         {} W", rgb(s.culled_power));
+    if s.torn > 0 {
+        println!(
+            "  torn           {} W ({} patch pieces torn at a sharp interface, smaller than the smallest split)",
+            rgb(s.torn_power),
+            s.torn
+        );
+    }
     println!(
         "  trapped        {} W (still travelling: at the step limit or too faint to follow)",
         rgb(s.trapped_power)
@@ -483,7 +490,9 @@ pub fn simulate(
         SimMethod::Wavefront => backend,
         SimMethod::Photons => &Backend::Cpu,
     };
-    let sim = on.simulator(medium)?;
+    let sim = on.simulator(medium, scene)?;
+    let photon_regions = (scene.grid.interfaces == eikon_grid::Interfaces::Sharp)
+        .then(|| eikon_grid::Regions::new(scene));
     let sim_backend = on.describe();
     let mut results: Vec<(LightVolume, Summary, f64)> = Vec::new();
     for (i, light) in scene.lights.iter().enumerate() {
@@ -509,7 +518,14 @@ pub fn simulate(
             SimMethod::Photons => {
                 bar.set_message(format!("tracing {} photons", args.count));
                 bar.enable_steady_tick(std::time::Duration::from_millis(200));
-                simulate_photons(light, medium, args.count, args.seed, &opts)
+                simulate_photons_in(
+                    light,
+                    medium,
+                    photon_regions.as_ref(),
+                    args.count,
+                    args.seed,
+                    &opts,
+                )
             }
         }
         .map_err(|e| located(scene, i, e))?;

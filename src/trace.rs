@@ -67,6 +67,11 @@ pub struct Args {
     /// Sample the scene's analytic index exactly instead of the voxel grid.
     #[arg(long)]
     analytic: bool,
+    /// `sharp` (exact surfaces, each region's own index) or `smoothed`
+    /// (the voxel grid's smoothed index), instead of the scene's
+    /// `[grid] interfaces`.
+    #[arg(long, value_parser = crate::grid::parse_interfaces)]
+    interfaces: Option<eikon_grid::Interfaces>,
     /// Colour channel 0, 1 or 2 (R, G, B) of a dispersive scene.
     #[arg(long, default_value_t = 0)]
     channel: usize,
@@ -95,7 +100,17 @@ pub fn run(args: Args) -> Result<()> {
     if args.channel > 2 {
         bail!("--channel: must be 0, 1 or 2, got {}", args.channel);
     }
-    let scene = Scene::load(&args.scene)?;
+    let scene = Scene::load_with(
+        &args.scene,
+        &eikon_grid::GridOverride {
+            interfaces: args.interfaces,
+            ..Default::default()
+        },
+    )?;
+    let sharp = scene.grid.interfaces == eikon_grid::Interfaces::Sharp;
+    if sharp && args.analytic {
+        bail!("--analytic: samples the smoothed-interface scene's profiles; with sharp interfaces every region's profile is already exact (leave --analytic out)");
+    }
     let geom = scene.grid.geometry.clone();
     let form = match args.form {
         FormArg::Distance => Form::EqualDistance,
@@ -127,7 +142,15 @@ pub fn run(args: Args) -> Result<()> {
             );
         }
     }
-    let (field, source): (Box<dyn IndexField>, String) = if args.analytic {
+    let (field, source): (Box<dyn IndexField>, String) = if sharp {
+        (
+            Box::new(AnalyticField::new(&scene, args.channel)),
+            format!(
+                "sharp interfaces, each region's own index, channel {}",
+                args.channel.min(scene.channels() - 1)
+            ),
+        )
+    } else if args.analytic {
         (
             Box::new(AnalyticField::new(&scene, args.channel)),
             "analytic index".into(),
@@ -140,7 +163,18 @@ pub fn run(args: Args) -> Result<()> {
             format!("voxel field, channel {ch}"),
         )
     };
-    let end = trace(field.as_ref(), &geom, args.origin, args.dir, &opts);
+    let end = if sharp {
+        let regions = eikon_grid::Regions::new(&scene);
+        eikon_grid::region::trace(
+            &regions,
+            args.origin,
+            args.dir,
+            &opts,
+            args.channel.min(scene.channels() - 1),
+        )
+    } else {
+        trace(field.as_ref(), &geom, args.origin, args.dir, &opts)
+    };
     let integrator = flag_name(&args.integrator);
     let form_name = flag_name(&args.form);
     let exited = end.status == eikon_grid::Status::Exited;

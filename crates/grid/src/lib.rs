@@ -21,9 +21,11 @@ pub mod interface;
 pub mod mesh_solid;
 pub mod object;
 pub mod ray;
+pub mod region;
 pub mod scene;
 pub mod shape;
 mod smooth;
+pub mod surface;
 pub mod vdb;
 mod voxelize;
 
@@ -35,8 +37,10 @@ pub use object::{GridExtinction, GridIndex, IndexProfile, Material, Object};
 pub use ray::{
     trace, trace_many, Form, IndexField, Integrator, RayEnd, RayState, Status, TraceOptions,
 };
+pub use region::{Interfaces, Regions};
 pub use scene::{Background, CameraSettings, GridOverride, Light, Receiver, RenderSettings, Scene};
 pub use shape::Shape;
+pub use surface::Crossing;
 
 /// Progress of a long computation over many items: `(done, total)` or the
 /// like, the caller's docs say which two counts (the light simulation's

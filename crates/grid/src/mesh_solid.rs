@@ -19,7 +19,7 @@
 //!   bound is all the voxelizer needs: it supersamples every cell the bound
 //!   does not clear.
 
-use eikon_mesh::Mesh;
+use eikon_mesh::{Bvh, Mesh};
 use glam::DVec3;
 use std::sync::Arc;
 
@@ -41,6 +41,9 @@ pub struct MeshSolid {
     /// Bucket `b` lists `items[start[b]..start[b + 1]]`.
     start: Vec<u32>,
     items: Vec<u32>,
+    /// The ray-triangle hierarchy, for exact surface crossings
+    /// ([`crate::surface`]).
+    bvh: Bvh,
 }
 
 impl std::fmt::Debug for MeshSolid {
@@ -59,6 +62,7 @@ impl MeshSolid {
     /// whether renderers of the exact boundary shade it with the mesh's
     /// vertex normals (a curved surface) or its face normals (facets).
     pub fn new(mesh: Arc<Mesh>, smooth: bool) -> MeshSolid {
+        let bvh = Bvh::new(&mesh);
         let tris: Vec<[DVec3; 3]> = (0..mesh.triangle_count())
             .map(|t| mesh.corners(t))
             .collect();
@@ -84,6 +88,7 @@ impl MeshSolid {
             dims,
             start: Vec::new(),
             items: Vec::new(),
+            bvh,
         };
         solid.fill_buckets();
         solid
@@ -140,6 +145,39 @@ impl MeshSolid {
     /// The mesh.
     pub fn mesh(&self) -> &Arc<Mesh> {
         &self.mesh
+    }
+
+    /// The ray-triangle hierarchy over the mesh.
+    pub fn bvh(&self) -> &Bvh {
+        &self.bvh
+    }
+
+    /// The triangle nearest to `p` and the closest point on it: a ring
+    /// search over the buckets that, unlike [`Self::unsigned_distance`],
+    /// runs until the answer is exact (callers ask near the surface).
+    pub fn closest_triangle(&self, p: DVec3) -> Option<(usize, DVec3)> {
+        let q = p.clamp(self.lo, self.hi);
+        let outside = (p - q).length();
+        let c = self.bucket_of(q);
+        let cmin = self.cell.min_element();
+        let mut best: Option<(usize, DVec3, f64)> = None;
+        let shells = self.dims.iter().copied().max().unwrap_or(1);
+        for r in 0..=shells {
+            self.for_shell(c, r, |b| {
+                for &t in self.bucket(b) {
+                    let x = closest_point(&self.tris[t as usize], p);
+                    let d2 = (x - p).length_squared();
+                    if best.is_none_or(|(_, _, b2)| d2 < b2) {
+                        best = Some((t as usize, x, d2));
+                    }
+                }
+            });
+            let clear = (r as f64 * cmin).hypot(outside);
+            if best.is_some_and(|(_, _, d2)| d2.sqrt() <= clear) {
+                break;
+            }
+        }
+        best.map(|(t, x, _)| (t, x))
     }
 
     /// Whether the surface is shaded with vertex normals.

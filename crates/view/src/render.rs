@@ -40,8 +40,9 @@
 
 use crate::background::{LightSample, Surroundings};
 use crate::macrocell::MacroCells;
-use crate::properties::Properties;
+use crate::properties::{Properties, Sample};
 use eikon_grid::ray::{step_euler_sampled, step_rk4};
+use eikon_grid::region::Regions;
 use eikon_grid::{CameraSettings, Form, IndexField, Integrator, Medium, Progress, RayState, Scene};
 use eikon_optics::phase::hg;
 use eikon_optics::{fresnel, Camera, CameraError, Image};
@@ -147,6 +148,8 @@ pub struct Renderer<'a> {
     /// Index at the eye, per channel (the field clamps to its border, so an
     /// eye outside the grid gets the ambient index there).
     eye_index: [f64; 3],
+    /// With sharp interfaces: the scene's regions ([`Renderer::sharp`]).
+    regions: Option<Regions<'a>>,
 }
 
 // How far either side of a boundary voxel the interface sides are read
@@ -200,7 +203,22 @@ impl<'a> Renderer<'a> {
                     .sample(camera.position())
                     .0
             }),
+            regions: None,
         }
+    }
+
+    /// Render with the exact interfaces of `scene` (`[grid] interfaces =
+    /// "sharp"`, [`eikon_grid::region`]): eye rays follow each region's own
+    /// index and refract at the exact surfaces, with Fresnel reflection
+    /// taken there at the true angle of incidence.
+    pub fn sharp(mut self, scene: &'a Scene) -> Self {
+        let regions = Regions::new(scene);
+        let eye = self.camera.position();
+        let at = regions.at(eye);
+        self.eye_index =
+            [0, 1, 2].map(|c| regions.index(at, eye, c.min(self.medium.channels() - 1)).0);
+        self.regions = Some(regions);
+        self
     }
 
     /// Render the frame over tiles in parallel. The result does not depend
@@ -280,6 +298,9 @@ impl<'a> Renderer<'a> {
     /// March one eye ray through index channel `ch`; returns the RGB
     /// radiance it gathers (with dispersion only channel `ch` is used).
     fn march(&self, o: DVec3, d: DVec3, ch: usize) -> (DVec3, Stats) {
+        if let Some(regions) = &self.regions {
+            return self.march_sharp(regions, o, d, ch);
+        }
         let grid = &self.medium.geometry;
         let env = self.surroundings;
         let Some((t0, _)) = grid.clip_line(o, d).filter(|&(_, t1)| t1 > 0.0) else {
@@ -399,26 +420,131 @@ impl<'a> Renderer<'a> {
         (walk.radiance, walk.stats)
     }
 
-    /// [Ihrke07 eq 1] over one step of length `step` from `x` along the unit
-    /// `d`: in-scatter, emission, attenuation and Fresnel at boundaries (see
-    /// the module docs).
+    /// [`Renderer::march`] with sharp interfaces: region by region, each
+    /// region's own material, straight from surface to surface where the
+    /// index is constant and nothing along the way scatters or emits, Fresnel
+    /// at every true crossing ([Ihrke07 eq 2]'s reflection term and
+    /// [Ihrke07 eq 5]'s `tau`, at the exact angle of incidence).
+    fn march_sharp(&self, regions: &Regions, o: DVec3, d: DVec3, ch: usize) -> (DVec3, Stats) {
+        let grid = &self.medium.geometry;
+        let env = self.surroundings;
+        let Some((t0, _)) = grid.clip_line(o, d).filter(|&(_, t1)| t1 > 0.0) else {
+            return (env.radiance(o, d, ch), Stats::default());
+        };
+        let t0 = t0.max(0.0);
+        if let Some(t) = env.receiver_hit(o, d, t0) {
+            return (env.receiver_radiance(o + d * t, d, ch), Stats::default());
+        }
+        let h = grid.voxel_size();
+        let ds = self.opts.step * h;
+        let mut ray = regions.ray(o + d * t0, d, ch);
+        let mut walk = Walk {
+            ray: ray.s,
+            radiance: DVec3::ZERO,
+            alpha: DVec3::ONE,
+            stats: Stats::default(),
+            mirrored: None,
+            incident: None,
+        };
+        let lit = !self.volumes.is_empty();
+        let budget = (64.0 * grid.diagonal() / ds) as u64 + 16;
+        while walk.stats.steps + walk.stats.skips < budget {
+            let dir = ray.s.v.normalize_or_zero();
+            let exit = grid
+                .clip_line(ray.s.x, dir)
+                .map_or(0.0, |(_, t1)| t1.max(0.0));
+            if exit <= 0.0 || dir == DVec3::ZERO {
+                break;
+            }
+            if walk.alpha.max_element() < self.opts.min_transmittance {
+                return (walk.radiance, walk.stats);
+            }
+            let x0 = ray.s.x;
+            let m = regions.material(ray.region);
+            let sigma = m.extinction_at(x0);
+            let here = Sample {
+                sigma,
+                delta: 0.0,
+                scatter: m.albedo * sigma,
+                g: m.g,
+                emission: m.emission,
+            };
+            // Long straight steps where nothing needs gathering on the way:
+            // a constant index with no scattering (or no light) and no
+            // emission, and an extinction that is one constant.
+            let quiet = regions.uniform(ray.region)
+                && (here.scatter == DVec3::ZERO || !lit)
+                && here.emission == DVec3::ZERO
+                && m.extinction_grid.is_none();
+            let step = if quiet { exit } else { ds.min(exit) };
+            let n = regions.index(ray.region, x0, ch).0;
+            let st = regions.step(
+                &mut ray,
+                Form::EqualDistance,
+                self.opts.integrator,
+                step,
+                ch,
+            );
+            if quiet {
+                walk.stats.skips += 1;
+            } else {
+                walk.stats.steps += 1;
+            }
+            let chord = ray.s.x - x0;
+            let len = chord.length();
+            if len > 0.0 {
+                let u = chord / len;
+                if let Some(tr) = env.receiver_hit(x0, u, len) {
+                    let tri = grid.trilinear(x0);
+                    self.absorb_and_emit(&tri, &here, n, u, tr, ch, &mut walk);
+                    walk.radiance += walk.alpha * env.receiver_radiance(x0 + u * tr, u, ch);
+                    return (walk.radiance, walk.stats);
+                }
+            }
+            let tri = grid.trilinear(x0);
+            self.absorb_and_emit(&tri, &here, n, dir, st.used, ch, &mut walk);
+            if let Some(ev) = st.event.filter(|e| !e.total) {
+                let rho = ev.reflectance;
+                if rho > 0.0 {
+                    let mirror = fresnel::reflect(ev.incident, ev.normal);
+                    walk.radiance += walk.alpha * env.radiance(ev.point, mirror, ch) * rho;
+                    walk.alpha *= 1.0 - rho;
+                }
+            }
+            if !st.at_surface && step >= exit {
+                break;
+            }
+            if !grid.contains(ray.s.x) {
+                break;
+            }
+        }
+        if walk.stats.steps + walk.stats.skips >= budget {
+            return (walk.radiance, walk.stats);
+        }
+        let dir = ray.s.v.normalize_or_zero();
+        walk.radiance += walk.alpha * env.radiance(ray.s.x, dir, ch);
+        (walk.radiance, walk.stats)
+    }
+
+    /// The medium's part of [Ihrke07 eq 1] over one step of length `step`
+    /// along the unit `d`, the medium taken as `here` (index `n`) over the
+    /// step: in-scatter from every light volume, emission, attenuation.
     #[allow(clippy::too_many_arguments)]
-    fn gather(
+    fn absorb_and_emit(
         &self,
-        x: DVec3,
-        (n, grad): (f64, DVec3),
+        tri: &eikon_grid::Trilinear,
+        here: &Sample,
+        n: f64,
         d: DVec3,
         step: f64,
         ch: usize,
         w: &mut Walk,
     ) {
-        let tri = self.medium.geometry.trilinear(x);
-        let here = self.properties.sample_at(&tri);
         let sigma = here.sigma;
         let mut source = here.emission;
         if here.scatter.max_element() > 0.0 {
             for v in self.volumes {
-                let Some(light) = LightSample::at(v, &tri, ch) else {
+                let Some(light) = LightSample::at(v, tri, ch) else {
                     continue;
                 };
                 // [Ihrke07 eq 6] with the first angular moment of the light: HG
@@ -454,6 +580,24 @@ impl<'a> Renderer<'a> {
         } else if source != DVec3::ZERO {
             w.radiance += w.alpha * source * step;
         }
+    }
+
+    /// [Ihrke07 eq 1] over one step of length `step` from `x` along the unit
+    /// `d`: in-scatter, emission, attenuation and Fresnel at boundaries (see
+    /// the module docs).
+    #[allow(clippy::too_many_arguments)]
+    fn gather(
+        &self,
+        x: DVec3,
+        (n, grad): (f64, DVec3),
+        d: DVec3,
+        step: f64,
+        ch: usize,
+        w: &mut Walk,
+    ) {
+        let tri = self.medium.geometry.trilinear(x);
+        let here = self.properties.sample_at(&tri);
+        self.absorb_and_emit(&tri, &here, n, d, step, ch, w);
 
         let delta = here.delta;
         if delta <= 0.0 {

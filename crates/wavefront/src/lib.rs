@@ -114,6 +114,11 @@ pub fn power_bound(light: &Light, grid: &eikon_grid::GridGeometry) -> f64 {
     p.max_element()
 }
 
+/// With sharp interfaces, a patch torn at a surface is split down to this
+/// fraction of the smaller of the emitted and the split size
+/// ([`propagate::Sharp::min_span`]).
+pub const SHARP_MIN_SPAN: f64 = 0.0625;
+
 /// Settings of a simulation.
 #[derive(Clone, Copy, Debug)]
 pub struct Options {
@@ -284,10 +289,15 @@ pub struct Summary {
     /// patches: it splits without dimming), as do paths longer than the
     /// step limit.
     pub trapped_power: [f64; 3],
+    /// Patch pieces torn at a sharp interface below the smallest split and
+    /// dropped ([`propagate::Sharp`]).
+    pub torn: usize,
+    /// RGB power they carried, W.
+    pub torn_power: [f64; 3],
 }
 
 impl Summary {
-    /// `entered - (absorbed + exited + reflected + culled + trapped)`
+    /// `entered - (absorbed + exited + reflected + culled + trapped + torn)`
     /// relative to `entered`, the largest over the channels that carry
     /// power.
     pub fn energy_imbalance(&self) -> f64 {
@@ -298,7 +308,8 @@ impl Summary {
                     + self.exited_power[c]
                     + self.reflected_power[c]
                     + self.culled_power[c]
-                    + self.trapped_power[c];
+                    + self.trapped_power[c]
+                    + self.torn_power[c];
                 (self.entered[c] - out).abs() / self.entered[c]
             })
             .fold(0.0, f64::max)
@@ -322,6 +333,7 @@ impl Summary {
             ("reflected", self.reflected_power),
             ("culled", self.culled_power),
             ("trapped", self.trapped_power),
+            ("torn", self.torn_power),
         ] {
             if v.iter().any(|x| !x.is_finite()) {
                 return Err(Error::NotFinite(format!(
@@ -563,16 +575,17 @@ impl Summary {
 /// deposits the one-voxel sphere it starts on: straight chords from the
 /// light to each patch (wavefront group `group`).
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn start_wavefront(
+pub(crate) fn start_wavefront<F: eikon_grid::IndexField + ?Sized>(
     light: &Light,
     medium: &Medium,
-    field: &propagate::Bounded,
+    field: &F,
     opts: &Options,
     rules: &refine::Rules,
     (mask, group): ([f64; 3], Option<usize>),
     (p, next, scratch): (&mut Patches, &mut Patches, &mut refine::Scratch),
     tally: Option<&Counters>,
     summary: &mut Summary,
+    hold: Option<refine::Hold>,
 ) {
     let grid = &medium.geometry;
     let h = grid.voxel_size();
@@ -623,6 +636,7 @@ pub(crate) fn start_wavefront(
             grid,
             &start_rules,
             &mut summary.held,
+            hold,
         );
         summary.add_ended(&ended);
         if p.len() == before {
@@ -679,6 +693,19 @@ pub fn simulate_light(
     opts: &Options,
     progress: Progress,
 ) -> Result<(LightVolume, Summary), Error> {
+    simulate_light_in(light, medium, None, opts, progress)
+}
+
+/// [`simulate_light`] with sharp interfaces when `regions` are given
+/// (`[grid] interfaces = "sharp"`, [`propagate::Sharp`]): corners cross
+/// the scene's exact surfaces, each region's own index between them.
+pub fn simulate_light_in(
+    light: &Light,
+    medium: &Medium,
+    regions: Option<&eikon_grid::Regions>,
+    opts: &Options,
+    progress: Progress,
+) -> Result<(LightVolume, Summary), Error> {
     opts.check()?;
     let grid = &medium.geometry;
     let groups = medium.channels();
@@ -697,9 +724,22 @@ pub fn simulate_light(
             units_per_crossing(crossings_bound(medium, opts.step, max_steps)),
         )
     });
-    let interfaces = opts
-        .fresnel
-        .then(|| Interfaces::new(medium, probe_length(medium)));
+    // The smoothed interfaces' sides, for Fresnel (sharp interfaces know
+    // both indices at the surface).
+    let interfaces =
+        (opts.fresnel && regions.is_none()).then(|| Interfaces::new(medium, probe_length(medium)));
+    let sharp = regions.map(|regions| propagate::Sharp {
+        regions,
+        min_span: SHARP_MIN_SPAN * opts.split.min(opts.patch_size) * grid.voxel_size(),
+        fresnel: opts.fresnel,
+    });
+    let straddles = |x: &[glam::DVec3; 4]| {
+        regions.is_some_and(|r| {
+            let at = r.at(x[0]);
+            x[1..].iter().any(|&p| r.at(p) != at)
+        })
+    };
+    let hold: Option<refine::Hold> = regions.is_some().then_some(&straddles);
     let mut summary = Summary::default();
     let (mut p, mut next) = (Patches::default(), Patches::default());
     let mut scratch = refine::Scratch::default();
@@ -708,17 +748,27 @@ pub fn simulate_light(
         let (mask, group) = group(g, groups);
         rules.incident = refine::Incident::new(light, mask);
         let field = propagate::Bounded::new(medium, g);
+        let exact = regions.map(|regions| propagate::RegionIndex {
+            regions,
+            channel: g,
+        });
+        // What emission and new corners read the index from.
+        let shell: &dyn eikon_grid::IndexField = match &exact {
+            Some(e) => e,
+            None => &field,
+        };
         let empty = eikon_grid::EmptySpace::new(medium, g);
         start_wavefront(
             light,
             medium,
-            &field,
+            shell,
             opts,
             &rules,
             (mask, group),
             (&mut p, &mut next, &mut scratch),
             tally.as_ref(),
             &mut summary,
+            hold,
         );
         if let Some(v) = paper_volume.as_mut() {
             v.deposit(&p, medium, &empty, group);
@@ -733,6 +783,7 @@ pub fn simulate_light(
             channel: g,
             tally: tally.as_ref(),
             group,
+            sharp: sharp.as_ref(),
         };
         let mut step = 0;
         while !p.is_empty() && step < max_steps {
@@ -741,6 +792,8 @@ pub fn simulate_light(
             for l in &losses {
                 add(&mut summary.absorbed_power, &l.absorbed);
                 add(&mut summary.reflected_power, &l.reflected);
+                add(&mut summary.torn_power, &l.torn);
+                summary.torn += l.torn_pieces;
             }
             if paper {
                 propagate::irradiance(&mut p);
@@ -749,10 +802,11 @@ pub fn simulate_light(
                 &mut p,
                 &mut next,
                 &mut scratch,
-                &field,
+                shell,
                 grid,
                 &rules,
                 &mut summary.held,
+                hold,
             );
             summary.add_ended(&ended);
             if let Some(v) = paper_volume.as_mut() {

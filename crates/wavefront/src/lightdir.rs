@@ -254,6 +254,17 @@ pub struct Ended {
     pub caustic: usize,
     /// Alive at the step limit.
     pub step_limit: usize,
+    /// Torn at a sharp interface and dropped (absent: none).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub torn: usize,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
+}
+
+fn is_none_rgb(x: &[f64; 3]) -> bool {
+    *x == [0.0; 3]
 }
 
 /// The energy account of a light, RGB watts.
@@ -272,6 +283,9 @@ pub struct Energy {
     /// Still travelling when no longer followed (the step limit, or too
     /// faint to follow): light held by total internal reflection.
     pub trapped: [f64; 3],
+    /// Dropped with patches torn at a sharp interface (absent: none).
+    #[serde(default, skip_serializing_if = "is_none_rgb")]
+    pub torn: [f64; 3],
     /// [`Summary::energy_imbalance`].
     pub imbalance_relative: f64,
 }
@@ -289,6 +303,7 @@ impl LightSummary {
                 faint: s.faint,
                 caustic: s.caustic,
                 step_limit: s.step_limit,
+                torn: s.torn,
             },
             splits_held_back: s.held,
             energy_w: Energy {
@@ -298,6 +313,7 @@ impl LightSummary {
                 reflected: s.reflected_power,
                 culled: s.culled_power,
                 trapped: s.trapped_power,
+                torn: s.torn_power,
                 imbalance_relative: s.energy_imbalance(),
             },
             seconds,

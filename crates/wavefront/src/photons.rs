@@ -67,10 +67,11 @@
 
 use crate::deposit::Counters;
 use crate::light::{self, PlaneFrame};
-use crate::propagate::{step_depth, Bounded};
+use crate::propagate::{step_depth, Bounded, RegionIndex};
 use crate::{Error, LightVolume, Options, Summary};
 use eikon_grid::interface::{probe_length, Interfaces};
 use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
+use eikon_grid::region::{Regions, SharpRay};
 use eikon_grid::{EmptySpace, Form, GridGeometry, IndexField, Integrator, Light, Medium, RayState};
 use eikon_optics::spot::cone_weight;
 use eikon_rng::{mix, SplitMix64, GOLDEN};
@@ -121,6 +122,21 @@ pub fn simulate_photons(
     seed: u64,
     opts: &Options,
 ) -> Result<(LightVolume, Summary), Error> {
+    simulate_photons_in(light, medium, None, count, seed, opts)
+}
+
+/// [`simulate_photons`] with sharp interfaces when `regions` are given: each
+/// photon crosses the scene's exact surfaces (Snell's law or total
+/// internal reflection, Fresnel transmission on its flux), each region's own
+/// index between them, its chords deposited piece by piece.
+pub fn simulate_photons_in(
+    light: &Light,
+    medium: &Medium,
+    regions: Option<&Regions>,
+    count: usize,
+    seed: u64,
+    opts: &Options,
+) -> Result<(LightVolume, Summary), Error> {
     opts.check()?;
     if count == 0 {
         return Err(Error::Option {
@@ -147,9 +163,8 @@ pub fn simulate_photons(
     let crossings = count as f64 * crate::crossings_bound(medium, opts.step, max_steps);
     let units = UNITS_PER_CROSSING.min(crate::units_per_crossing(crossings));
     let tally = Counters::new(grid, groups, [top; 3], units);
-    let interfaces = opts
-        .fresnel
-        .then(|| Interfaces::new(medium, probe_length(medium)));
+    let interfaces =
+        (opts.fresnel && regions.is_none()).then(|| Interfaces::new(medium, probe_length(medium)));
     for g in 0..groups {
         let (mask, group) = crate::group(g, groups);
         let source = Source::new(light, grid, count, mask);
@@ -168,6 +183,7 @@ pub fn simulate_photons(
             group,
             interfaces: interfaces.as_ref(),
             channel: g,
+            sharp: regions.map(|r| (r, opts.fresnel)),
         };
         // Chunks run in batches so that the per-chunk tallies held at once
         // stay bounded whatever the count; they are added in chunk order,
@@ -181,7 +197,19 @@ pub fn simulate_photons(
                     for i in chunk * CHUNK..((chunk + 1) * CHUNK).min(count) {
                         let mut rng = stream(key, i as u64);
                         let (a, b) = strata.draw(i, &mut rng);
-                        if let Some((s, flux)) = source.launch(a, b, grid, &tracer.field) {
+                        let launched = match regions {
+                            Some(r) => source.launch(
+                                a,
+                                b,
+                                grid,
+                                &RegionIndex {
+                                    regions: r,
+                                    channel: g,
+                                },
+                            ),
+                            None => source.launch(a, b, grid, &tracer.field),
+                        };
+                        if let Some((s, flux)) = launched {
                             tracer.trace(s, flux, &mut t);
                         }
                     }
@@ -439,6 +467,8 @@ struct Tracer<'a> {
     interfaces: Option<&'a Interfaces>,
     /// Index channel traced.
     channel: usize,
+    /// Sharp interfaces: the scene's regions, and whether Fresnel applies.
+    sharp: Option<(&'a Regions<'a>, bool)>,
 }
 
 /// Per interpolation cell (the lower corner `i0` that
@@ -486,6 +516,66 @@ impl Tracer<'_> {
         self.medium.sample_rgb(&self.medium.extinction, p) / self.field.sample(p).0
     }
 
+    /// One step of `dt` optical path with sharp interfaces: piece by piece,
+    /// surface to surface, each piece deposited and attenuated
+    /// [Ihrke07 eq 18] (the trapezoid over the piece, in the region's index),
+    /// the flux times `1 - R` at every surface it passes.
+    fn sharp_step(
+        &self,
+        regions: &Regions,
+        fresnel: bool,
+        s: &mut RayState,
+        flux: &mut [f64; 3],
+        t: &mut Tally,
+    ) {
+        let index = RegionIndex {
+            regions,
+            channel: self.channel,
+        };
+        let per_index = |p: DVec3| {
+            if !self.grid.contains(p) {
+                return DVec3::ZERO;
+            }
+            self.medium.sample_rgb(&self.medium.extinction, p) / index.sample(p).0
+        };
+        let mut ray = SharpRay {
+            s: *s,
+            region: regions.at(s.x),
+        };
+        let mut left = self.dt;
+        for _ in 0..16 {
+            let x0 = ray.s.x;
+            let st = regions.step(
+                &mut ray,
+                Form::EqualTime,
+                self.integrator,
+                left,
+                self.channel,
+            );
+            left -= st.used;
+            // The piece ends on the surface, before any refraction.
+            let x1 = st.event.map_or(ray.s.x, |e| e.point);
+            let depth = step_depth(self.grid, x0, x1, per_index(x0), per_index(x1), st.used);
+            self.tally.chord(x0, x1, flux, depth, self.group);
+            for c in 0..3 {
+                let kept = flux[c] * (-depth[c]).exp();
+                t.absorbed[c] += flux[c] - kept;
+                flux[c] = kept;
+            }
+            if let Some(e) = st.event.filter(|e| fresnel && !e.total) {
+                for (f, r) in flux.iter_mut().zip(t.reflected.iter_mut()) {
+                    let kept = *f * (1.0 - e.reflectance);
+                    *r += *f - kept;
+                    *f = kept;
+                }
+            }
+            if !st.at_surface || left <= 0.0 {
+                break;
+            }
+        }
+        *s = ray.s;
+    }
+
     /// Whether a photon at `s` has left for good: outside the bounds, and
     /// its forward line never comes back (the wavefront's exit rule).
     #[inline]
@@ -519,7 +609,9 @@ impl Tracer<'_> {
             }
             steps += 1;
             let x0 = s.x;
-            if let Some(n) = self.empty.index_at(x0) {
+            if let Some((regions, fresnel)) = self.sharp {
+                self.sharp_step(regions, fresnel, &mut s, &mut flux, t);
+            } else if let Some(n) = self.empty.index_at(x0) {
                 // Empty space, as `propagate` skips it: a straight step
                 // (under a cell long) in a constant index, without loss.
                 s.v = s.v.normalize_or_zero() * n;

@@ -18,10 +18,13 @@
 //! (`step_depth`).
 
 use crate::deposit::{self, Counters};
-use crate::patch::{area, Patches};
+use crate::patch::{area, span, Patches, Split};
 use eikon_grid::interface::Interfaces;
 use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
-use eikon_grid::{EmptySpace, Form, GridGeometry, IndexField, Integrator, Medium, VoxelField};
+use eikon_grid::region::{Region, Regions, SharpRay};
+use eikon_grid::{
+    EmptySpace, Form, GridGeometry, IndexField, Integrator, Medium, RayState, VoxelField,
+};
 use eikon_shader::{nothing, Module};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -120,6 +123,43 @@ pub struct Step<'a> {
     pub tally: Option<&'a Counters>,
     /// The wavefront's colour channel with dispersion.
     pub group: Option<usize>,
+    /// Sharp interfaces ([`Sharp`]); `None`: the smoothed index.
+    pub sharp: Option<&'a Sharp<'a>>,
+}
+
+/// Sharp interfaces in the light simulation (`[grid] interfaces =
+/// "sharp"`, [`eikon_grid::region`]): each corner crosses every surface on
+/// its own, exactly, with Snell's law or total internal reflection there,
+/// and the patch's flux takes each corner's Fresnel transmittance to the
+/// power 1/4 (over a whole crossing the four make `1 - R`). A patch whose
+/// corners disagree within a step (one refracts where another reflects
+/// totally, or they cross different surfaces) is taken back to where the
+/// step began and split in four, each traced again, until its corners agree
+/// or it is no longer than `min_span`; what is still torn then is dropped
+/// and counted ([`Loss::torn`]).
+pub struct Sharp<'a> {
+    /// The scene's regions and surfaces.
+    pub regions: &'a Regions<'a>,
+    /// Patches no longer than this (world units) are not split further.
+    pub min_span: f64,
+    /// Fresnel transmission at the surfaces (else light passes unreflected).
+    pub fresnel: bool,
+}
+
+/// The index light sees with sharp interfaces: the region's own at each
+/// point (for emission and the corners of new patches).
+pub struct RegionIndex<'a> {
+    /// The regions.
+    pub regions: &'a Regions<'a>,
+    /// The index channel.
+    pub channel: usize,
+}
+
+impl IndexField for RegionIndex<'_> {
+    #[inline]
+    fn sample(&self, p: DVec3) -> (f64, DVec3) {
+        self.regions.index(self.regions.at(p), p, self.channel)
+    }
 }
 
 /// Flux that left the beams in one step, per patch.
@@ -129,6 +169,11 @@ pub struct Loss {
     pub absorbed: [f64; 3],
     /// RGB flux reflected at an interface (Fresnel).
     pub reflected: [f64; 3],
+    /// RGB flux of patches torn at a sharp interface and dropped
+    /// ([`Sharp`]).
+    pub torn: [f64; 3],
+    /// How many pieces were dropped so.
+    pub torn_pieces: usize,
 }
 
 /// Advance every patch by one equal-time step `dt` (optical path, world
@@ -137,6 +182,10 @@ pub struct Loss {
 /// interface. `losses` receives, per patch, the flux taken out of the beam
 /// in this step.
 pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
+    if let Some(sharp) = step.sharp {
+        propagate_sharp(patches, step, sharp, losses);
+        return;
+    }
     let &Step {
         medium,
         field,
@@ -147,6 +196,7 @@ pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
         channel,
         tally,
         group,
+        sharp: _,
     } = step;
     losses.clear();
     losses.resize(patches.len(), Loss::default());
@@ -214,6 +264,288 @@ pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
             }
         });
 }
+
+/// A patch made by a split within a step ([`Sharp`]).
+struct Piece {
+    corners: [RayState; 4],
+    flux: [f64; 3],
+    flux0: [f64; 3],
+    area0: f64,
+}
+
+/// [`propagate`] with sharp interfaces (see [`Sharp`]). A patch split
+/// within the step keeps its slot for its first piece; the others are
+/// appended after all patches, in patch order (deterministic).
+fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &mut Vec<Loss>) {
+    losses.clear();
+    losses.resize(patches.len(), Loss::default());
+    let [c0, c1, c2, c3] = &mut patches.corner;
+    let extra: Vec<(usize, Vec<Piece>)> = (
+        c0.par_iter_mut(),
+        c1.par_iter_mut(),
+        c2.par_iter_mut(),
+        c3.par_iter_mut(),
+        patches.flux.par_iter_mut(),
+        patches.flux0.par_iter_mut(),
+        patches.area0.par_iter_mut(),
+        patches.depth.par_iter_mut(),
+        losses.par_iter_mut(),
+    )
+        .into_par_iter()
+        .enumerate()
+        .filter_map(|(i, (a, b, c, d, flux, flux0, area0, depth, lost))| {
+            let corners = [*a, *b, *c, *d];
+            if let Some(moved) = sharp_patch(step, sharp, &corners, flux, lost) {
+                [*a, *b, *c, *d] = moved;
+                return None;
+            }
+            // Torn: split where the step began and trace the pieces.
+            let mut pieces = Vec::new();
+            split_and_trace(
+                step,
+                sharp,
+                &corners,
+                *flux,
+                *flux0,
+                *area0,
+                1,
+                &mut pieces,
+                lost,
+            );
+            *depth = depth.saturating_add(1);
+            match pieces.first() {
+                Some(p) => {
+                    [*a, *b, *c, *d] = p.corners;
+                    *flux = p.flux;
+                    *flux0 = p.flux0;
+                    *area0 = p.area0;
+                }
+                None => {
+                    // Every piece was dropped: the patch carries nothing
+                    // on and ends at the next refine.
+                    *flux = [0.0; 3];
+                }
+            }
+            Some((i, pieces))
+        })
+        .collect();
+    for (i, pieces) in extra {
+        let depth = patches.depth[i];
+        for p in pieces.into_iter().skip(1) {
+            for (list, c) in patches.corner.iter_mut().zip(p.corners) {
+                list.push(c);
+            }
+            let ar = area(&p.corners.map(|c| c.x));
+            patches.flux.push(p.flux);
+            patches.flux0.push(p.flux0);
+            patches.area0.push(p.area0);
+            patches
+                .irradiance
+                .push(p.flux.map(|f| if ar > 0.0 { f / ar } else { 0.0 }));
+            patches.depth.push(depth);
+            losses.push(Loss::default());
+        }
+    }
+}
+
+/// Split the patch `corners` (where the step began) in four and trace each
+/// piece ([`sharp_patch`]), splitting again while torn and longer than
+/// [`Sharp::min_span`]; pieces go to `out`, dropped flux to `lost.torn`.
+#[allow(clippy::too_many_arguments)]
+fn split_and_trace(
+    step: &Step,
+    sharp: &Sharp,
+    corners: &[RayState; 4],
+    flux: [f64; 3],
+    flux0: [f64; 3],
+    area0: f64,
+    level: u32,
+    out: &mut Vec<Piece>,
+    lost: &mut Loss,
+) {
+    let x = corners.map(|c| c.x);
+    if span(&x) <= sharp.min_span || level > 8 {
+        for (t, f) in lost.torn.iter_mut().zip(flux) {
+            *t += f;
+        }
+        lost.torn_pieces += 1;
+        return;
+    }
+    let field = RegionIndex {
+        regions: sharp.regions,
+        channel: step.channel,
+    };
+    let split = Split::Quarters;
+    let areas = [0, 1, 2, 3].map(|q| area(&split.child(corners, q).map(|r| r.x)));
+    let total: f64 = areas.iter().sum();
+    for (q, ar) in areas.iter().enumerate() {
+        let share = if total > 0.0 { ar / total } else { 0.25 };
+        let mut child = split.child(corners, q);
+        for r in child.iter_mut() {
+            // Bilinear v has the right direction but not |v| = n.
+            r.v = r.v.normalize_or_zero() * field.sample(r.x).0;
+        }
+        let mut f = flux.map(|v| v * share);
+        match sharp_patch(step, sharp, &child, &mut f, lost) {
+            Some(moved) => out.push(Piece {
+                corners: moved,
+                flux: f,
+                flux0: flux0.map(|v| v * share),
+                area0: area0 * share,
+            }),
+            None => split_and_trace(
+                step,
+                sharp,
+                &child,
+                f,
+                flux0.map(|v| v * share),
+                area0 * share,
+                level + 1,
+                out,
+                lost,
+            ),
+        }
+    }
+}
+
+/// One step of one patch with sharp interfaces: the corners moved, its flux
+/// attenuated [Ihrke07 eq 18] and Fresnel-transmitted, its tube deposited;
+/// `None` (nothing changed) when its corners disagree.
+fn sharp_patch(
+    step: &Step,
+    sharp: &Sharp,
+    corners: &[RayState; 4],
+    flux: &mut [f64; 3],
+    lost: &mut Loss,
+) -> Option<[RayState; 4]> {
+    let Step {
+        medium,
+        empty,
+        integrator,
+        dt,
+        channel,
+        tally,
+        group,
+        ..
+    } = *step;
+    let regions = sharp.regions;
+    let x0 = corners.map(|c| c.x);
+    let m0 = (x0[0] + x0[1] + x0[2] + x0[3]) * 0.25;
+    let mut moved = *corners;
+    if let Some(n) = empty.index_at(m0) {
+        if x0.iter().all(|&x| empty.index_at(x) == Some(n)) {
+            // Empty space holds no surface (see `propagate`).
+            for s in moved.iter_mut() {
+                s.v = s.v.normalize_or_zero() * n;
+                s.x += s.v * (dt / (n * n));
+                s.opl += dt;
+            }
+            if let Some(t) = tally {
+                deposit::tube(t, &x0, &moved.map(|c| c.x), flux, DVec3::ZERO, group);
+            }
+            return Some(moved);
+        }
+    }
+    // Each corner: the step's whole optical path, surface by surface.
+    let mut first: [Option<Crossed>; 4] = [None; 4];
+    let mut kept = 1.0;
+    for (k, s) in moved.iter_mut().enumerate() {
+        let mut ray = SharpRay {
+            s: *s,
+            region: regions.at(s.x),
+        };
+        let mut left = dt;
+        for _ in 0..MAX_CROSSINGS {
+            let st = regions.step(&mut ray, Form::EqualTime, integrator, left, channel);
+            left -= st.used;
+            if let Some(ev) = st.event {
+                first[k].get_or_insert(Crossed {
+                    surface: ev.surface,
+                    total: ev.total,
+                    from: ev.from,
+                    to: ev.to,
+                });
+                if !ev.total {
+                    kept *= (1.0 - ev.reflectance).powf(0.25);
+                }
+            }
+            if !st.at_surface || left <= 0.0 {
+                break;
+            }
+        }
+        *s = ray.s;
+    }
+    // Corners that crossed something in this step must have crossed the
+    // same surface the same way. A corner that crossed nothing may have
+    // crossed it in an earlier step (it is in the region beyond already), or
+    // be lagging (an oblique wavefront meets a surface over several steps):
+    // then straight ahead it meets that same surface within the patch's
+    // reach. One that passes beside the object (a silhouette) tears the
+    // patch. (Total reflection is told apart only within one step.)
+    let mut leader: Option<Crossed> = None;
+    for e in first.iter().flatten() {
+        if leader.is_some_and(|l| (l.surface, l.total) != (e.surface, e.total)) {
+            return None;
+        }
+        leader = Some(*e);
+    }
+    if let Some(l) = leader.filter(|l| !l.total) {
+        let reach = span(&moved.map(|c| c.x)).max(span(&x0)) * 2.0 + dt;
+        for (k, s) in moved.iter().enumerate() {
+            if first[k].is_some() {
+                continue;
+            }
+            let at = regions.at(s.x);
+            if at == l.to {
+                continue;
+            }
+            let d = s.v.normalize_or_zero();
+            let ahead = regions.next_surface(s.x, d, reach).map(|(obj, _)| obj);
+            if at != l.from || ahead != Some(l.surface) {
+                return None;
+            }
+        }
+    }
+    let x1 = moved.map(|c| c.x);
+    let m1 = (x1[0] + x1[1] + x1[2] + x1[3]) * 0.25;
+    let field = RegionIndex { regions, channel };
+    let per_index = |p: DVec3| {
+        if !medium.geometry.contains(p) {
+            return DVec3::ZERO;
+        }
+        medium.sample_rgb(&medium.extinction, p) / field.sample(p).0
+    };
+    let depth = step_depth(&medium.geometry, m0, m1, per_index(m0), per_index(m1), dt);
+    if let Some(t) = tally {
+        deposit::tube(t, &x0, &x1, flux, depth, group);
+    }
+    for ch in 0..3 {
+        let k = flux[ch] * (-depth[ch]).exp();
+        lost.absorbed[ch] += flux[ch] - k;
+        flux[ch] = k;
+    }
+    if sharp.fresnel && kept < 1.0 {
+        for (f, r) in flux.iter_mut().zip(lost.reflected.iter_mut()) {
+            let k = *f * kept;
+            *r += *f - k;
+            *f = k;
+        }
+    }
+    Some(moved)
+}
+
+/// The first surface a corner crossed in a step.
+#[derive(Clone, Copy, PartialEq)]
+struct Crossed {
+    surface: usize,
+    total: bool,
+    from: Region,
+    to: Region,
+}
+
+/// Most surfaces one corner crosses in one step (a guard: a step is half
+/// a voxel, and surfaces closer than that are rare).
+const MAX_CROSSINGS: usize = 16;
 
 /// [Ihrke07 eq 17] with [Ihrke07 eq 18]'s attenuation already in the flux: the
 /// differential irradiance of each patch is its flux over its current area.

@@ -150,6 +150,12 @@ impl Incident {
     }
 }
 
+/// Patches [`refine`] must not split now, whatever their size, by their
+/// corner positions: with sharp interfaces, a patch whose corners lie in
+/// different regions (part of it through a surface, part not yet), whose
+/// new corners would mix a refracted direction with an unrefracted one.
+pub type Hold<'a> = &'a (dyn Fn(&[glam::DVec3; 4]) -> bool + Sync);
+
 /// Reusable buffers of [`refine`].
 #[derive(Default)]
 pub struct Scratch {
@@ -219,6 +225,7 @@ fn fate(p: &Patches, i: usize, grid: &GridGeometry, rules: &Rules) -> Fate {
 /// counts splits refused by `max_patches`. Three steps, as the GPU's
 /// kernels: [`tally`] (the fates and what left), [`grant`] (the split
 /// grants: each patch's count of 0, 1 or 4) and [`rebuild`] (the walk).
+#[allow(clippy::too_many_arguments)]
 pub fn refine<F: IndexField + ?Sized>(
     p: &mut Patches,
     next: &mut Patches,
@@ -227,8 +234,9 @@ pub fn refine<F: IndexField + ?Sized>(
     grid: &GridGeometry,
     rules: &Rules,
     held: &mut usize,
+    hold: Option<Hold>,
 ) -> Ended {
-    let (ended, kept, splits) = tally(p, scratch, grid, rules);
+    let (ended, kept, splits) = tally(p, scratch, grid, rules, hold);
     grant(scratch, rules.max_patches, kept, splits, held);
     if kept == p.len() {
         // Every patch retained: the list stands as it is.
@@ -245,15 +253,17 @@ fn tally(
     scratch: &mut Scratch,
     grid: &GridGeometry,
     rules: &Rules,
+    hold: Option<Hold>,
 ) -> (Ended, usize, usize) {
     let n = p.len();
     scratch.fate.clear();
     scratch.fate.resize(n, Fate::Retain);
-    scratch
-        .fate
-        .par_iter_mut()
-        .enumerate()
-        .for_each(|(i, f)| *f = fate(p, i, grid, rules));
+    scratch.fate.par_iter_mut().enumerate().for_each(|(i, f)| {
+        *f = fate(p, i, grid, rules);
+        if matches!(f, Fate::Split) && hold.is_some_and(|h| h(&p.positions(i))) {
+            *f = Fate::Retain;
+        }
+    });
     let mut ended = Ended::default();
     let mut splits = 0usize;
     let mut kept = 0usize;

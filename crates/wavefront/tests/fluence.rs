@@ -11,8 +11,10 @@ mod exact_sphere;
 
 use eikon_testkit::scenes::medium;
 use eikon_wavefront::deposit::Counters;
-use eikon_wavefront::photons::simulate_photons;
-use eikon_wavefront::{simulate_light, DepositRule, LightVolume, Options, Summary};
+use eikon_wavefront::photons::{simulate_photons, simulate_photons_in};
+use eikon_wavefront::{
+    simulate_light, simulate_light_in, DepositRule, LightVolume, Options, Summary,
+};
 use glam::DVec3;
 
 fn wavefront(text: &str, opts: &Options) -> (eikon_grid::Medium, LightVolume, Summary) {
@@ -290,5 +292,108 @@ power = [1, 1, 1]
         "{} vs {}",
         wmax.0,
         pmax.0
+    );
+}
+
+/// With sharp interfaces (`[grid] interfaces = "sharp"`): the same scene,
+/// each corner crossing the sphere's exact surface.
+fn sharp(text: &str, opts: &Options) -> (eikon_grid::Medium, LightVolume, Summary) {
+    let (scene, m) = medium(text);
+    let regions = eikon_grid::Regions::new(&scene);
+    let (v, s) = simulate_light_in(&scene.lights[0], &m, Some(&regions), opts, &|_, _| {}).unwrap();
+    (m, v, s)
+}
+
+#[test]
+fn with_sharp_interfaces_the_caustic_carries_the_power_ray_optics_gives() {
+    const TOL: f64 = 0.03;
+    let exact = exact_sphere::transmitted_power_in_shadow(&exact_sphere::fig7(), true, 1000);
+    for res in [64, 128] {
+        let (m, v, s) = sharp(&fig7(res), &Options::default());
+        let p = shadow_power(&m, &v);
+        println!(
+            "{res}^3, sharp: {p:.4} W in the shadow ({:+.2}% against exact ray optics {exact:.4} W); torn {:.2e} of the entered power ({} pieces), reflected {:.4} W",
+            100.0 * (p / exact - 1.0),
+            s.torn_power[0] / s.entered[0],
+            s.torn,
+            s.reflected_power[0]
+        );
+        assert_eq!(s.caustic, 0);
+        assert!(
+            s.culled_power[0] < 1e-4 * s.entered[0],
+            "culled {:?}",
+            s.culled_power
+        );
+        assert!(s.energy_imbalance() < 1e-9, "{}", s.energy_imbalance());
+        assert!(
+            (p / exact - 1.0).abs() < TOL,
+            "{res}^3: {p} W, exact {exact} W"
+        );
+    }
+}
+
+#[test]
+fn with_sharp_interfaces_a_glass_ball_reads_what_the_photons_read() {
+    let text = r#"
+[grid]
+resolution = 48
+min = [-1, -1, -1]
+max = [1, 1, 1]
+interfaces = "sharp"
+
+[[object]]
+shape = { type = "sphere", center = [0.0, 0.35, 0.0], radius = 0.5 }
+index = 1.5
+
+[[light]]
+type = "directional"
+direction = [0.0, -1.0, 0.0]
+power = [1, 1, 1]
+"#;
+    let (scene, m) = medium(text);
+    let regions = eikon_grid::Regions::new(&scene);
+    let light = &scene.lights[0];
+    let opts = Options::default();
+    let (wf, ws) = simulate_light_in(light, &m, Some(&regions), &opts, &|_, _| {}).unwrap();
+    let count = 1_500_000;
+    let (pa, psa) = simulate_photons_in(light, &m, Some(&regions), count, 1, &opts).unwrap();
+    let (pb, _) = simulate_photons_in(light, &m, Some(&regions), count, 2, &opts).unwrap();
+    let mut rel = Vec::new();
+    let [nx, ny, nz] = m.geometry.dims;
+    for i in 0..nx {
+        for j in 0..ny {
+            for k in 0..nz {
+                let w = wf.fluence[[i, j, k, 0]];
+                let p = 0.5 * (pa.fluence[[i, j, k, 0]] + pb.fluence[[i, j, k, 0]]);
+                if p > 0.01 {
+                    rel.push(((w / p - 1.0) as f64).abs());
+                }
+            }
+        }
+    }
+    rel.sort_by(f64::total_cmp);
+    let q = |f: f64| rel[((rel.len() - 1) as f64 * f) as usize];
+    let (med, p95) = (q(0.5), q(0.95));
+    println!(
+        "sharp ball vs {} photons: {} cells, median |w / p - 1| {med:.4}, 95th percentile {p95:.4}; reflected wavefront {:.5} W, photons {:.5} W; torn {:.2e} of the entered power",
+        2 * count,
+        rel.len(),
+        ws.reflected_power[0],
+        psa.reflected_power[0],
+        ws.torn_power[0] / ws.entered[0]
+    );
+    assert!(med < 0.02, "median {med}");
+    assert!(p95 < 0.10, "95th percentile {p95}");
+    // What the wavefront reflects, and what it reflects plus what it tore
+    // at the silhouette (grazing light, reflected or passing by), bracket
+    // the photons' reflection.
+    let (r, torn, rp) = (
+        ws.reflected_power[0],
+        ws.torn_power[0],
+        psa.reflected_power[0],
+    );
+    assert!(
+        r <= rp && rp <= r + torn,
+        "reflected {r} + torn {torn} vs photons {rp}"
     );
 }

@@ -212,6 +212,7 @@ fn wavefront_drift(text: &str, length: f64, step: f64) -> (f64, f64, usize) {
         channel: 0,
         tally: None,
         group: None,
+        sharp: None,
     };
     for _ in 0..steps {
         let before: Vec<[DVec3; 4]> = (0..p.len()).map(|i| p.positions(i)).collect();

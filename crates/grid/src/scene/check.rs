@@ -253,6 +253,7 @@ fn check_grid(c: &Checker, g: &RawGrid) -> Result<GridSettings> {
         smoothing,
         supersample: g.supersample as usize,
         dispersion: g.dispersion,
+        interfaces: g.interfaces,
     })
 }
 

@@ -31,6 +31,9 @@ pub struct GridSettings {
     pub supersample: usize,
     /// Three index fields (R, G, B) instead of one.
     pub dispersion: bool,
+    /// How rays meet the surfaces between materials: smoothed into the
+    /// index field (the paper's way) or exactly ([`crate::region`]).
+    pub interfaces: crate::region::Interfaces,
 }
 
 /// The largest light power accepted, per channel (W, or W/m^2 for a
@@ -230,6 +233,8 @@ pub struct GridOverride {
     pub max_resolution: Option<u64>,
     /// Gaussian sigma in voxels.
     pub smoothing: Option<f64>,
+    /// Sharp or smoothed interfaces.
+    pub interfaces: Option<crate::region::Interfaces>,
 }
 
 impl GridOverride {
@@ -294,6 +299,9 @@ impl Scene {
         raw.grid.resolution = grid.apply(&raw.grid.resolution);
         if let Some(sigma) = grid.smoothing {
             raw.grid.smoothing = sigma;
+        }
+        if let Some(i) = grid.interfaces {
+            raw.grid.interfaces = i;
         }
         check::scene(raw, &c)
     }

@@ -2,6 +2,7 @@
 //! `docs/SCENES.md`, unknown fields rejected. Values are checked, and
 //! turned into the public types, by [`super::check`].
 
+use crate::region::Interfaces;
 use serde::de::{self, Deserializer, MapAccess, SeqAccess, Visitor};
 use serde::Deserialize;
 use std::fmt;
@@ -61,6 +62,8 @@ pub(super) struct RawGrid {
     pub(super) supersample: u32,
     #[serde(default)]
     pub(super) dispersion: bool,
+    #[serde(default)]
+    pub(super) interfaces: Interfaces,
 }
 
 #[derive(Deserialize)]

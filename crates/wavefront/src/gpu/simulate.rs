@@ -927,6 +927,7 @@ impl<'a> GpuSimulator<'a> {
                 (&mut p, &mut next, &mut scratch),
                 tally.as_ref(),
                 &mut summary,
+                None,
             );
             if p.is_empty() {
                 directions.push(Array4::zeros((grid.dims[0], grid.dims[1], grid.dims[2], 3)));

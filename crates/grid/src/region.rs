@@ -1,0 +1,581 @@
+//! Sharp interfaces: the medium as regions (each object's interior, and the
+//! ambient medium), each with its own index profile, separated by the
+//! objects' exact surfaces.
+//!
+//! [Ihrke07 sec 5.1] smooths the whole index field, interfaces included, so
+//! that the ray equation [Ihrke07 eq 8] bends rays through them; the price
+//! is an interface a few voxels wide (its Fig. 7 shows the shift against
+//! POV-Ray). Smoothing is right for an index that varies continuously and
+//! wrong for a jump between two materials. With [`Interfaces::Sharp`]:
+//!
+//! * inside a region a ray follows the ray equation through that region's
+//!   own profile, sampled exactly ([`Regions::index`]: constant, Luneburg,
+//!   linear, a VDB grid), never across a surface; a region of constant
+//!   index is crossed in one straight step, surface to surface;
+//! * a step that would leave the region is cut at the surface
+//!   ([`crate::surface`]: closed forms, root finding, the mesh's BVH), and
+//!   there Snell's law or total internal reflection is applied with the
+//!   exact normal and the index on either side ([`refract`]);
+//! * which region lies beyond a surface follows the scene's priorities
+//!   [SchmidtBudge02 sec 2]: a crossing that does not change the owner
+//!   (the surface of a lower-priority object inside a higher one) is a
+//!   false crossing and changes nothing.
+//!
+//! Snell's law in the eikonal's terms: the tangential part of `v = grad S`
+//! (`|v| = n`) is continuous across an interface, and the normal part takes
+//! whatever length makes `|v| = n2`; when none does, the interface reflects
+//! totally.
+
+use crate::object::Material;
+use crate::ray::{step_euler, step_rk4, Form, Integrator, RayState};
+use crate::scene::Scene;
+use crate::surface::Crossing;
+use eikon_optics::fresnel;
+use glam::DVec3;
+use serde::Deserialize;
+
+/// How rays meet the surfaces between materials (`[grid] interfaces`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Interfaces {
+    /// The paper's way [Ihrke07 sec 5.1]: the index is smoothed across
+    /// every interface and the ray equation bends rays through the band.
+    #[default]
+    Smoothed,
+    /// Exact surfaces between regions, the ray equation inside each (this
+    /// module).
+    Sharp,
+}
+
+impl Interfaces {
+    /// The name used in scene files and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Interfaces::Smoothed => "smoothed",
+            Interfaces::Sharp => "sharp",
+        }
+    }
+}
+
+/// A region: the interior of object `Some(i)` (after priorities), or the
+/// ambient medium (`None`).
+pub type Region = Option<usize>;
+
+/// The scene's regions and surfaces, for tracing rays with sharp
+/// interfaces.
+pub struct Regions<'a> {
+    scene: &'a Scene,
+    /// Each object's bounding box (None: unbounded), padded by `eps`.
+    boxes: Vec<Option<(DVec3, DVec3)>>,
+    /// Length below which two points on a ray are the same point: a crossing
+    /// is found only beyond it, and the far side of a surface is probed
+    /// this far from it. A billionth of a voxel.
+    eps: f64,
+}
+
+/// What happened where a ray met a surface that separates two regions.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Event {
+    /// The object whose surface it is.
+    pub surface: usize,
+    /// The point on the surface.
+    pub point: DVec3,
+    /// Unit normal of the surface, pointing the way the ray travelled
+    /// (from the region it came from into the other).
+    pub normal: DVec3,
+    /// The ray's unit direction as it met the surface.
+    pub incident: DVec3,
+    /// Index on the side it came from, and on the other side.
+    pub n1: f64,
+    /// Index on the other side.
+    pub n2: f64,
+    /// Unpolarized Fresnel reflectance at the crossing [BornWolf99]; 1
+    /// under total internal reflection.
+    pub reflectance: f64,
+    /// The surface reflected the ray totally: it stays in its region.
+    pub total: bool,
+    /// The region it came from.
+    pub from: Region,
+    /// The region on the other side.
+    pub to: Region,
+}
+
+/// One step of [`Regions::step`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Step {
+    /// How much of the step was used, in the form's units (distance, or
+    /// optical path): less than asked when the ray stopped at a surface.
+    pub used: f64,
+    /// The surface where the step stopped, if it separates two regions.
+    pub event: Option<Event>,
+    /// The step stopped at a surface (a true or a false crossing).
+    pub at_surface: bool,
+}
+
+/// A ray with sharp interfaces: its state and the region it is in.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SharpRay {
+    /// Position, eikonal gradient and optical path.
+    pub s: RayState,
+    /// The region the ray is in.
+    pub region: Region,
+}
+
+/// Snell's law for the eikonal gradient `v` (`|v| = n1`) crossing a
+/// surface with unit `normal` along the direction of travel (`v . normal
+/// > 0`) into index `n2`: the tangential part is kept and the normal part
+/// takes the length that makes `|v| = n2`. `None` when no length does
+/// (total internal reflection).
+#[inline]
+pub fn refract(v: DVec3, normal: DVec3, n2: f64) -> Option<DVec3> {
+    let vn = v.dot(normal);
+    let vt = v - normal * vn;
+    let rest = n2 * n2 - vt.length_squared();
+    (rest >= 0.0).then(|| vt + normal * rest.sqrt())
+}
+
+impl<'a> Regions<'a> {
+    /// The regions of `scene`, on the scale of its grid's voxels.
+    pub fn new(scene: &'a Scene) -> Self {
+        let eps = 1e-9 * scene.grid.geometry.voxel_size();
+        let boxes = scene
+            .objects
+            .iter()
+            .map(|o| {
+                o.shape
+                    .aabb()
+                    .map(|(a, b)| (a - DVec3::splat(eps), b + DVec3::splat(eps)))
+            })
+            .collect();
+        Self { scene, boxes, eps }
+    }
+
+    /// The scene.
+    pub fn scene(&self) -> &Scene {
+        self.scene
+    }
+
+    /// The tolerance of crossings, world units (see the field's docs).
+    pub fn eps(&self) -> f64 {
+        self.eps
+    }
+
+    /// The region that owns `p` [SchmidtBudge02 sec 2].
+    #[inline]
+    pub fn at(&self, p: DVec3) -> Region {
+        self.scene.owner(p)
+    }
+
+    /// The material of region `r`.
+    #[inline]
+    pub fn material(&self, r: Region) -> &Material {
+        match r {
+            Some(i) => &self.scene.objects[i].material,
+            None => &self.scene.ambient,
+        }
+    }
+
+    /// Whether the index of region `r` is one constant (rays go straight).
+    #[inline]
+    pub fn uniform(&self, r: Region) -> bool {
+        let m = self.material(r);
+        m.index_grid.is_none() && matches!(m.index, crate::IndexProfile::Constant(_))
+    }
+
+    /// The index of region `r` at `p` for colour `ch`, and its gradient:
+    /// the region's own profile, exactly (a VDB index grid by central
+    /// differences half a grid voxel either way).
+    #[inline]
+    pub fn index(&self, r: Region, p: DVec3, ch: usize) -> (f64, DVec3) {
+        let m = self.material(r);
+        match &m.index_grid {
+            None => m.index.sample(p, ch),
+            Some(g) => {
+                let t = &g.volume.transform;
+                let h = 0.5 * (t.index_to_world(DVec3::X) - t.index_to_world(DVec3::ZERO)).length();
+                let d = |e: DVec3| (g.value(p + e * h) - g.value(p - e * h)) / (2.0 * h);
+                (
+                    g.value(p),
+                    DVec3::new(d(DVec3::X), d(DVec3::Y), d(DVec3::Z)),
+                )
+            }
+        }
+    }
+
+    /// The first surface the segment `o + d t`, `eps < t <= t_max`, crosses
+    /// (`d` unit): the object and where.
+    pub fn next_surface(&self, o: DVec3, d: DVec3, t_max: f64) -> Option<(usize, Crossing)> {
+        let mut best: Option<(usize, Crossing)> = None;
+        for (i, obj) in self.scene.objects.iter().enumerate() {
+            let limit = best.map_or(t_max, |(_, c)| c.t);
+            if let Some((lo, hi)) = self.boxes[i] {
+                match slab(o, d, lo, hi) {
+                    Some((t0, t1)) if t1 > self.eps && t0 <= limit => {}
+                    _ => continue,
+                }
+            }
+            if let Some(c) = obj.shape.first_crossing(o, d, self.eps, limit) {
+                if best.is_none_or(|(_, b)| c.t < b.t) {
+                    best = Some((i, c));
+                }
+            }
+        }
+        best
+    }
+
+    /// The ray is at `point` on a surface with unit outward `normal`: find
+    /// the region beyond and refract or reflect `ray` there. `None` for a
+    /// false crossing (the same region on both sides).
+    pub fn cross(
+        &self,
+        ray: &mut SharpRay,
+        surface: usize,
+        point: DVec3,
+        normal: DVec3,
+        ch: usize,
+    ) -> Option<Event> {
+        ray.s.x = point;
+        let d = ray.s.v.normalize_or_zero();
+        let along = if d.dot(normal) >= 0.0 {
+            normal
+        } else {
+            -normal
+        };
+        let to = self.at(point + along * self.eps);
+        let from = ray.region;
+        if to == from {
+            return None;
+        }
+        let n1 = self.index(from, point, ch).0;
+        let n2 = self.index(to, point, ch).0;
+        // On the eikonal shell |v| = n1 at the surface (the ray equation
+        // keeps it there to the integrator's accuracy).
+        let v = d * n1;
+        let cos_i = d.dot(along);
+        let event = |reflectance, total| Event {
+            surface,
+            point,
+            normal: along,
+            incident: d,
+            n1,
+            n2,
+            reflectance,
+            total,
+            from,
+            to,
+        };
+        match refract(v, along, n2) {
+            Some(v2) => {
+                ray.s.v = v2;
+                ray.region = to;
+                Some(event(fresnel::reflectance(cos_i, n1, n2), false))
+            }
+            None => {
+                ray.s.v = v - along * (2.0 * v.dot(along));
+                Some(event(1.0, true))
+            }
+        }
+    }
+
+    /// Advance `ray` by at most `h` (distance for [`Form::EqualDistance`],
+    /// optical path for [`Form::EqualTime`]) within its region, stopping at
+    /// the first surface it meets and crossing it there. A region of
+    /// constant index is crossed straight; elsewhere one step of
+    /// `integrator` on the region's profile is taken, and cut where its
+    /// chord meets a surface (to [`Regions::eps`], by false position on the
+    /// step length).
+    pub fn step(
+        &self,
+        ray: &mut SharpRay,
+        form: Form,
+        integrator: Integrator,
+        h: f64,
+        ch: usize,
+    ) -> Step {
+        if self.uniform(ray.region) {
+            let n = self.index(ray.region, ray.s.x, ch).0;
+            let d = ray.s.v.normalize_or_zero();
+            // The distance that uses the whole step.
+            let per = match form {
+                Form::EqualDistance => 1.0,
+                Form::EqualTime => n,
+            };
+            let len = h / per;
+            match self.next_surface(ray.s.x, d, len) {
+                Some((obj, c)) => {
+                    ray.s.opl += n * c.t;
+                    ray.s.v = d * n;
+                    let event = self.cross(ray, obj, ray.s.x + d * c.t, c.normal, ch);
+                    Step {
+                        used: c.t * per,
+                        event,
+                        at_surface: true,
+                    }
+                }
+                None => {
+                    ray.s.x += d * len;
+                    ray.s.v = d * n;
+                    ray.s.opl += n * len;
+                    Step {
+                        used: h,
+                        event: None,
+                        at_surface: false,
+                    }
+                }
+            }
+        } else {
+            self.curved_step(ray, form, integrator, h, ch)
+        }
+    }
+
+    /// [`Regions::step`] in a region whose index varies.
+    fn curved_step(
+        &self,
+        ray: &mut SharpRay,
+        form: Form,
+        integrator: Integrator,
+        h: f64,
+        ch: usize,
+    ) -> Step {
+        let field = RegionField {
+            regions: self,
+            region: ray.region,
+            ch,
+        };
+        let take = |s: &mut RayState, h: f64| match integrator {
+            Integrator::Euler => step_euler(&field, form, s, h),
+            _ => step_rk4(&field, form, s, h),
+        };
+        // On the eikonal shell of the region's index, so that in the
+        // equal-time form every step is exactly `h` of optical path.
+        let n0 = self.index(ray.region, ray.s.x, ch).0;
+        let len0 = ray.s.v.length();
+        if len0 > 0.0 {
+            ray.s.v *= n0 / len0;
+        }
+        let start = ray.s;
+        let mut end = start;
+        take(&mut end, h);
+        let chord = end.x - start.x;
+        let len = chord.length();
+        let hit = if len > 0.0 {
+            self.next_surface(start.x, chord / len, len)
+        } else {
+            None
+        };
+        let Some((obj, c)) = hit else {
+            ray.s = end;
+            return Step {
+                used: h,
+                event: None,
+                at_surface: false,
+            };
+        };
+        // Cut the step where its end lies on the surface: the object's
+        // signed distance changes sign between the step's start side and
+        // the chord's far end.
+        let shape = &self.scene.objects[obj].shape;
+        let u = chord / len;
+        let side = if shape.contains(start.x + u * (0.5 * c.t)) {
+            -1.0
+        } else {
+            1.0
+        };
+        let f = |s: &RayState| side * shape.distance(s.x);
+        let (mut a, mut fa) = (0.0, f(&start).max(0.0));
+        let (mut b, mut fb) = (h, f(&end));
+        let mut at = end;
+        if fb > 0.0 {
+            // The end is back on the start's side (the step crossed the
+            // surface twice, or grazed it): cut at the chord's crossing.
+            b = h * (c.t / len);
+            at = start;
+            take(&mut at, b);
+            fb = f(&at).min(0.0);
+        }
+        // Illinois false position: each iteration is one integrator step.
+        let mut last = 0;
+        for _ in 0..100 {
+            if (b - a) <= self.eps || fb == 0.0 {
+                break;
+            }
+            let m = if fa - fb != 0.0 {
+                (b - fb * (b - a) / (fb - fa)).clamp(a + 0.01 * (b - a), b - 0.01 * (b - a))
+            } else {
+                0.5 * (a + b)
+            };
+            let mut s = start;
+            take(&mut s, m);
+            let fm = f(&s);
+            if fm > 0.0 {
+                a = m;
+                fa = fm;
+                if last == -1 {
+                    fb *= 0.5;
+                }
+                last = -1;
+            } else {
+                b = m;
+                fb = fm;
+                at = s;
+                if last == 1 {
+                    fa *= 0.5;
+                }
+                last = 1;
+            }
+        }
+        ray.s = at;
+        let normal = shape.normal(at.x);
+        let event = self.cross(ray, obj, at.x, normal, ch);
+        Step {
+            used: b,
+            event,
+            at_surface: true,
+        }
+    }
+
+    /// A ray at `x` heading along unit `dir`, in the region that owns `x`
+    /// (on the eikonal shell of that region's index).
+    pub fn ray(&self, x: DVec3, dir: DVec3, ch: usize) -> SharpRay {
+        let region = self.at(x);
+        SharpRay {
+            s: RayState::new(x, dir, self.index(region, x, ch).0),
+            region,
+        }
+    }
+}
+
+/// One region's index profile as an [`crate::IndexField`], for the
+/// integrators.
+struct RegionField<'r, 'a> {
+    regions: &'r Regions<'a>,
+    region: Region,
+    ch: usize,
+}
+
+impl crate::IndexField for RegionField<'_, '_> {
+    #[inline]
+    fn sample(&self, p: DVec3) -> (f64, DVec3) {
+        self.regions.index(self.region, p, self.ch)
+    }
+}
+
+/// The parameter range where the line `o + d t` is inside the box.
+#[inline]
+fn slab(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> Option<(f64, f64)> {
+    let inv = d.recip();
+    let a = (lo - o) * inv;
+    let b = (hi - o) * inv;
+    let t0 = a.min(b).max_element();
+    let t1 = a.max(b).min_element();
+    // NaN (a zero direction component on a slab's face) counts as inside.
+    if t0 <= t1 || t0.is_nan() || t1.is_nan() {
+        Some((t0, t1))
+    } else {
+        None
+    }
+}
+
+/// [`crate::ray::trace`] with sharp interfaces: a ray from `origin` along
+/// `dir` through the regions of `regions`' scene, in index channel `ch`,
+/// until it leaves the grid's bounds. Steps are `opts.step` (Dormand-Prince
+/// takes RK4's), and as long as the region allows: surface to surface in
+/// constant ones.
+pub fn trace(
+    regions: &Regions,
+    origin: DVec3,
+    dir: DVec3,
+    opts: &crate::TraceOptions,
+    ch: usize,
+) -> crate::RayEnd {
+    use crate::Status;
+    let grid = &regions.scene.grid.geometry;
+    let d = dir.normalize_or_zero();
+    let mut end = crate::RayEnd {
+        status: Status::Missed,
+        entry: origin,
+        position: origin,
+        direction: d,
+        optical_path: 0.0,
+        steps: 0,
+        rejected: 0,
+        path: Vec::new(),
+    };
+    if d == DVec3::ZERO || !origin.is_finite() || !d.is_finite() {
+        end.status = Status::Diverged;
+        return end;
+    }
+    let start = if grid.contains(origin) {
+        origin
+    } else {
+        match grid.clip_line(origin, d) {
+            Some((t0, t1)) if t1 >= 0.0 && t0 >= 0.0 => origin + d * t0,
+            _ => return end,
+        }
+    };
+    end.entry = start;
+    if opts.record_path {
+        end.path.push(start);
+    }
+    let mut ray = regions.ray(start, d, ch);
+    let integrator = match opts.integrator {
+        Integrator::Euler => Integrator::Euler,
+        _ => Integrator::Rk4,
+    };
+    let finish = |end: &mut crate::RayEnd, ray: &SharpRay, status| {
+        end.status = status;
+        end.position = ray.s.x;
+        end.direction = ray.s.v.normalize_or_zero();
+        end.optical_path = ray.s.opl;
+    };
+    loop {
+        if end.steps >= opts.max_steps {
+            finish(&mut end, &ray, Status::MaxSteps);
+            return end;
+        }
+        let dir = ray.s.v.normalize_or_zero();
+        let exit = grid
+            .clip_line(ray.s.x, dir)
+            .map_or(0.0, |(_, t1)| t1.max(0.0));
+        let n = regions.index(ray.region, ray.s.x, ch).0;
+        let per = match opts.form {
+            Form::EqualDistance => 1.0,
+            Form::EqualTime => n,
+        };
+        // Constant regions go as far as the bounds in one step.
+        let h = if regions.uniform(ray.region) {
+            exit * per
+        } else {
+            opts.step
+        };
+        let before = ray;
+        let st = regions.step(&mut ray, opts.form, integrator, h.max(0.0), ch);
+        end.steps += 1;
+        if !(ray.s.x.is_finite() && ray.s.v.is_finite()) {
+            finish(&mut end, &before, Status::Diverged);
+            return end;
+        }
+        if !grid.contains(ray.s.x) || (!st.at_surface && regions.uniform(before.region)) {
+            // Left the bounds: end on them, along the last chord.
+            let chord = ray.s.x - before.s.x;
+            let len = chord.length();
+            if len > 0.0 && !grid.contains(ray.s.x) {
+                let u = chord / len;
+                let t = grid
+                    .clip_line(before.s.x, u)
+                    .map_or(len, |(_, t1)| t1.clamp(0.0, len));
+                let f = t / len;
+                ray.s.x = before.s.x + u * t;
+                ray.s.opl = before.s.opl + (ray.s.opl - before.s.opl) * f;
+            }
+            if opts.record_path {
+                end.path.push(ray.s.x);
+            }
+            finish(&mut end, &ray, Status::Exited);
+            return end;
+        }
+        if opts.record_path {
+            end.path.push(ray.s.x);
+        }
+    }
+}
