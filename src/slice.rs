@@ -23,10 +23,14 @@ enum FieldArg {
     Boundary,
     /// Mean RGB extinction.
     Extinction,
+    /// The exact interfaces (`[grid] interfaces = "sharp"`): each region's
+    /// own index, sampled at every pixel, with the surfaces between
+    /// regions drawn in white.
+    Interfaces,
 }
 
 /// Arguments of `eikon slice`.
-#[derive(clap::Args)]
+#[derive(clap::Args, Clone)]
 pub struct Args {
     /// Scene file (TOML).
     scene: PathBuf,
@@ -65,6 +69,9 @@ pub fn run(args: Args) -> Result<()> {
         bail!("{}: the output must be a .png file", args.output.display());
     }
     let scene = Scene::load(&args.scene)?;
+    if args.field == FieldArg::Interfaces {
+        return interfaces(&args, &scene);
+    }
     let m = crate::output::build_medium(&scene)?;
     let [nx, ny, nz] = m.geometry.dims;
     let ch = args.channel.min(m.channels() - 1);
@@ -74,6 +81,7 @@ pub fn run(args: Args) -> Result<()> {
             FieldArg::Gradient => m.gradient_at(ch, i, j, k).length() as f32,
             FieldArg::Boundary => m.boundary[[i, j, k]],
             FieldArg::Extinction => (0..3).map(|c| m.extinction[[i, j, k, c]]).sum::<f32>() / 3.0,
+            FieldArg::Interfaces => unreachable!("drawn from the regions"),
         }
     };
     let pick = |n: usize| ((args.at * n as f64).floor() as usize).min(n - 1);
@@ -97,8 +105,15 @@ pub fn run(args: Args) -> Result<()> {
             vals.push(at(u, v));
         }
     }
+    write_png(&args, &vals, w, h)
+}
+
+/// Write `vals` (`w` x `h`, top row first) as a viridis PNG, each value
+/// `args.scale` pixels square; NaN is drawn white.
+fn write_png(args: &Args, vals: &[f32], w: usize, h: usize) -> Result<()> {
     let (lo, hi) = vals
         .iter()
+        .filter(|x| !x.is_nan())
         .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &x| {
             (a.min(x), b.max(x))
         });
@@ -108,7 +123,12 @@ pub fn run(args: Args) -> Result<()> {
     let mut rgb = vec![0u8; pw * ph * 3];
     for y in 0..ph {
         for x in 0..pw {
-            let c = viridis((vals[(y / s) * w + x / s] - lo) as f64 / span);
+            let v = vals[(y / s) * w + x / s];
+            let c = if v.is_nan() {
+                [255, 255, 255]
+            } else {
+                viridis((v - lo) as f64 / span)
+            };
             rgb[(y * pw + x) * 3..][..3].copy_from_slice(&c);
         }
     }
@@ -126,4 +146,54 @@ pub fn run(args: Args) -> Result<()> {
         args.output.display()
     );
     Ok(())
+}
+
+/// `--field interfaces`: the regions of the scene's exact surfaces on the
+/// slice plane, at `args.scale` samples per voxel.
+fn interfaces(args: &Args, scene: &Scene) -> Result<()> {
+    let g = &scene.grid.geometry;
+    let regions = eikon_grid::Regions::new(scene);
+    let s = args.scale;
+    let [nx, ny, nz] = g.dims.map(|n| n * s);
+    let (w, h) = match args.axis {
+        Axis::X => (ny, nz),
+        Axis::Y => (nx, nz),
+        Axis::Z => (nx, ny),
+    };
+    let size = g.max - g.min;
+    let point = |u: usize, v: usize| -> glam::DVec3 {
+        let f = |i: usize, n: usize| (i as f64 + 0.5) / n as f64;
+        let t = match args.axis {
+            Axis::X => glam::DVec3::new(args.at, f(u, w), f(v, h)),
+            Axis::Y => glam::DVec3::new(f(u, w), args.at, f(v, h)),
+            Axis::Z => glam::DVec3::new(f(u, w), f(v, h), args.at),
+        };
+        g.min + size * t
+    };
+    let owner: Vec<_> = (0..w * h)
+        .map(|i| regions.at(point(i % w, i / w)))
+        .collect();
+    let ch = args.channel.min(scene.channels() - 1);
+    let mut vals = Vec::with_capacity(w * h);
+    for v in (0..h).rev() {
+        for u in 0..w {
+            let r = owner[v * w + u];
+            let edge = (u + 1 < w && owner[v * w + u + 1] != r)
+                || (v + 1 < h && owner[(v + 1) * w + u] != r);
+            vals.push(if edge {
+                f32::NAN
+            } else {
+                regions.index(r, point(u, v), ch).0 as f32
+            });
+        }
+    }
+    write_png(
+        &Args {
+            scale: 1,
+            ..args.clone()
+        },
+        &vals,
+        w,
+        h,
+    )
 }

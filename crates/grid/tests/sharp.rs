@@ -248,7 +248,7 @@ fn nested_dielectrics_follow_the_exact_snell_tracer() {
         [0.45, 0.12],
         [0.0, 0.12],
     ];
-    let water_profile = [[0.0, 0.0], [0.48, 0.0], [0.48, 0.9], [0.0, 0.9]];
+    let water_profile = [[0.0, 0.0], [0.48, 0.0], [0.48, 0.83], [0.0, 0.83]];
     let revolve = |profile: &[[f64; 2]], base: DVec3| {
         let p: Vec<glam::DVec2> = profile
             .iter()
@@ -274,7 +274,7 @@ fn nested_dielectrics_follow_the_exact_snell_tracer() {
         ),
         (
             "water",
-            revolve(&water_profile, DVec3::new(0.0, -0.62, 0.0)),
+            revolve(&water_profile, DVec3::new(0.0, -0.55, 0.0)),
             1.333,
             2,
         ),

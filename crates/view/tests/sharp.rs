@@ -182,3 +182,179 @@ colors = [[1, 1, 1], [1, 1, 1]]
         "sharp wall reflects {sharp}, want {want}"
     );
 }
+
+/// [Ihrke07 fig 7]'s glass sphere over its plane, light and eye both with
+/// sharp interfaces at 128^3: the plane's pixels darker than half the lit
+/// plane, against the same count from exact ray optics computed here (the
+/// plane's irradiance: the direct light where the line to the light misses
+/// the sphere, plus the light refracted twice through it, with Fresnel and
+/// the glass's extinction, binned on the plane from a dense grid of rays).
+/// Pixels that see the sphere itself are left out of both.
+#[test]
+fn the_shadow_under_the_glass_sphere_matches_exact_ray_optics() {
+    const TOL: f64 = 0.03;
+    let c = DVec3::new(0.0, 0.15, 0.0);
+    let r = 0.45;
+    let n = 1.5;
+    let sigma = 0.03; // the green channel's extinction
+    let plane_y = -0.9;
+    let text = format!(
+        r#"
+[grid]
+resolution = 128
+min = [-1.0, -1.0, -1.0]
+max = [1.0, 1.0, 1.0]
+interfaces = "sharp"
+
+[[object]]
+shape = {{ type = "sphere", center = [{}, {}, {}], radius = {r} }}
+index = {n}
+extinction = [0.05, {sigma}, 0.03]
+
+[[light]]
+type = "directional"
+direction = [0.2, -1.0, 0.1]
+power = [1.0, 1.0, 1.0]
+
+[receiver]
+point = [0.0, {plane_y}, 0.0]
+normal = [0.0, 1.0, 0.0]
+albedo = [0.8, 0.8, 0.8]
+
+[camera]
+position = [0.3, 2.2, 1.4]
+target = [0.15, -0.9, 0.05]
+fov = 50
+resolution = [240, 180]
+
+[background]
+type = "constant"
+color = [0, 0, 0]
+"#,
+        c.x, c.y, c.z
+    );
+    let scene = Scene::parse(&text, "fig7").unwrap();
+    let medium = Medium::build(&scene).unwrap();
+    let regions = eikon_grid::Regions::new(&scene);
+    let (volume, _) = eikon_wavefront::simulate_light_in(
+        &scene.lights[0],
+        &medium,
+        Some(&regions),
+        &eikon_wavefront::Options::default(),
+        &|_, _| {},
+    )
+    .unwrap();
+    let volumes = [volume];
+    let env = load_environment(&scene.background).unwrap();
+    let s = Surroundings::new(&scene, env, &volumes, &medium.geometry);
+    let cam = camera(&scene);
+    let img = Renderer::new(&medium, &volumes, &s, &cam, Options::default())
+        .sharp(&scene)
+        .render(&|_, _| {})
+        .0;
+
+    // Exact ray optics: rays across the sphere's disc, refracted in and
+    // out, binned where they meet the plane.
+    let d = DVec3::new(0.2, -1.0, 0.1).normalize();
+    let lit = -d.y; // irradiance of the lit plane, W/m^2
+    let cell = 0.004;
+    let (lo, cells) = (-1.2, 600usize);
+    let mut bins = vec![0.0f64; cells * cells];
+    let e1 = d.cross(DVec3::X).normalize();
+    let e2 = d.cross(e1);
+    let rays = 2400usize;
+    let da = (2.0 * r / rays as f64).powi(2); // cross-section per ray
+    for i in 0..rays {
+        for j in 0..rays {
+            let (a, b) = (
+                ((i as f64 + 0.5) / rays as f64 * 2.0 - 1.0) * r,
+                ((j as f64 + 0.5) / rays as f64 * 2.0 - 1.0) * r,
+            );
+            if a * a + b * b >= r * r {
+                continue;
+            }
+            let p1 = c + e1 * a + e2 * b - d * (r * r - a * a - b * b).sqrt();
+            let n1 = (p1 - c) / r;
+            let cos1 = -d.dot(n1);
+            let t1 = refract(d, n1, 1.0, n);
+            let chord = -2.0 * (p1 - c).dot(t1);
+            let p2 = p1 + t1 * chord;
+            let n2 = (p2 - c) / r;
+            let cos2 = t1.dot(n2);
+            let t2 = refract(t1, -n2, n, 1.0);
+            let power = da
+                * (1.0 - fresnel(cos1, 1.0, n))
+                * (1.0 - fresnel(cos2, n, 1.0))
+                * (-sigma * chord).exp();
+            // The beam's irradiance is 1 W/m^2 across it.
+            let t = (plane_y - p2.y) / t2.y;
+            let q = p2 + t2 * t;
+            let (u, v) = (((q.x - lo) / cell) as i64, ((q.z - lo) / cell) as i64);
+            if (0..cells as i64).contains(&u) && (0..cells as i64).contains(&v) {
+                bins[u as usize * cells + v as usize] += power;
+            }
+        }
+    }
+    let irradiance = |p: DVec3| -> f64 {
+        // Direct light where the line towards the light misses the sphere.
+        let oc = p - c;
+        let s = -oc.dot(-d); // closest approach along the line to the light
+        let blocked = s > 0.0 && oc.length_squared() - s * s < r * r;
+        let (u, v) = (((p.x - lo) / cell) as usize, ((p.z - lo) / cell) as usize);
+        let caustic = bins[u * cells + v] / (cell * cell);
+        if blocked {
+            caustic
+        } else {
+            lit + caustic
+        }
+    };
+    let albedo = 0.8;
+    let lit_radiance = albedo * lit / std::f64::consts::PI;
+    let (mut dark_exact, mut dark_render, mut plane) = (0usize, 0usize, 0usize);
+    for y in 0..cam.height() {
+        for x in 0..cam.width() {
+            let (o, dir) = cam.ray(x, y, 0, Options::default().seed);
+            let oc = o - c;
+            let b = oc.dot(dir);
+            if b * b - (oc.length_squared() - r * r) > 0.0 {
+                continue; // sees the sphere
+            }
+            if dir.y >= 0.0 {
+                continue;
+            }
+            let p = o + dir * ((plane_y - o.y) / dir.y);
+            if !(p.x.abs() < 1.0 && p.z.abs() < 1.0) {
+                continue;
+            }
+            plane += 1;
+            if irradiance(p) < 0.5 * lit {
+                dark_exact += 1;
+            }
+            if (img.data[(y * cam.width() + x) as usize][1] as f64) < 0.5 * lit_radiance {
+                dark_render += 1;
+            }
+        }
+    }
+    let rel = dark_render as f64 / dark_exact as f64 - 1.0;
+    println!(
+        "Fig. 7 shadow, sharp interfaces at 128^3: {dark_render} pixels darker than half the lit plane, exact ray optics {dark_exact} ({:+.2}%), of {plane} plane pixels",
+        100.0 * rel
+    );
+    assert!(
+        dark_exact > 500,
+        "the shadow covers {dark_exact} pixels only"
+    );
+    assert!(
+        rel.abs() <= TOL,
+        "shadow {dark_render} px, exact {dark_exact} px"
+    );
+}
+
+/// Snell's law in vector form (textbook), for the exact ray optics above:
+/// unit `d` meets a surface whose unit normal `nrm` faces it.
+fn refract(d: DVec3, nrm: DVec3, n1: f64, n2: f64) -> DVec3 {
+    let eta = n1 / n2;
+    let cos_i = -d.dot(nrm);
+    let k = 1.0 - eta * eta * (1.0 - cos_i * cos_i);
+    d * eta + nrm * (eta * cos_i - k.max(0.0).sqrt())
+}
