@@ -121,7 +121,10 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
     let ropts = Options::default();
     let frame = match &backend {
         Backend::Cpu => {
-            let r = Renderer::new(&medium, &volumes, &surroundings, &camera, ropts);
+            let mut r = Renderer::new(&medium, &volumes, &surroundings, &camera, ropts);
+            if scene.grid.interfaces == eikon_grid::Interfaces::Sharp {
+                r = r.sharp(&scene);
+            }
             r.render(&quiet);
             median(
                 (0..frames.max(1))
@@ -159,6 +162,7 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
     };
     Ok(json!({
         "scene": name,
+        "interfaces": scene.grid.interfaces.name(),
         "dims": medium.geometry.dims,
         "backend": backend.name(),
         "device": backend.describe(),
@@ -273,14 +277,15 @@ pub fn run(args: Args) -> Result<()> {
         .map(str::len)
         .fold(5, usize::max);
     println!(
-        "{:<w$} {:<5} {:>12} {:>12} {:>10} {:>10}  device",
-        "scene", "", "simulate s", "frame ms", "fps", "peak MiB"
+        "{:<w$} {:<5} {:<8} {:>12} {:>12} {:>10} {:>10}  device",
+        "scene", "", "surfaces", "simulate s", "frame ms", "fps", "peak MiB"
     );
     for r in &rows {
         println!(
-            "{:<w$} {:<5} {:>12.3} {:>12.2} {:>10.1} {:>10.0}  {}",
+            "{:<w$} {:<5} {:<8} {:>12.3} {:>12.2} {:>10.1} {:>10.0}  {}",
             r["scene"].as_str().unwrap_or("?"),
             r["backend"].as_str().unwrap_or("?"),
+            r["interfaces"].as_str().unwrap_or("?"),
             r["simulate_seconds"].as_f64().unwrap_or(f64::NAN),
             1e3 * r["frame_seconds"].as_f64().unwrap_or(f64::NAN),
             r["frames_per_second"].as_f64().unwrap_or(f64::NAN),

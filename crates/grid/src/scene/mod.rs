@@ -451,8 +451,22 @@ priority = 2
             resolution: Some(64),
             max_resolution: Some(20),
             smoothing: Some(0.5),
+            interfaces: Some(crate::Interfaces::Sharp),
         };
         assert_eq!(at(cube, both), ([20; 3], 0.5));
+        let s = Scene::parse_with(cube, "t.toml", &both).unwrap();
+        assert_eq!(s.grid.interfaces, crate::Interfaces::Sharp);
+        // Unset, the scene's own setting (the default) stays.
+        let s = Scene::parse_with(cube, "t.toml", &GridOverride::default()).unwrap();
+        assert_eq!(s.grid.interfaces, crate::Interfaces::Smoothed);
+        // A misspelt mode is an error naming the field.
+        let e = Scene::parse(
+            &cube.replace("[grid]", "[grid]\ninterfaces = \"sharpish\""),
+            "t.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("interfaces") && e.contains("sharp"), "{e}");
         // The override passes through the same checks as the file.
         let bad = GridOverride {
             smoothing: Some(9.0),
