@@ -249,6 +249,9 @@ pub fn run(args: Args) -> Result<()> {
             if let Some(s) = args.grid.smoothing {
                 cmd.args(["--smoothing", &s.to_string()]);
             }
+            if let Some(i) = args.grid.interfaces {
+                cmd.args(["--interfaces", i.name()]);
+            }
             if args.grid.preview {
                 cmd.arg("--preview");
             }
