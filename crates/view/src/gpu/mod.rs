@@ -43,7 +43,8 @@ use crate::render::{probe_length, Options, Stats, MIRROR_COS};
 use eikon_gpu::{texture_bytes, Buffer, Gpu, GpuError, Texture, MIN_BUFFER_BYTES};
 use eikon_grid::blocks::BLOCK;
 use eikon_grid::geometry::GridGpu;
-use eikon_grid::{Integrator, Light, Medium};
+use eikon_grid::region::{gpu_table, RegionGpu};
+use eikon_grid::{GridGeometry, Integrator, Interfaces, Light, Medium, Scene};
 use eikon_optics::{Camera, Environment, Image};
 use eikon_shader::{compose, layout, Consts, Layout, VECTOR};
 use eikon_wavefront::LightVolume;
@@ -195,6 +196,16 @@ layout! {
         pub pad8: f32,
         /// The lights, `light_count` of them.
         pub lights: [ViewLight; MAX_LIGHTS],
+        /// 1: sharp interfaces (`march_sharp` over `regions`).
+        pub sharp: u32,
+        /// Objects in the region table (the ambient medium follows them).
+        pub region_count: u32,
+        /// With sharp interfaces: the length below which two points on a
+        /// ray are one (a crossing is found only beyond it, the far side of
+        /// a surface is probed this far from it), world units.
+        pub sharp_eps: f32,
+        /// Padding.
+        pub pad9: u32,
     }
 }
 
@@ -244,6 +255,7 @@ pub fn source() -> String {
             &eikon_optics::fresnel::WGSL,
             &eikon_optics::phase::WGSL,
             &eikon_optics::spot::WGSL,
+            &eikon_grid::region::WGSL,
         ],
         SHADER,
     )
@@ -330,6 +342,9 @@ pub struct GpuRenderer<'a> {
     /// Whether there are light volumes (without, one pass binds a dark
     /// placeholder).
     lit: bool,
+    /// With sharp interfaces the regions (`region.rs` `gpu_table`), else
+    /// one placeholder.
+    regions: Buffer,
     _textures: Vec<Texture>,
 }
 
@@ -602,6 +617,17 @@ fn frame_buffers(gpu: &Gpu, camera: &Camera) -> Result<FrameBuffers, GpuError> {
     })
 }
 
+/// With sharp interfaces on the GPU, the length below which two points on
+/// a ray are one ([`ViewParams::sharp_eps`]): the CPU's is a billionth of a
+/// voxel, below f32's resolution; here a few hundred ulps of the scene's
+/// scale, well above the rounding of a crossing point (a few ulps) so that
+/// a segment starting on a surface does not find its own start, and the
+/// far side is probed beyond that rounding.
+fn sharp_eps(g: &GridGeometry) -> f64 {
+    let scale = g.min.abs().max(g.max.abs()).max_element() + g.voxel_size();
+    4e-6 * scale
+}
+
 /// The uniform block of a render.
 fn view_params(
     medium: &Medium,
@@ -726,7 +752,7 @@ fn compile(gpu: &Gpu) -> Result<(wgpu::ComputePipeline, wgpu::BindGroupLayout), 
             buf(1, wgpu::BufferBindingType::Uniform),
         ];
         entries.extend((2..15).map(tex));
-        for b in 15..18 {
+        for b in (15..18).chain([20]) {
             entries.push(buf(b, wgpu::BufferBindingType::Storage { read_only: true }));
         }
         for b in 18..20 {
@@ -831,25 +857,77 @@ impl<'a> GpuRenderer<'a> {
         camera: &Camera,
         opts: Options,
     ) -> Result<Self, GpuError> {
+        Self::build(gpu, None, medium, volumes, surroundings, camera, opts)
+    }
+
+    /// [`Self::new`] for `scene` (whose medium `medium` is): with `[grid]
+    /// interfaces = "sharp"` eye rays follow each region's own index and
+    /// refract at the exact surfaces, as the CPU's
+    /// [`crate::Renderer::sharp`] (`march_sharp` in `render.wgsl`); else
+    /// the same as [`Self::new`]. Sharp interfaces on the GPU support
+    /// spheres, boxes (not rounded), cylinders and half-spaces with
+    /// constant, Luneburg or linear index profiles: any other object is a
+    /// [`GpuError::Unsupported`] naming it.
+    pub fn with_scene(
+        gpu: &'a Gpu,
+        scene: &Scene,
+        medium: &Medium,
+        volumes: &[LightVolume],
+        surroundings: &Surroundings,
+        camera: &Camera,
+        opts: Options,
+    ) -> Result<Self, GpuError> {
+        let sharp = (scene.grid.interfaces == Interfaces::Sharp).then_some(scene);
+        Self::build(gpu, sharp, medium, volumes, surroundings, camera, opts)
+    }
+
+    /// The steps of [`Self::new`], with sharp interfaces when `sharp` is a
+    /// scene.
+    fn build(
+        gpu: &'a Gpu,
+        sharp: Option<&Scene>,
+        medium: &Medium,
+        volumes: &[LightVolume],
+        surroundings: &Surroundings,
+        camera: &Camera,
+        opts: Options,
+    ) -> Result<Self, GpuError> {
         Self::check_limits(gpu, medium, surroundings)?;
+        let table = match sharp {
+            Some(scene) => Some(
+                gpu_table(scene)
+                    .map_err(|e| GpuError::Unsupported(format!("{}: {e}", scene.origin)))?,
+            ),
+            None => None,
+        };
         let binding = |what: &str, bytes: u64| check_binding(gpu, what, bytes);
         let properties = Properties::new(medium, probe_length(medium));
         let textures = upload_medium(gpu, medium, &properties);
         let lit = upload_volumes(gpu, medium.geometry.dims, volumes);
-        let table = skip_table(medium, opts.skip_empty);
-        binding("empty-space table", table.words.len() as u64 * 4)?;
-        let skip = gpu.storage("empty space", &table.words);
+        let skip_words = skip_table(medium, opts.skip_empty);
+        binding("empty-space table", skip_words.words.len() as u64 * 4)?;
+        let skip = gpu.storage("empty space", &skip_words.words);
         let environment = environment_data(surroundings);
         binding("environment map", environment.texels.len() as u64 * 4)?;
         let env = gpu.storage("environment", &environment.texels);
         let frame = frame_buffers(gpu, camera)?;
-        let params = view_params(
+        let mut params = view_params(
             medium,
             surroundings,
             camera,
             &opts,
-            (&textures, &table, &environment),
+            (&textures, &skip_words, &environment),
         );
+        let regions = match &table {
+            Some(t) => {
+                params.sharp = 1;
+                params.region_count = (t.len() - 1) as u32;
+                params.sharp_eps = sharp_eps(&medium.geometry) as f32;
+                binding("region table", std::mem::size_of_val(t.as_slice()) as u64)?;
+                gpu.storage("regions", t)
+            }
+            None => gpu.storage("no regions", &[RegionGpu::default()]),
+        };
         let params = gpu.uniform("view params", &[params]);
         let (pipeline, layout) = compile(gpu)?;
         let single_chunk = frame.chunk >= camera.samples();
@@ -873,6 +951,7 @@ impl<'a> GpuRenderer<'a> {
             chunk: frame.chunk,
             single_chunk,
             lit: !volumes.is_empty(),
+            regions,
             _textures: all,
         };
         if single_chunk {
@@ -1052,6 +1131,10 @@ impl<'a> GpuRenderer<'a> {
                             resource: buf.as_entire_binding(),
                         });
                     }
+                    entries.push(wgpu::BindGroupEntry {
+                        binding: 20,
+                        resource: self.regions.as_entire_binding(),
+                    });
                     let group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
                         label: Some("view renderer"),
                         layout: &self.layout,
@@ -1145,6 +1228,7 @@ mod tests {
         eikon_gpu::layout::check::<ViewLight>(&module).unwrap();
         eikon_gpu::layout::check::<RenderPass>(&module).unwrap();
         eikon_gpu::layout::check::<GridGpu>(&module).unwrap();
+        eikon_gpu::layout::check::<RegionGpu>(&module).unwrap();
     }
     use crate::background::load_environment;
     use eikon_grid::Scene;
