@@ -1947,6 +1947,7 @@ fn fuzz_scenes() {
                 smoothing: rng
                     .chance(0.3)
                     .then(|| *rng.pick(&[0.0, 0.5, 8.0, 9.0, -1.0])),
+                interfaces: None,
             }
         } else {
             GridOverride::default()

@@ -122,8 +122,8 @@ pub struct SharpRay {
 }
 
 /// Snell's law for the eikonal gradient `v` (`|v| = n1`) crossing a
-/// surface with unit `normal` along the direction of travel (`v . normal
-/// > 0`) into index `n2`: the tangential part is kept and the normal part
+/// surface with unit `normal` along the direction of travel
+/// (`v . normal > 0`) into index `n2`: the tangential part is kept and the normal part
 /// takes the length that makes `|v| = n2`. `None` when no length does
 /// (total internal reflection).
 #[inline]

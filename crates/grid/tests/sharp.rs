@@ -300,7 +300,7 @@ fn nested_dielectrics_follow_the_exact_snell_tracer() {
         let read = eikon_mesh::load(&file).unwrap();
         exact
             .bodies
-            .push(snell::Body::new(read, n, DVec3::ZERO, priority as i32).unwrap());
+            .push(snell::Body::new(read, n, DVec3::ZERO, priority).unwrap());
     }
     let scene = parse(&text);
     let regions = Regions::new(&scene);

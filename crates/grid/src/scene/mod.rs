@@ -451,6 +451,7 @@ priority = 2
             resolution: Some(64),
             max_resolution: Some(20),
             smoothing: Some(0.5),
+            interfaces: None,
         };
         assert_eq!(at(cube, both), ([20; 3], 0.5));
         // The override passes through the same checks as the file.

@@ -52,6 +52,9 @@ use glam::DVec3;
 use std::time::Instant;
 
 const SHADER: &str = include_str!("render.wgsl");
+/// The march with sharp interfaces, and its stand-ins for other scenes.
+const SHARP: &str = include_str!("sharp.wgsl");
+const SHARP_STUB: &str = include_str!("sharp_stub.wgsl");
 
 /// Lights the shader's uniform block holds (for the receiver's direct
 /// lighting outside the grid).
@@ -244,21 +247,23 @@ fn declarations() -> String {
 }
 
 /// The renderer's full WGSL: its generated declarations, the shared
-/// modules and `render.wgsl`.
-pub fn source() -> String {
-    compose(
-        &declarations(),
-        &[
-            &VECTOR,
-            &eikon_grid::geometry::WGSL,
-            &eikon_grid::ray::WGSL,
-            &eikon_optics::fresnel::WGSL,
-            &eikon_optics::phase::WGSL,
-            &eikon_optics::spot::WGSL,
-            &eikon_grid::region::WGSL,
-        ],
-        SHADER,
-    )
+/// modules and `render.wgsl`; with `sharp` interfaces the `region` module
+/// and `sharp.wgsl` too (without, their stand-ins: a kernel that does not
+/// carry them compiles several times faster on lavapipe).
+pub fn source(sharp: bool) -> String {
+    let mut modules: Vec<&'static eikon_shader::Module> = vec![
+        &VECTOR,
+        &eikon_grid::geometry::WGSL,
+        &eikon_grid::ray::WGSL,
+        &eikon_optics::fresnel::WGSL,
+        &eikon_optics::phase::WGSL,
+        &eikon_optics::spot::WGSL,
+    ];
+    if sharp {
+        modules.push(&eikon_grid::region::WGSL);
+    }
+    let main = format!("{SHADER}\n{}", if sharp { SHARP } else { SHARP_STUB });
+    compose(&declarations(), &modules, &main)
 }
 
 /// What the GPU renderer's device memory depends on, all known before a
@@ -725,7 +730,10 @@ fn view_params(
 }
 
 /// The kernel of [`source`] and its bind group layout.
-fn compile(gpu: &Gpu) -> Result<(wgpu::ComputePipeline, wgpu::BindGroupLayout), GpuError> {
+fn compile(
+    gpu: &Gpu,
+    sharp: bool,
+) -> Result<(wgpu::ComputePipeline, wgpu::BindGroupLayout), GpuError> {
     gpu.checked("view renderer pipeline", || {
         let tex = |binding: u32| wgpu::BindGroupLayoutEntry {
             binding,
@@ -778,7 +786,7 @@ fn compile(gpu: &Gpu) -> Result<(wgpu::ComputePipeline, wgpu::BindGroupLayout), 
             .device
             .create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some("view renderer"),
-                source: wgpu::ShaderSource::Wgsl(source().into()),
+                source: wgpu::ShaderSource::Wgsl(source(sharp).into()),
             });
         let pipeline = gpu
             .device
@@ -929,7 +937,7 @@ impl<'a> GpuRenderer<'a> {
             None => gpu.storage("no regions", &[RegionGpu::default()]),
         };
         let params = gpu.uniform("view params", &[params]);
-        let (pipeline, layout) = compile(gpu)?;
+        let (pipeline, layout) = compile(gpu, table.is_some())?;
         let single_chunk = frame.chunk >= camera.samples();
         let mut all = textures.textures;
         all.extend(lit.textures);
@@ -1223,12 +1231,17 @@ mod tests {
     /// needed).
     #[test]
     fn the_kernel_validates_and_its_layouts_match_rust() {
-        let module = eikon_gpu::layout::validate(&source()).unwrap_or_else(|e| panic!("{e}"));
-        eikon_gpu::layout::check::<ViewParams>(&module).unwrap();
-        eikon_gpu::layout::check::<ViewLight>(&module).unwrap();
-        eikon_gpu::layout::check::<RenderPass>(&module).unwrap();
-        eikon_gpu::layout::check::<GridGpu>(&module).unwrap();
-        eikon_gpu::layout::check::<RegionGpu>(&module).unwrap();
+        for sharp in [false, true] {
+            let module =
+                eikon_gpu::layout::validate(&source(sharp)).unwrap_or_else(|e| panic!("{e}"));
+            eikon_gpu::layout::check::<ViewParams>(&module).unwrap();
+            eikon_gpu::layout::check::<ViewLight>(&module).unwrap();
+            eikon_gpu::layout::check::<RenderPass>(&module).unwrap();
+            eikon_gpu::layout::check::<GridGpu>(&module).unwrap();
+            if sharp {
+                eikon_gpu::layout::check::<RegionGpu>(&module).unwrap();
+            }
+        }
     }
     use crate::background::load_environment;
     use eikon_grid::Scene;
