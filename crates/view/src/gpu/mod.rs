@@ -291,11 +291,15 @@ pub struct DeviceSize {
     pub height: u32,
     /// Samples per pixel.
     pub samples: u32,
+    /// Objects of the region table with sharp interfaces (0 without:
+    /// the table is then one placeholder region).
+    pub regions: usize,
 }
 
 impl DeviceSize {
     /// The size of a render of `medium` lit by `volumes` under `env`
-    /// through `camera` with `opts`.
+    /// through `camera` with `opts` (without sharp interfaces: set
+    /// [`DeviceSize::regions`] for a sharp scene).
     pub fn of(
         medium: &Medium,
         volumes: &[LightVolume],
@@ -314,6 +318,7 @@ impl DeviceSize {
             width: camera.width(),
             height: camera.height(),
             samples: camera.samples(),
+            regions: 0,
         }
     }
 }
@@ -1010,6 +1015,8 @@ impl<'a> GpuRenderer<'a> {
     /// * the empty-space tables (per channel four words per block and a
     ///   byte per cell) with skipping on, else one word;
     /// * the environment map, RGB f32 per texel (one texel if constant);
+    /// * the region table (objects and the ambient medium) with sharp
+    ///   interfaces, else one placeholder region;
     /// * the eye rays of one chunk of samples (at most 64 MiB, at least one
     ///   sample), the radiance sums, the frame's counters, the uniforms;
     /// * the largest transient: the staging buffer the image is read back
@@ -1048,6 +1055,7 @@ impl<'a> GpuRenderer<'a> {
         };
         b += buffer(words * 4);
         b += buffer(size.environment_texels.max(1) as u64 * PIXEL_BYTES);
+        b += buffer((size.regions + 1) as u64 * RegionGpu::size() as u64);
         let pixels = u64::from(size.width) * u64::from(size.height);
         let per_sample = pixels * PIXEL_BYTES;
         let chunk = (RAY_CHUNK / per_sample.max(1)).clamp(1, u64::from(size.samples.max(1)));
