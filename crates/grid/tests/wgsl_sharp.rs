@@ -338,6 +338,167 @@ fn refr(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
     assert!(tir > 1000, "{tir}");
 }
 
+/// Input: (o, eps), (d, t_max): the next surface of o + d t on
+/// (eps, t_max] over every region (`Regions::next_surface`) as (t, ok,
+/// object), its normal, and the crossing there from the region owning o
+/// (`Regions::cross`): (event, total, region, reflectance), the new v.
+fn next_surface_and_cross_match_the_cpu(gpu: &Gpu) {
+    let main = format!(
+        "{IO}{TABLE_HOOKS}
+@compute @workgroup_size(WORKGROUP)
+fn cross(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if 2u * i >= arrayLength(&input) {{
+        return;
+    }}
+    let a = input[2u * i];
+    let b = input[2u * i + 1u];
+    let h = region_next_surface(a.xyz, b.xyz, a.w, b.w);
+    output[4u * i] = vec4<f32>(h.t, f32(h.ok), f32(h.obj), 0.0);
+    output[4u * i + 1u] = vec4<f32>(h.normal, 0.0);
+    let here = region_owner(a.xyz);
+    let v = b.xyz * region_index(here, a.xyz, 0u).x;
+    let c = region_cross(here, v, a.xyz + b.xyz * h.t, h.normal, a.w, 0u);
+    output[4u * i + 2u] = vec4<f32>(f32(c.event), f32(c.total), f32(c.region), c.reflectance);
+    output[4u * i + 3u] = vec4<f32>(c.v, 0.0);
+}}
+"
+    );
+    let source = compose("", &[&DISPATCH, &REGION], &main);
+    let scene = scene();
+    let regions = Regions::new(&scene);
+    let table: Vec<RegionGpu> = gpu_table(&scene).unwrap();
+    let count = table.len() - 1;
+    let buffer = gpu.storage("regions", &table);
+    // The GPU renderer's tolerance for a 3-unit scene (`sharp_eps`).
+    let eps = 4e-6 * 1.6;
+    let mut r = Cases::new(23);
+    let cases: Vec<(DVec3, DVec3, f64)> = (0..20000)
+        .map(|_| {
+            let o = r.v(-1.5, 1.5);
+            let d = loop {
+                let d = r.v(-1.0, 1.0);
+                if d.length() > 0.1 && d.length() < 1.0 {
+                    let d = d.normalize();
+                    break DVec3::new(d.x as f32 as f64, d.y as f32 as f64, d.z as f32 as f64);
+                }
+            };
+            (o, d, r.f(0.1, 4.0))
+        })
+        .collect();
+    let inputs: Vec<[f32; 4]> = cases
+        .iter()
+        .flat_map(|&(o, d, t)| [v4(o, eps), v4(d, t)])
+        .collect();
+    let out = gpu
+        .eval(&source, "cross", &inputs, 4, &[buffer.as_entire_binding()])
+        .unwrap();
+    const ULP: f64 = 6e-8;
+    let (mut compared, mut excused, mut events, mut total) = (0, 0, 0, 0);
+    let (mut max_t, mut max_v, mut max_r) = (0f64, 0f64, 0f64);
+    for (k, &(o, d, t_max)) in cases.iter().enumerate() {
+        let g = &out[4 * k..4 * k + 4];
+        let cpu = regions.next_surface(o, d, t_max);
+        let gpu_hit =
+            (g[0][1] != 0.0).then(|| (table[g[0][2] as usize].object as usize, g[0][0] as f64));
+        // Degenerate: a crossing near either end, grazing, or two surfaces
+        // within rounding of each other along the ray (or near the point).
+        let near = |p: DVec3| {
+            scene
+                .objects
+                .iter()
+                .filter(|ob| ob.shape.distance(p).abs() < 1e-4)
+                .count()
+        };
+        let degenerate = |t: f64, n: DVec3| {
+            t < 1e-4 || (t - t_max).abs() < 1e-4 || n.dot(d).abs() < 0.02 || near(o + d * t) > 1
+        };
+        let (Some((obj, c)), Some((gobj, gt))) = (cpu, gpu_hit) else {
+            if cpu.is_some() != gpu_hit.is_some() {
+                let ok = match (cpu, gpu_hit) {
+                    (Some((_, c)), _) => degenerate(c.t, c.normal),
+                    (_, Some((_, t))) => degenerate(t, xyz(g[1])),
+                    _ => true,
+                };
+                assert!(
+                    ok,
+                    "next surface from {o} along {d}: CPU {cpu:?}, GPU {gpu_hit:?}"
+                );
+                excused += 1;
+            }
+            continue;
+        };
+        if obj != gobj || degenerate(c.t, c.normal) {
+            assert!(
+                degenerate(c.t, c.normal) || degenerate(gt, xyz(g[1])),
+                "next surface from {o} along {d}: CPU {obj} {c:?}, GPU {gobj} {gt}"
+            );
+            excused += 1;
+            continue;
+        }
+        let cos = c.normal.dot(d).abs();
+        let tol_t = 64.0 * ULP * (3.0 + c.t) / cos;
+        assert!(
+            (gt - c.t).abs() < tol_t,
+            "t from {o} along {d}: {gt} vs {}",
+            c.t
+        );
+        max_t = max_t.max((gt - c.t).abs() * cos / (3.0 + c.t));
+        compared += 1;
+        // The crossing, from the region that owns o.
+        let mut ray = regions.ray(o, d, 0);
+        ray.s.x = o;
+        let ev = regions.cross(&mut ray, obj, o + d * c.t, c.normal, 0);
+        assert_eq!(
+            g[2][0] != 0.0,
+            ev.is_some(),
+            "event from {o} along {d}: {ev:?}"
+        );
+        let Some(ev) = ev else { continue };
+        events += 1;
+        let region = (g[2][2] as usize) < count;
+        let region = region.then(|| table[g[2][2] as usize].object as usize);
+        assert_eq!(region, ray.region, "region after {o} along {d}");
+        // Near the critical angle either answer is right (see refract).
+        let vt2 =
+            (ev.incident - ev.normal * ev.incident.dot(ev.normal)).length_squared() * ev.n1 * ev.n1;
+        let rest = ev.n2 * ev.n2 - vt2;
+        if rest.abs() < 1e-4 {
+            continue;
+        }
+        assert_eq!(
+            g[2][1] != 0.0,
+            ev.total,
+            "total reflection after {o} along {d}"
+        );
+        total += usize::from(ev.total);
+        let cos_t = rest.max(0.0).sqrt().max(1e-3);
+        let tol_v = 1e-5 * (1.0 + ev.n2) / cos_t.min(1.0) / cos.min(1.0);
+        let err_v = (xyz(g[3]) - ray.s.v).length();
+        assert!(
+            err_v < tol_v,
+            "v after {o} along {d}: {} vs {}",
+            xyz(g[3]),
+            ray.s.v
+        );
+        max_v = max_v.max(err_v);
+        let err_r = (g[2][3] as f64 - ev.reflectance).abs();
+        assert!(
+            err_r < 1e-5 / cos_t.min(1.0) / cos.min(1.0),
+            "R after {o} along {d}: {} vs {}",
+            g[2][3],
+            ev.reflectance
+        );
+        max_r = max_r.max(err_r);
+    }
+    println!(
+        "next surface: {compared} compared, {excused} near-degenerate excused, {events} true crossings ({total} total reflections): \
+         max |dt| cos / (scale + t) {max_t:.2e}, max v error {max_v:.2e}, max R error {max_r:.2e}"
+    );
+    assert!(compared > 5000 && events > 1000, "{compared} {events}");
+    assert!(excused * 100 < cases.len(), "{excused} excused");
+}
+
 fn main() {
     Tests::new()
         .gpu(
@@ -345,5 +506,9 @@ fn main() {
             surfaces_owner_and_index_match_the_cpu,
         )
         .gpu("sharp_refract_matches_the_cpu", refract_matches_the_cpu)
+        .gpu(
+            "sharp_next_surface_and_cross_match_the_cpu",
+            next_surface_and_cross_match_the_cpu,
+        )
         .run()
 }
