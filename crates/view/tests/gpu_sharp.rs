@@ -230,6 +230,45 @@ type = "sky"
     );
 }
 
+/// A sharp dispersive cylinder (n = 1.45, 1.5, 1.55): one ray per channel,
+/// each refracted by its own index at the exact surface, against a
+/// checkerboard.
+fn sharp_dispersive_cylinder_matches_the_cpu(gpu: &Gpu) {
+    let text = r#"
+[grid]
+resolution = 32
+min = [-1, -1, -1]
+max = [1, 1, 1]
+dispersion = true
+interfaces = "sharp"
+
+[[object]]
+name = "prism"
+shape = { type = "cylinder", center = [0, 0, 0], radius = 0.6, height = 1.2, rotation = [30, 0, 20] }
+index = [1.45, 1.5, 1.55]
+
+[camera]
+position = [0.2, 0.3, 3.5]
+target = [0, 0, 0]
+fov = 40
+resolution = [64, 48]
+
+[background]
+type = "checker"
+point = [0, 0, -2]
+normal = [0, 0, 1]
+square = 0.3
+colors = [[1, 1, 1], [0.1, 0.1, 0.1]]
+"#;
+    check(
+        gpu,
+        "sharp dispersive cylinder",
+        text,
+        40.0,
+        MAX_COUNT_DIFFERENCE,
+    );
+}
+
 /// A shape without a closed form on the GPU is refused, naming the object.
 fn sharp_unsupported_shapes_are_refused(gpu: &Gpu) {
     let text = r#"
@@ -286,6 +325,10 @@ fn main() {
         .gpu(
             "sharp_box_cylinder_and_half_space_match_the_cpu",
             sharp_box_cylinder_and_half_space_match_the_cpu,
+        )
+        .gpu(
+            "sharp_dispersive_cylinder_matches_the_cpu",
+            sharp_dispersive_cylinder_matches_the_cpu,
         )
         .gpu(
             "sharp_unsupported_shapes_are_refused",

@@ -20,6 +20,17 @@
 //!   volume, every pass its volume's in-scatter and receiver light (the
 //!   image is linear in them).
 //! * Tone mapping stays on the host ([`eikon_optics::image`]).
+//! * Sharp interfaces ([`GpuRenderer::with_scene`]): the scene's regions
+//!   as a storage buffer (`eikon_grid::region::gpu_table`, objects in
+//!   precedence order, then the ambient medium) and `sharp.wgsl`, the
+//!   CPU's `march_sharp` over the shared `surface` and `region` modules
+//!   (spheres, boxes, cylinders, half-spaces; constant, Luneburg, linear
+//!   index). A curved step is cut at a surface by bisection on its length
+//!   (the CPU: false position), and a crossing's tolerance is 4e-6 of the
+//!   scene's scale (the CPU: 1e-9 voxels, below f32's resolution).
+//!   Measured against the CPU on lavapipe (`tests/gpu_sharp.rs`): PSNR
+//!   99.5 dB (glass sphere), 137 dB (Luneburg lens), 92 dB (rotated box,
+//!   cylinder, scattering slab, half-space), 47.9 dB (dispersive cylinder).
 //!
 //! Differences from the CPU: f32 instead of f64 arithmetic (the plane-hit
 //! rounding allowance is 2e-6 instead of 1e-9 of the scene's scale), and
