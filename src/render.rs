@@ -511,15 +511,18 @@ pub fn render_image(
     crate::backend::announce();
     #[cfg(feature = "gpu")]
     if let Backend::Gpu(gpu) = backend {
-        if scene.grid.interfaces == eikon_grid::Interfaces::Sharp {
-            anyhow::bail!(
-                "{}: [grid] interfaces = \"sharp\" renders on the CPU backend only so far; use --backend cpu, or --interfaces smoothed for the GPU",
-                scene.origin
-            );
-        }
         let started = Instant::now();
-        let renderer =
-            eikon_view::gpu::GpuRenderer::new(gpu, medium, volumes, &surroundings, &camera, opts)?;
+        // With sharp interfaces: the analytic shapes; any other is refused
+        // here, naming the object.
+        let renderer = eikon_view::gpu::GpuRenderer::with_scene(
+            gpu,
+            scene,
+            medium,
+            volumes,
+            &surroundings,
+            &camera,
+            opts,
+        )?;
         let (image, stats) = renderer.render_with_stats()?;
         return Ok((image, stats, started.elapsed().as_secs_f64()));
     }

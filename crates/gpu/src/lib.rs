@@ -51,6 +51,10 @@ pub enum GpuError {
     /// Reading a buffer back failed.
     #[error("reading GPU results back failed: {0}")]
     Readback(String),
+    /// The scene asks for something this GPU backend does not implement
+    /// (the message says what, and what it supports).
+    #[error("{0}")]
+    Unsupported(String),
     /// Something does not fit the device's limits.
     #[error("{what} needs {need}, but the GPU allows at most {limit} ({hint})")]
     TooLarge {

@@ -579,3 +579,232 @@ pub fn trace(
         }
     }
 }
+
+/// Kinds of [`RegionGpu`]: the shape of an object's region, or the ambient
+/// medium.
+pub const SHAPE_SPHERE: u32 = 0;
+/// A box (not rounded).
+pub const SHAPE_BOX: u32 = 1;
+/// A capped cylinder.
+pub const SHAPE_CYLINDER: u32 = 2;
+/// A half-space.
+pub const SHAPE_HALF_SPACE: u32 = 3;
+/// The ambient medium (no shape).
+pub const SHAPE_AMBIENT: u32 = 4;
+/// Index profiles of [`RegionGpu`].
+pub const PROFILE_CONSTANT: u32 = 0;
+/// [`crate::IndexProfile::Luneburg`].
+pub const PROFILE_LUNEBURG: u32 = 1;
+/// [`crate::IndexProfile::Linear`].
+pub const PROFILE_LINEAR: u32 = 2;
+
+eikon_shader::layout! {
+    /// One region as a kernel reads it (`RegionGpu` in `region.wgsl`), in
+    /// f32: an object's shape and material, or the ambient medium's
+    /// material ([`gpu_table`]).
+    pub struct RegionGpu {
+        /// Sphere, box or cylinder centre; a half-space's point.
+        pub center: [f32; 3],
+        /// `SHAPE_*`.
+        pub kind: u32,
+        /// Box half extents; a cylinder's `(radius, half height, radius)`;
+        /// a half-space's unit outward normal.
+        pub half: [f32; 3],
+        /// Sphere or cylinder radius.
+        pub radius: f32,
+        /// The local frame's x axis (first column of the rotation).
+        pub axis_x: [f32; 3],
+        /// `PROFILE_*`.
+        pub profile: u32,
+        /// Its y axis.
+        pub axis_y: [f32; 3],
+        /// The object's index in the scene (`u32::MAX` for the ambient).
+        pub object: u32,
+        /// Its z axis.
+        pub axis_z: [f32; 3],
+        /// Padding.
+        pub pad0: u32,
+        /// Constant: n per channel; Luneburg: the centre; linear: the
+        /// gradient.
+        pub index: [f32; 3],
+        /// Luneburg: the radius; linear: n0.
+        pub index_a: f32,
+        /// Linear: the origin.
+        pub index_origin: [f32; 3],
+        /// Luneburg: the outer index.
+        pub index_b: f32,
+        /// RGB extinction.
+        pub extinction: [f32; 3],
+        /// Henyey-Greenstein g.
+        pub g: f32,
+        /// RGB single-scattering albedo.
+        pub albedo: [f32; 3],
+        /// Padding.
+        pub pad1: f32,
+        /// RGB emission.
+        pub emission: [f32; 3],
+        /// Padding.
+        pub pad2: f32,
+    }
+}
+
+fn f3(v: DVec3) -> [f32; 3] {
+    v.to_array().map(|x| x as f32)
+}
+
+/// Why a material has no GPU form with sharp interfaces, if it has none.
+fn gpu_material(m: &Material, out: &mut RegionGpu) -> Result<(), &'static str> {
+    if m.index_grid.is_some() {
+        return Err("its index is a VDB grid");
+    }
+    if m.extinction_grid.is_some() {
+        return Err("its extinction is a VDB grid");
+    }
+    match &m.index {
+        crate::IndexProfile::Constant(n) => {
+            out.profile = PROFILE_CONSTANT;
+            out.index = n.map(|x| x as f32);
+        }
+        crate::IndexProfile::Luneburg {
+            center,
+            radius,
+            outer,
+        } => {
+            out.profile = PROFILE_LUNEBURG;
+            out.index = f3(*center);
+            out.index_a = *radius as f32;
+            out.index_b = *outer as f32;
+        }
+        crate::IndexProfile::Linear {
+            n0,
+            gradient,
+            origin,
+        } => {
+            out.profile = PROFILE_LINEAR;
+            out.index = f3(*gradient);
+            out.index_a = *n0 as f32;
+            out.index_origin = f3(*origin);
+        }
+    }
+    out.extinction = f3(m.extinction);
+    out.albedo = f3(m.albedo);
+    out.g = m.g as f32;
+    out.emission = f3(m.emission);
+    Ok(())
+}
+
+/// The regions of `scene` as a kernel reads them: its objects in
+/// precedence order (highest priority first), then the ambient medium.
+/// Sharp interfaces on the GPU support spheres, boxes (not rounded),
+/// cylinders and half-spaces with constant, Luneburg or linear index
+/// profiles; any other object is an error naming it.
+pub fn gpu_table(scene: &Scene) -> Result<Vec<RegionGpu>, String> {
+    use crate::shape::Shape;
+    let unsupported = |what: &str, why: &str| {
+        format!(
+            "{what}: {why}; sharp interfaces on the GPU support sphere, box, cylinder and half-space objects with constant, Luneburg or linear index profiles so far (use --backend cpu, or --interfaces smoothed)"
+        )
+    };
+    let mut out = Vec::with_capacity(scene.objects.len() + 1);
+    for &i in scene.precedence() {
+        let o = &scene.objects[i];
+        let what = format!("object {} (\"{}\")", i, o.name);
+        let mut r = RegionGpu {
+            object: i as u32,
+            axis_x: [1.0, 0.0, 0.0],
+            axis_y: [0.0, 1.0, 0.0],
+            axis_z: [0.0, 0.0, 1.0],
+            ..Default::default()
+        };
+        let mut frame = |rot: &glam::DMat3| {
+            r.axis_x = f3(rot.x_axis);
+            r.axis_y = f3(rot.y_axis);
+            r.axis_z = f3(rot.z_axis);
+        };
+        match &o.shape {
+            Shape::Sphere { center, radius } => {
+                r.kind = SHAPE_SPHERE;
+                r.center = f3(*center);
+                r.radius = *radius as f32;
+            }
+            Shape::Box {
+                center,
+                half,
+                radius,
+                rot,
+            } if *radius == 0.0 => {
+                frame(rot);
+                r.kind = SHAPE_BOX;
+                r.center = f3(*center);
+                r.half = f3(*half);
+            }
+            Shape::Cylinder {
+                center,
+                radius,
+                half_height,
+                rot,
+            } => {
+                frame(rot);
+                r.kind = SHAPE_CYLINDER;
+                r.center = f3(*center);
+                r.radius = *radius as f32;
+                r.half = [*radius as f32, *half_height as f32, *radius as f32];
+            }
+            Shape::HalfSpace { point, normal } => {
+                r.kind = SHAPE_HALF_SPACE;
+                r.center = f3(*point);
+                r.half = f3(*normal);
+            }
+            other => {
+                return Err(unsupported(
+                    &what,
+                    &format!("its shape is a {}", other.kind()),
+                ))
+            }
+        }
+        gpu_material(&o.material, &mut r).map_err(|why| unsupported(&what, why))?;
+        out.push(r);
+    }
+    let mut ambient = RegionGpu {
+        kind: SHAPE_AMBIENT,
+        object: u32::MAX,
+        ..Default::default()
+    };
+    gpu_material(&scene.ambient, &mut ambient)
+        .map_err(|why| unsupported("the ambient medium", why))?;
+    out.push(ambient);
+    Ok(out)
+}
+
+fn region_declarations() -> String {
+    use eikon_shader::Layout;
+    format!(
+        "{}{}",
+        RegionGpu::declaration(),
+        eikon_shader::Consts::new()
+            .u32("SHAPE_SPHERE", SHAPE_SPHERE)
+            .u32("SHAPE_BOX", SHAPE_BOX)
+            .u32("SHAPE_CYLINDER", SHAPE_CYLINDER)
+            .u32("SHAPE_HALF_SPACE", SHAPE_HALF_SPACE)
+            .u32("SHAPE_AMBIENT", SHAPE_AMBIENT)
+            .u32("PROFILE_CONSTANT", PROFILE_CONSTANT)
+            .u32("PROFILE_LUNEBURG", PROFILE_LUNEBURG)
+            .u32("PROFILE_LINEAR", PROFILE_LINEAR)
+            .wgsl()
+    )
+}
+
+/// The WGSL of sharp interfaces (`region.wgsl`): `RegionGpu`, the owner by
+/// priority, each region's index, the next surface, [`refract`] and
+/// [`Regions::cross`], over the table of [`gpu_table`] that a kernel
+/// provides through the hooks `region_count` and `region_object`.
+pub static WGSL: eikon_shader::Module = eikon_shader::Module {
+    name: "region",
+    requires: &[
+        &eikon_shader::VECTOR,
+        &crate::surface::WGSL,
+        &eikon_optics::fresnel::WGSL,
+    ],
+    declarations: region_declarations,
+    text: include_str!("region.wgsl"),
+};

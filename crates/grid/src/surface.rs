@@ -24,7 +24,18 @@ use crate::mesh_solid::MeshSolid;
 use crate::shape::Shape;
 use crate::vdb::VdbSolid;
 use eikon_mesh::Ray;
+use eikon_shader::{nothing, Module, VECTOR};
 use glam::{DMat3, DVec2, DVec3};
+
+/// The WGSL of the analytic shapes' closed forms (sphere, box, capped
+/// cylinder, half-space): [`Shape::first_crossing`], [`Shape::normal`] and
+/// [`Shape::distance`] in f32 (`surface.wgsl`).
+pub static WGSL: Module = Module {
+    name: "surface",
+    requires: &[&VECTOR],
+    declarations: nothing,
+    text: include_str!("surface.wgsl"),
+};
 
 /// Where a straight segment first crosses a shape's surface.
 #[derive(Clone, Copy, Debug, PartialEq)]

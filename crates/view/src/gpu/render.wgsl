@@ -106,10 +106,18 @@ fn light_at(ch: u32, t: Tri) -> LightSample {
 
 // The index channel the current ray marches through.
 var<private> channel: u32;
+// With sharp interfaces, the region whose own profile the ray equation
+// integrates through (NONE: the grid's index field).
+var<private> field_region: u32 = NONE;
 
 // The `ray` module's hook: the index field of `channel` at p
 // (`VoxelField::sample`): (n, grad n), with grad n = grad(n^2 / 2) / n.
+// With sharp interfaces, the profile of region `field_region` instead
+// (`sharp_index`, `sharp.wgsl`).
 fn index_field(p: vec3<f32>) -> vec4<f32> {
+    if field_region != NONE {
+        return sharp_index(p);
+    }
     let q = grid_trilinear(P.grid, p);
     var v: vec4<f32>;
     switch channel {
@@ -340,30 +348,19 @@ struct Walk {
     n_eye: f32,
 }
 
-// [Ihrke07 eq 1] over one step of length `stp` from x along the unit d:
-// in-scatter [Ihrke07 eqs 2, 3, 6], emission, attenuation [Ihrke07 eq 5] and
-// Fresnel at boundaries.
-fn gather(x: vec3<f32>, n: f32, grad: vec3<f32>, d: vec3<f32>, stp: f32, ch: u32, w: ptr<function, Walk>) {
-    let t = grid_trilinear(P.grid, x);
-    let a = tri_sum(propa, t);
-    let sigma = a.xyz;
-    var source = vec3<f32>(0.0);
-    if PASS.base != 0u && P.emits != 0u {
-        source = tri_sum(emis, t).xyz;
-    }
-    // Nothing scatters where the medium has no albedo anywhere (the
-    // texture then holds zero scatter): its read is skipped.
-    var b = vec4<f32>(0.0);
-    if P.scatters != 0u && PASS.lit != 0u {
-        b = tri_sum(propb, t);
-    }
-    let scatter = b.xyz;
+// render.rs `absorb_and_emit`: the medium's part of [Ihrke07 eq 1] over
+// one step of length `stp` along the unit d, the medium taken as (sigma,
+// emission, scatter, g) at the grid point t and index n over the step:
+// in-scatter from this pass's light volume [Ihrke07 eqs 2, 3, 6], emission
+// (`emission`: zero outside pass 0), attenuation [Ihrke07 eq 5].
+fn absorb_and_emit(t: Tri, sigma: vec3<f32>, emission: vec3<f32>, scatter: vec3<f32>, g: f32, n: f32, d: vec3<f32>, stp: f32, ch: u32, w: ptr<function, Walk>) {
+    var source = emission;
     if max3(scatter) > 0.0 && PASS.lit != 0u {
         let s = light_at(ch, t);
         if max3(s.fluence) > 0.0 {
             // [Ihrke07 eq 6] with the light's first angular moment: HG about
             // the net flux direction, g scaled by the mean cosine.
-            source += scatter * s.fluence * hg(dot(s.dir, -d), b.w * s.mu);
+            source += scatter * s.fluence * hg(dot(s.dir, -d), g * s.mu);
         }
     }
     // The radiance law (render.rs): radiance arising where the index is n
@@ -382,6 +379,25 @@ fn gather(x: vec3<f32>, n: f32, grad: vec3<f32>, d: vec3<f32>, stp: f32, ch: u32
     } else if !is_zero(source) {
         (*w).radiance += (*w).alpha * source * stp;
     }
+}
+
+// [Ihrke07 eq 1] over one step of length `stp` from x along the unit d:
+// in-scatter [Ihrke07 eqs 2, 3, 6], emission, attenuation [Ihrke07 eq 5] and
+// Fresnel at boundaries.
+fn gather(x: vec3<f32>, n: f32, grad: vec3<f32>, d: vec3<f32>, stp: f32, ch: u32, w: ptr<function, Walk>) {
+    let t = grid_trilinear(P.grid, x);
+    let a = tri_sum(propa, t);
+    var emission = vec3<f32>(0.0);
+    if PASS.base != 0u && P.emits != 0u {
+        emission = tri_sum(emis, t).xyz;
+    }
+    // Nothing scatters where the medium has no albedo anywhere (the
+    // texture then holds zero scatter): its read is skipped.
+    var b = vec4<f32>(0.0);
+    if P.scatters != 0u && PASS.lit != 0u {
+        b = tri_sum(propb, t);
+    }
+    absorb_and_emit(t, a.xyz, emission, b.xyz, b.w, n, d, stp, ch, w);
 
     let delta = a.w;
     if delta <= 0.0 {
@@ -581,6 +597,12 @@ fn march(o: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
 // Radiance arriving at the eye from -d; with dispersion each channel traces
 // its own ray through its own index field.
 fn radiance(o: vec3<f32>, d: vec3<f32>) -> vec3<f32> {
+    if P.sharp != 0u {
+        if P.channels == 1u {
+            return march_sharp(o, d, 0u);
+        }
+        return vec3<f32>(march_sharp(o, d, 0u).x, march_sharp(o, d, 1u).y, march_sharp(o, d, 2u).z);
+    }
     if P.channels == 1u {
         return march(o, d, 0u);
     }

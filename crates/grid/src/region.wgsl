@@ -1,0 +1,197 @@
+// Sharp interfaces (`region.rs`): the scene's regions, each object's
+// interior after priorities and the ambient medium, each with its own index
+// profile, separated by the objects' exact surfaces (the `surface` module).
+//
+// The table of regions is `RegionGpu` (generated), the objects in
+// precedence order (highest priority first), then the ambient medium at
+// index `region_count()`. A kernel provides the hooks
+// `region_count() -> u32` and `region_object(i: u32) -> RegionGpu`.
+//
+// Needs: `RegionGpu`, `SHAPE_*`, `PROFILE_*` (generated), the `vector`,
+// `surface` and `fresnel` modules.
+
+fn region_rot(r: RegionGpu) -> mat3x3<f32> {
+    return mat3x3<f32>(r.axis_x, r.axis_y, r.axis_z);
+}
+
+// `Shape::first_crossing` of region r's shape (d unit) on lo < t <= hi.
+fn region_shape_crossing(r: RegionGpu, o: vec3<f32>, d: vec3<f32>, lo: f32, hi: f32) -> SurfaceHit {
+    switch r.kind {
+        case SHAPE_SPHERE: {
+            return surface_sphere(o, d, r.center, r.radius, lo, hi);
+        }
+        case SHAPE_BOX: {
+            return surface_box(o, d, r.center, region_rot(r), r.half, lo, hi);
+        }
+        case SHAPE_CYLINDER: {
+            return surface_cylinder(o, d, r.center, region_rot(r), r.radius, r.half.y, lo, hi);
+        }
+        case SHAPE_HALF_SPACE: {
+            return surface_half_space(o, d, r.center, r.half, lo, hi);
+        }
+        default: {
+            return surface_miss();
+        }
+    }
+}
+
+// `Shape::distance` of region r's shape (negative inside).
+fn region_shape_distance(r: RegionGpu, p: vec3<f32>) -> f32 {
+    switch r.kind {
+        case SHAPE_SPHERE: {
+            return length(p - r.center) - r.radius;
+        }
+        case SHAPE_BOX: {
+            return surface_box_distance(p, r.center, region_rot(r), r.half);
+        }
+        case SHAPE_CYLINDER: {
+            return surface_cylinder_distance(p, r.center, region_rot(r), r.radius, r.half.y);
+        }
+        case SHAPE_HALF_SPACE: {
+            return dot(p - r.center, r.half);
+        }
+        default: {
+            return SURFACE_FAR;
+        }
+    }
+}
+
+// `Shape::normal` of region r's shape at (or nearest to) p.
+fn region_shape_normal(r: RegionGpu, p: vec3<f32>) -> vec3<f32> {
+    switch r.kind {
+        case SHAPE_SPHERE: {
+            return surface_unit_or(p - r.center, vec3<f32>(0.0, 1.0, 0.0));
+        }
+        case SHAPE_BOX: {
+            return surface_box_normal(p, r.center, region_rot(r), r.half);
+        }
+        case SHAPE_CYLINDER: {
+            return surface_cylinder_normal(p, r.center, region_rot(r), r.radius, r.half.y);
+        }
+        default: {
+            return r.half;
+        }
+    }
+}
+
+// `Scene::owner`: the region that owns p, the first object in precedence
+// order that contains it, else the ambient medium.
+fn region_owner(p: vec3<f32>) -> u32 {
+    let count = region_count();
+    for (var i = 0u; i < count; i++) {
+        if region_shape_distance(region_object(i), p) < 0.0 {
+            return i;
+        }
+    }
+    return count;
+}
+
+// `Regions::index` (`IndexProfile::sample`): region r's index at p for
+// channel ch and its gradient, (n, grad n).
+fn region_index(ri: u32, p: vec3<f32>, ch: u32) -> vec4<f32> {
+    let r = region_object(ri);
+    switch r.profile {
+        case PROFILE_LUNEBURG: {
+            let d = p - r.index;
+            let rr = r.index_a * r.index_a;
+            let s = max(2.0 - dot(d, d) / rr, 1.0);
+            let outer = r.index_b;
+            let n = outer * sqrt(s);
+            return vec4<f32>(n, -d * (outer * outer) / (rr * n));
+        }
+        case PROFILE_LINEAR: {
+            return vec4<f32>(r.index_a + dot(r.index, p - r.index_origin), r.index);
+        }
+        default: {
+            return vec4<f32>(r.index[min(ch, 2u)], vec3<f32>(0.0));
+        }
+    }
+}
+
+// `Regions::uniform`: region r's index is one constant.
+fn region_uniform(ri: u32) -> bool {
+    return region_object(ri).profile == PROFILE_CONSTANT;
+}
+
+struct RegionHit {
+    ok: bool,
+    // The surface's region (object in precedence order).
+    obj: u32,
+    t: f32,
+    normal: vec3<f32>,
+}
+
+// `Regions::next_surface`: the first surface the segment o + d t,
+// eps < t <= t_max, crosses (d unit).
+fn region_next_surface(o: vec3<f32>, d: vec3<f32>, eps: f32, t_max: f32) -> RegionHit {
+    var best = RegionHit(false, 0u, t_max, vec3<f32>(0.0));
+    let count = region_count();
+    for (var i = 0u; i < count; i++) {
+        let c = region_shape_crossing(region_object(i), o, d, eps, best.t);
+        if c.ok && (!best.ok || c.t < best.t) {
+            best = RegionHit(true, i, c.t, c.normal);
+        }
+    }
+    return best;
+}
+
+// `region::refract`: Snell's law for the eikonal gradient v crossing the
+// unit normal (along the travel) into index n2: the tangential part kept,
+// the normal part of the length that makes |v| = n2; w = 0 under total
+// internal reflection, else 1.
+fn region_refract(v: vec3<f32>, normal: vec3<f32>, n2: f32) -> vec4<f32> {
+    let vn = dot(v, normal);
+    let vt = v - normal * vn;
+    let rest = n2 * n2 - dot(vt, vt);
+    if rest >= 0.0 {
+        return vec4<f32>(vt + normal * sqrt(rest), 1.0);
+    }
+    return vec4<f32>(v, 0.0);
+}
+
+// What `Regions::cross` found at a surface.
+struct RegionCross {
+    // A true crossing (the owner changes); false: nothing happened.
+    event: bool,
+    // The surface reflected the ray totally (it stays in its region).
+    total: bool,
+    // The region the ray is in afterwards.
+    region: u32,
+    // Its eikonal gradient afterwards.
+    v: vec3<f32>,
+    // The unit normal along the travel, the incident unit direction.
+    normal: vec3<f32>,
+    incident: vec3<f32>,
+    // Fresnel reflectance (1 under total internal reflection).
+    reflectance: f32,
+}
+
+// `Regions::cross`: a ray in region `here` with eikonal gradient v is at
+// `point` on a surface of unit outward `normal`: the region beyond (probed
+// eps along the normal), and the ray refracted or reflected there. No
+// event when the owner does not change (a false crossing).
+fn region_cross(here: u32, v: vec3<f32>, point: vec3<f32>, normal: vec3<f32>, eps: f32, ch: u32) -> RegionCross {
+    let d = normalize_or_zero(v);
+    let along = select(-normal, normal, dot(d, normal) >= 0.0);
+    let to = region_owner(point + along * eps);
+    var out = RegionCross(false, false, here, v, along, d, 0.0);
+    if to == here {
+        return out;
+    }
+    let n1 = region_index(here, point, ch).x;
+    let n2 = region_index(to, point, ch).x;
+    let vi = d * n1;
+    let cos_i = dot(d, along);
+    out.event = true;
+    let r = region_refract(vi, along, n2);
+    if r.w != 0.0 {
+        out.v = r.xyz;
+        out.region = to;
+        out.reflectance = fresnel_reflectance(cos_i, n1, n2);
+    } else {
+        out.v = vi - along * (2.0 * dot(vi, along));
+        out.total = true;
+        out.reflectance = 1.0;
+    }
+    return out;
+}

@@ -1,0 +1,514 @@
+//! Function-level parity of the sharp interfaces' WGSL (`surface.wgsl`,
+//! `region.wgsl`) with the Rust they mirror: the closed-form first crossing
+//! and normal of each analytic shape (`Shape::first_crossing`,
+//! `Shape::normal`), the owner by priority (`Scene::owner`), each region's
+//! index (`Regions::index`) and Snell's law in eikonal form
+//! (`region::refract`), on seeded batches at f32 tolerance. They need a
+//! Vulkan, Metal or DX12 adapter (lavapipe in CI, where a missing adapter
+//! fails them; elsewhere they are reported as ignored).
+//!
+//! `cargo test --release -p eikon-grid --test wgsl_sharp -- --nocapture`
+//! prints the largest errors.
+
+use eikon_gpu::{Gpu, DISPATCH};
+use eikon_grid::region::{gpu_table, refract, RegionGpu, WGSL as REGION};
+use eikon_grid::{Regions, Scene};
+use eikon_shader::compose;
+use eikon_testkit::parity::{v4, xyz, Cases, IO};
+use eikon_testkit::Tests;
+use glam::DVec3;
+
+/// Every supported shape, rotated where it has a frame, with the three
+/// index profiles, priorities that overlap, in glass.
+fn scene() -> Scene {
+    Scene::parse(
+        r#"
+[grid]
+resolution = 32
+min = [-1.5, -1.5, -1.5]
+max = [1.5, 1.5, 1.5]
+interfaces = "sharp"
+
+[ambient]
+index = 1.1
+
+[[object]]
+name = "lens"
+shape = { type = "sphere", center = [0.2, -0.1, 0.05], radius = 0.7 }
+index = { type = "luneburg" }
+priority = 3
+
+[[object]]
+name = "slab"
+shape = { type = "box", center = [-0.1, 0.2, 0.0], size = [1.6, 0.9, 1.2], rotation = [20, 35, -10] }
+index = 1.5
+priority = 2
+
+[[object]]
+name = "rod"
+shape = { type = "cylinder", center = [0.0, 0.0, 0.3], radius = 0.45, height = 1.8, rotation = [60, 0, 25] }
+index = { type = "linear", n0 = 1.3, gradient = [0.1, -0.2, 0.05], origin = [0.0, 0.0, 0.0] }
+priority = 1
+
+[[object]]
+name = "floor"
+shape = { type = "half_space", point = [0.0, -0.6, 0.0], normal = [0.1, -1.0, 0.2] }
+index = 1.33
+"#,
+        "wgsl sharp parity",
+    )
+    .unwrap()
+}
+
+const TABLE_HOOKS: &str = "
+@group(0) @binding(2) var<storage, read> table: array<RegionGpu>;
+fn region_count() -> u32 {
+    return arrayLength(&table) - 1u;
+}
+fn region_object(i: u32) -> RegionGpu {
+    return table[i];
+}
+";
+
+/// Input: (o, k), (d, hi), (q, lo): shape k's first crossing of o + d t on
+/// (lo, hi] as (t, ok), its normal; at q (the CPU's crossing point) the
+/// normal and the signed distance; at o the owner and its index.
+fn surfaces_owner_and_index_match_the_cpu(gpu: &Gpu) {
+    let main = format!(
+        "{IO}{TABLE_HOOKS}
+@compute @workgroup_size(WORKGROUP)
+fn surfaces(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if 3u * i >= arrayLength(&input) {{
+        return;
+    }}
+    let a = input[3u * i];
+    let b = input[3u * i + 1u];
+    let c = input[3u * i + 2u];
+    let r = region_object(u32(a.w));
+    let h = region_shape_crossing(r, a.xyz, b.xyz, c.w, b.w);
+    output[4u * i] = vec4<f32>(h.t, f32(h.ok), 0.0, 0.0);
+    output[4u * i + 1u] = vec4<f32>(h.normal, 0.0);
+    output[4u * i + 2u] = vec4<f32>(region_shape_normal(r, c.xyz), region_shape_distance(r, c.xyz));
+    let owner = region_owner(a.xyz);
+    output[4u * i + 3u] = vec4<f32>(f32(owner), region_index(owner, a.xyz, 0u).x, 0.0, 0.0);
+}}
+"
+    );
+    let source = compose("", &[&DISPATCH, &REGION], &main);
+    let scene = scene();
+    let regions = Regions::new(&scene);
+    let table: Vec<RegionGpu> = gpu_table(&scene).unwrap();
+    let count = table.len() - 1;
+    let buffer = gpu.storage("regions", &table);
+    let mut r = Cases::new(11);
+    struct Case {
+        o: DVec3,
+        d: DVec3,
+        k: usize,
+        lo: f64,
+        hi: f64,
+        cpu: Option<eikon_grid::Crossing>,
+    }
+    let cases: Vec<Case> = (0..20000)
+        .map(|j| {
+            let o = r.v(-1.5, 1.5);
+            let d = loop {
+                let d = r.v(-1.0, 1.0);
+                if d.length() > 0.1 && d.length() < 1.0 {
+                    break d.normalize();
+                }
+            };
+            let d = DVec3::new(d.x as f32 as f64, d.y as f32 as f64, d.z as f32 as f64);
+            let k = j % count;
+            let lo = 1e-3;
+            let hi = r.f(0.1, 4.0);
+            let shape = &scene.objects[table[k].object as usize].shape;
+            let cpu = shape.first_crossing(o, d, lo, hi);
+            Case {
+                o,
+                d,
+                k,
+                lo,
+                hi,
+                cpu,
+            }
+        })
+        .collect();
+    let inputs: Vec<[f32; 4]> = cases
+        .iter()
+        .flat_map(|c| {
+            let q = c.cpu.map_or(c.o, |x| c.o + c.d * x.t);
+            [v4(c.o, c.k as f64), v4(c.d, c.hi), v4(q, c.lo)]
+        })
+        .collect();
+    let out = gpu
+        .eval(
+            &source,
+            "surfaces",
+            &inputs,
+            4,
+            &[buffer.as_entire_binding()],
+        )
+        .unwrap();
+    // The bounds, derived: inputs are exact in f32 and the shapes' data
+    // rounded to f32 (relative 6e-8); a crossing's parameter is a root of
+    // a line against a surface, its rounding error a few ulps of the
+    // scene's scale (3) divided by the cosine of incidence |d . n|; a
+    // normal is a normalized f32 vector (a few ulps), the signed distance
+    // at the CPU's crossing a few ulps of the scale.
+    const ULP: f64 = 6e-8;
+    let scale = 3.0;
+    let (mut max_t, mut max_n, mut max_q, mut max_dist, mut max_index) =
+        (0f64, 0f64, 0f64, 0f64, 0f64);
+    let (mut hits, mut excused, mut owners) = (0, 0, 0);
+    for (j, c) in cases.iter().enumerate() {
+        let o = &out[4 * j..4 * j + 4];
+        let shape = &scene.objects[table[c.k].object as usize].shape;
+        let gpu_hit = (o[0][1] != 0.0).then_some(o[0][0] as f64);
+        // Near-degenerate: a crossing within rounding of either end of the
+        // segment, or grazing (cosine below 0.02), may fall either way.
+        let near_end = |t: f64| (t - c.lo).abs() < 1e-4 || (t - c.hi).abs() < 1e-4;
+        let grazing = |n: DVec3| n.dot(c.d).abs() < 0.02;
+        match (c.cpu, gpu_hit) {
+            (Some(x), Some(t)) => {
+                let cos = x.normal.dot(c.d).abs();
+                let tol = 64.0 * ULP * (scale + x.t) / cos.max(1e-3);
+                if (t - x.t).abs() > tol || (xyz(o[1]) - x.normal).length() > 1e-5 {
+                    assert!(
+                        near_end(x.t) || near_end(t) || grazing(x.normal) || grazing(xyz(o[1])),
+                        "shape {} from {} along {}: GPU t {t} normal {}, CPU {x:?}",
+                        c.k,
+                        c.o,
+                        c.d,
+                        xyz(o[1])
+                    );
+                    excused += 1;
+                    continue;
+                }
+                hits += 1;
+                max_t = max_t.max((t - x.t).abs() * cos.max(1e-3) / (scale + x.t));
+                max_n = max_n.max((xyz(o[1]) - x.normal).length());
+                // At the CPU's crossing point: on the surface, with its
+                // normal (a box's edge or a cylinder's rim has two).
+                let q = c.o + c.d * x.t;
+                let dist = o[2][3] as f64;
+                assert!(dist.abs() < 16.0 * ULP * scale, "distance {dist} at {q}");
+                max_dist = max_dist.max(dist.abs());
+                let nq = shape.normal(q);
+                let err = (xyz(o[2]) - nq).length();
+                if err < 1e-3 {
+                    max_q = max_q.max(err);
+                } else {
+                    excused += 1;
+                }
+            }
+            (None, None) => {}
+            (Some(x), None) => {
+                assert!(
+                    near_end(x.t) || grazing(x.normal),
+                    "shape {} from {} along {}: GPU none, CPU {x:?}",
+                    c.k,
+                    c.o,
+                    c.d
+                );
+                excused += 1;
+            }
+            (None, Some(t)) => {
+                assert!(
+                    near_end(t) || grazing(xyz(o[1])),
+                    "shape {} from {} along {}: GPU {t}, CPU none",
+                    c.k,
+                    c.o,
+                    c.d
+                );
+                excused += 1;
+            }
+        }
+        // The owner by priority, away from every surface.
+        let near_surface = scene
+            .objects
+            .iter()
+            .any(|ob| ob.shape.distance(c.o).abs() < 1e-5);
+        if !near_surface {
+            let want = scene.owner(c.o);
+            let got = o[3][0] as usize;
+            let got = (got < count).then(|| table[got].object as usize);
+            assert_eq!(got, want, "owner of {}", c.o);
+            owners += 1;
+            let n = regions.index(want, c.o, 0).0;
+            let err = (o[3][1] as f64 - n).abs();
+            assert!(
+                err < 8.0 * ULP * n * 4.0,
+                "index at {}: {} vs {n}",
+                c.o,
+                o[3][1]
+            );
+            max_index = max_index.max(err);
+        }
+    }
+    println!(
+        "{hits} crossings compared, {excused} near-degenerate excused, {owners} owners: \
+         max |dt| cos / (scale + t) {max_t:.2e}, max normal error {max_n:.2e} (at the CPU's point {max_q:.2e}), \
+         max |distance| there {max_dist:.2e}, max index error {max_index:.2e}"
+    );
+    assert!(hits > 2500, "{hits}");
+    assert!(excused * 100 < cases.len(), "{excused} excused");
+    assert!(max_t < 64.0 * ULP && max_n < 1e-5 && max_q < 1e-3);
+}
+
+/// Input: (v, n2), (normal, 0): region_refract against `region::refract`.
+fn refract_matches_the_cpu(gpu: &Gpu) {
+    let main = format!(
+        "{IO}
+fn region_count() -> u32 {{
+    return 0u;
+}}
+fn region_object(i: u32) -> RegionGpu {{
+    var r: RegionGpu;
+    return r;
+}}
+@compute @workgroup_size(WORKGROUP)
+fn refr(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if 2u * i >= arrayLength(&input) {{
+        return;
+    }}
+    let a = input[2u * i];
+    let b = input[2u * i + 1u];
+    output[i] = region_refract(a.xyz, b.xyz, a.w);
+}}
+"
+    );
+    let source = compose("", &[&DISPATCH, &REGION], &main);
+    let mut r = Cases::new(5);
+    let cases: Vec<(DVec3, DVec3, f64)> = (0..20000)
+        .map(|_| {
+            let unit = |r: &mut Cases| loop {
+                let d = r.v(-1.0, 1.0);
+                if d.length() > 0.1 && d.length() < 1.0 {
+                    let d = d.normalize();
+                    break DVec3::new(d.x as f32 as f64, d.y as f32 as f64, d.z as f32 as f64);
+                }
+            };
+            let normal = unit(&mut r);
+            let mut d = unit(&mut r);
+            if d.dot(normal) < 0.0 {
+                d = -d;
+            }
+            let n1 = r.f(1.0, 2.0);
+            let v = d * n1;
+            let v = DVec3::new(v.x as f32 as f64, v.y as f32 as f64, v.z as f32 as f64);
+            (v, normal, r.f(1.0, 2.0))
+        })
+        .collect();
+    let inputs: Vec<[f32; 4]> = cases
+        .iter()
+        .flat_map(|&(v, normal, n2)| [v4(v, n2), v4(normal, 0.0)])
+        .collect();
+    let out = gpu.eval(&source, "refr", &inputs, 1, &[]).unwrap();
+    let (mut max_err, mut tir, mut excused) = (0f64, 0, 0);
+    for (k, &(v, normal, n2)) in cases.iter().enumerate() {
+        let o = out[k];
+        let vt = v - normal * v.dot(normal);
+        let rest = n2 * n2 - vt.length_squared();
+        // rest is rounded to a few ulps of n2^2; its square root then to
+        // that over 2 sqrt(rest): within it of the critical angle either
+        // answer is right.
+        let ulp = 6e-8;
+        if rest.abs() < 64.0 * ulp * n2 * n2 {
+            excused += 1;
+            continue;
+        }
+        match refract(v, normal, n2) {
+            Some(want) => {
+                assert_eq!(o[3], 1.0, "refract {v} {normal} {n2}");
+                let tol = 16.0 * ulp * (1.0 + n2) + 8.0 * ulp * n2 * n2 / rest.sqrt();
+                let err = (xyz(o) - want).length();
+                assert!(err < tol, "refract {v} {normal} {n2}: {} vs {want}", xyz(o));
+                max_err = max_err.max(err);
+            }
+            None => {
+                assert_eq!(o[3], 0.0, "total reflection {v} {normal} {n2}");
+                tir += 1;
+            }
+        }
+    }
+    println!("refract: max error {max_err:.2e}, {tir} total reflections, {excused} at the critical angle");
+    assert!(tir > 1000, "{tir}");
+}
+
+/// Input: (o, eps), (d, t_max): the next surface of o + d t on
+/// (eps, t_max] over every region (`Regions::next_surface`) as (t, ok,
+/// object), its normal, and the crossing there from the region owning o
+/// (`Regions::cross`): (event, total, region, reflectance), the new v.
+fn next_surface_and_cross_match_the_cpu(gpu: &Gpu) {
+    let main = format!(
+        "{IO}{TABLE_HOOKS}
+@compute @workgroup_size(WORKGROUP)
+fn cross(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if 2u * i >= arrayLength(&input) {{
+        return;
+    }}
+    let a = input[2u * i];
+    let b = input[2u * i + 1u];
+    let h = region_next_surface(a.xyz, b.xyz, a.w, b.w);
+    output[4u * i] = vec4<f32>(h.t, f32(h.ok), f32(h.obj), 0.0);
+    output[4u * i + 1u] = vec4<f32>(h.normal, 0.0);
+    let here = region_owner(a.xyz);
+    let v = b.xyz * region_index(here, a.xyz, 0u).x;
+    let c = region_cross(here, v, a.xyz + b.xyz * h.t, h.normal, a.w, 0u);
+    output[4u * i + 2u] = vec4<f32>(f32(c.event), f32(c.total), f32(c.region), c.reflectance);
+    output[4u * i + 3u] = vec4<f32>(c.v, 0.0);
+}}
+"
+    );
+    let source = compose("", &[&DISPATCH, &REGION], &main);
+    let scene = scene();
+    let regions = Regions::new(&scene);
+    let table: Vec<RegionGpu> = gpu_table(&scene).unwrap();
+    let count = table.len() - 1;
+    let buffer = gpu.storage("regions", &table);
+    // The GPU renderer's tolerance for a 3-unit scene (`sharp_eps`).
+    let eps = 4e-6 * 1.6;
+    let mut r = Cases::new(23);
+    let cases: Vec<(DVec3, DVec3, f64)> = (0..20000)
+        .map(|_| {
+            let o = r.v(-1.5, 1.5);
+            let d = loop {
+                let d = r.v(-1.0, 1.0);
+                if d.length() > 0.1 && d.length() < 1.0 {
+                    let d = d.normalize();
+                    break DVec3::new(d.x as f32 as f64, d.y as f32 as f64, d.z as f32 as f64);
+                }
+            };
+            (o, d, r.f(0.1, 4.0))
+        })
+        .collect();
+    let inputs: Vec<[f32; 4]> = cases
+        .iter()
+        .flat_map(|&(o, d, t)| [v4(o, eps), v4(d, t)])
+        .collect();
+    let out = gpu
+        .eval(&source, "cross", &inputs, 4, &[buffer.as_entire_binding()])
+        .unwrap();
+    const ULP: f64 = 6e-8;
+    let (mut compared, mut excused, mut events, mut total) = (0, 0, 0, 0);
+    let (mut max_t, mut max_v, mut max_r) = (0f64, 0f64, 0f64);
+    for (k, &(o, d, t_max)) in cases.iter().enumerate() {
+        let g = &out[4 * k..4 * k + 4];
+        let cpu = regions.next_surface(o, d, t_max);
+        let gpu_hit =
+            (g[0][1] != 0.0).then(|| (table[g[0][2] as usize].object as usize, g[0][0] as f64));
+        // Degenerate: a crossing near either end, grazing, or two surfaces
+        // within rounding of each other along the ray (or near the point).
+        let near = |p: DVec3| {
+            scene
+                .objects
+                .iter()
+                .filter(|ob| ob.shape.distance(p).abs() < 1e-4)
+                .count()
+        };
+        let degenerate = |t: f64, n: DVec3| {
+            t < 1e-4 || (t - t_max).abs() < 1e-4 || n.dot(d).abs() < 0.02 || near(o + d * t) > 1
+        };
+        let (Some((obj, c)), Some((gobj, gt))) = (cpu, gpu_hit) else {
+            if cpu.is_some() != gpu_hit.is_some() {
+                let ok = match (cpu, gpu_hit) {
+                    (Some((_, c)), _) => degenerate(c.t, c.normal),
+                    (_, Some((_, t))) => degenerate(t, xyz(g[1])),
+                    _ => true,
+                };
+                assert!(
+                    ok,
+                    "next surface from {o} along {d}: CPU {cpu:?}, GPU {gpu_hit:?}"
+                );
+                excused += 1;
+            }
+            continue;
+        };
+        if obj != gobj || degenerate(c.t, c.normal) {
+            assert!(
+                degenerate(c.t, c.normal) || degenerate(gt, xyz(g[1])),
+                "next surface from {o} along {d}: CPU {obj} {c:?}, GPU {gobj} {gt}"
+            );
+            excused += 1;
+            continue;
+        }
+        let cos = c.normal.dot(d).abs();
+        let tol_t = 64.0 * ULP * (3.0 + c.t) / cos;
+        assert!(
+            (gt - c.t).abs() < tol_t,
+            "t from {o} along {d}: {gt} vs {}",
+            c.t
+        );
+        max_t = max_t.max((gt - c.t).abs() * cos / (3.0 + c.t));
+        compared += 1;
+        // The crossing, from the region that owns o.
+        let mut ray = regions.ray(o, d, 0);
+        ray.s.x = o;
+        let ev = regions.cross(&mut ray, obj, o + d * c.t, c.normal, 0);
+        assert_eq!(
+            g[2][0] != 0.0,
+            ev.is_some(),
+            "event from {o} along {d}: {ev:?}"
+        );
+        let Some(ev) = ev else { continue };
+        events += 1;
+        let region = (g[2][2] as usize) < count;
+        let region = region.then(|| table[g[2][2] as usize].object as usize);
+        assert_eq!(region, ray.region, "region after {o} along {d}");
+        // Near the critical angle either answer is right (see refract).
+        let vt2 =
+            (ev.incident - ev.normal * ev.incident.dot(ev.normal)).length_squared() * ev.n1 * ev.n1;
+        let rest = ev.n2 * ev.n2 - vt2;
+        if rest.abs() < 1e-4 {
+            continue;
+        }
+        assert_eq!(
+            g[2][1] != 0.0,
+            ev.total,
+            "total reflection after {o} along {d}"
+        );
+        total += usize::from(ev.total);
+        let cos_t = rest.max(0.0).sqrt().max(1e-3);
+        let tol_v = 1e-5 * (1.0 + ev.n2) / cos_t.min(1.0) / cos.min(1.0);
+        let err_v = (xyz(g[3]) - ray.s.v).length();
+        assert!(
+            err_v < tol_v,
+            "v after {o} along {d}: {} vs {}",
+            xyz(g[3]),
+            ray.s.v
+        );
+        max_v = max_v.max(err_v);
+        let err_r = (g[2][3] as f64 - ev.reflectance).abs();
+        assert!(
+            err_r < 1e-5 / cos_t.min(1.0) / cos.min(1.0),
+            "R after {o} along {d}: {} vs {}",
+            g[2][3],
+            ev.reflectance
+        );
+        max_r = max_r.max(err_r);
+    }
+    println!(
+        "next surface: {compared} compared, {excused} near-degenerate excused, {events} true crossings ({total} total reflections): \
+         max |dt| cos / (scale + t) {max_t:.2e}, max v error {max_v:.2e}, max R error {max_r:.2e}"
+    );
+    assert!(compared > 5000 && events > 1000, "{compared} {events}");
+    assert!(excused * 100 < cases.len(), "{excused} excused");
+}
+
+fn main() {
+    Tests::new()
+        .gpu(
+            "sharp_surfaces_owner_and_index_match_the_cpu",
+            surfaces_owner_and_index_match_the_cpu,
+        )
+        .gpu("sharp_refract_matches_the_cpu", refract_matches_the_cpu)
+        .gpu(
+            "sharp_next_surface_and_cross_match_the_cpu",
+            next_surface_and_cross_match_the_cpu,
+        )
+        .run()
+}
