@@ -75,7 +75,10 @@ impl Backend {
     pub fn simulator<'a>(&'a self, medium: &'a Medium, scene: &'a Scene) -> Result<Simulator<'a>> {
         let sharp = scene.grid.interfaces == eikon_grid::Interfaces::Sharp;
         Ok(match self {
-            Backend::Cpu => Simulator::Cpu(medium, sharp.then(|| eikon_grid::Regions::new(scene))),
+            Backend::Cpu => Simulator::Cpu(
+                medium,
+                sharp.then(|| eikon_grid::Regions::new(scene).clear_of(medium)),
+            ),
             #[cfg(feature = "gpu")]
             Backend::Gpu(g) => {
                 if sharp {

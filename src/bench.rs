@@ -140,8 +140,9 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
         }
         #[cfg(feature = "gpu")]
         Backend::Gpu(gpu) => {
-            let r = eikon_view::gpu::GpuRenderer::new(
+            let r = eikon_view::gpu::GpuRenderer::with_scene(
                 gpu,
+                &scene,
                 &medium,
                 &volumes,
                 &surroundings,

@@ -492,7 +492,7 @@ pub fn simulate(
     };
     let sim = on.simulator(medium, scene)?;
     let photon_regions = (scene.grid.interfaces == eikon_grid::Interfaces::Sharp)
-        .then(|| eikon_grid::Regions::new(scene));
+        .then(|| eikon_grid::Regions::new(scene).clear_of(medium));
     let sim_backend = on.describe();
     let mut results: Vec<(LightVolume, Summary, f64)> = Vec::new();
     for (i, light) in scene.lights.iter().enumerate() {

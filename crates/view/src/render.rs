@@ -212,7 +212,7 @@ impl<'a> Renderer<'a> {
     /// index and refract at the exact surfaces, with Fresnel reflection
     /// taken there at the true angle of incidence.
     pub fn sharp(mut self, scene: &'a Scene) -> Self {
-        let regions = Regions::new(scene);
+        let regions = Regions::new(scene).clear_of(self.medium);
         let eye = self.camera.position();
         let at = regions.at(eye);
         self.eye_index =

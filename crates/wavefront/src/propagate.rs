@@ -475,33 +475,40 @@ fn sharp_patch(
         }
         *s = ray.s;
     }
-    // Corners that crossed something in this step must have crossed the
-    // same surface the same way. A corner that crossed nothing may have
-    // crossed it in an earlier step (it is in the region beyond already), or
-    // be lagging (an oblique wavefront meets a surface over several steps):
-    // then straight ahead it meets that same surface within the patch's
-    // reach. One that passes beside the object (a silhouette) tears the
-    // patch. (Total reflection is told apart only within one step.)
-    let mut leader: Option<Crossed> = None;
-    for e in first.iter().flatten() {
-        if leader.is_some_and(|l| (l.surface, l.total) != (e.surface, e.total)) {
-            return None;
+    // A patch is torn when its corners part ways for good: two corners
+    // meet the same surface and one refracts where the other reflects
+    // totally; two meet different surfaces that are not layers of one path
+    // (the region one enters is not the one the other leaves); or a corner
+    // that crossed nothing is still where the others came from and, straight
+    // ahead within the patch's reach, meets none of their surfaces (it passes
+    // beside the object: a silhouette). Corners one layer apart (an oblique
+    // wavefront through a thin wall) and corners already beyond are not torn.
+    let events: Vec<Crossed> = first.iter().flatten().copied().collect();
+    for (i, a) in events.iter().enumerate() {
+        for b in &events[i + 1..] {
+            let together = if a.surface == b.surface {
+                a.total == b.total
+            } else {
+                a.to == b.from || b.to == a.from || (a.from == b.from && a.to == b.to)
+            };
+            if !together {
+                return None;
+            }
         }
-        leader = Some(*e);
     }
-    if let Some(l) = leader.filter(|l| !l.total) {
+    if events.iter().any(|e| !e.total) {
         let reach = span(&moved.map(|c| c.x)).max(span(&x0)) * 2.0 + dt;
         for (k, s) in moved.iter().enumerate() {
             if first[k].is_some() {
                 continue;
             }
             let at = regions.at(s.x);
-            if at == l.to {
+            if !events.iter().any(|e| e.from == at) || events.iter().any(|e| e.to == at) {
                 continue;
             }
             let d = s.v.normalize_or_zero();
             let ahead = regions.next_surface(s.x, d, reach).map(|(obj, _)| obj);
-            if at != l.from || ahead != Some(l.surface) {
+            if !ahead.is_some_and(|o| events.iter().any(|e| e.surface == o)) {
                 return None;
             }
         }
