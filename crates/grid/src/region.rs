@@ -510,6 +510,20 @@ impl<'a> Regions<'a> {
         ray.s = at;
         let normal = shape.normal(at.x);
         let event = self.cross(ray, obj, at.x, normal, ch);
+        if event.is_none() {
+            // A false crossing, or a graze that turns back into the region
+            // (a ray skimming a Luneburg lens's surface follows it): nothing
+            // changes there, so the whole step stands. Cutting it would
+            // creep along the surface a sliver at a time. (A graze that
+            // ends just outside belongs to the region there.)
+            ray.s = end;
+            ray.region = self.at(end.x);
+            return Step {
+                used: h,
+                event: None,
+                at_surface: false,
+            };
+        }
         Step {
             used: b,
             event,

@@ -23,15 +23,6 @@ use eikon_view::{Options, Renderer, Surroundings};
 /// other steps.
 const MAX_COUNT_DIFFERENCE: f64 = 0.02;
 
-/// The same for the Luneburg lens, whose index at its surface equals the
-/// ambient's: a ray that meets the lens at grazing incidence creeps along
-/// the inside of the surface, each step cut at it, and runs for thousands
-/// of steps (on the CPU to the step budget: at 32x32 pixel (13, 4) takes
-/// 8884 steps on the CPU, 2545 on the GPU, against about 56 for a ray
-/// through the lens); a handful of such rays make the totals differ by
-/// about 11% though the images agree.
-const LUNEBURG_COUNT_DIFFERENCE: f64 = 0.2;
-
 /// Render `text` (sharp) on both and compare: PSNR at least `min_db`, the
 /// counters within `max_count` of each other.
 fn check(gpu: &Gpu, name: &str, text: &str, min_db: f64, max_count: f64) -> f64 {
@@ -158,13 +149,7 @@ normal = [0.0, 0.0, 1.0]
 square = 0.15
 colors = [[0.9, 0.55, 0.12], [0.1, 0.18, 0.45]]
 "#;
-    check(
-        gpu,
-        "sharp luneburg lens",
-        text,
-        40.0,
-        LUNEBURG_COUNT_DIFFERENCE,
-    );
+    check(gpu, "sharp luneburg lens", text, 40.0, MAX_COUNT_DIFFERENCE);
 }
 
 /// A rotated glass box overlapping a cylinder of higher priority (false

@@ -127,6 +127,15 @@ fn sharp_step(ray: ptr<function, SharpRay>, h: f32, ch: u32) -> SharpStep {
     }
     field_region = NONE;
     out.c = region_cross(r, at_v, at_x, region_shape_normal(obj, at_x), eps, ch);
+    if !out.c.event {
+        // As `Regions::step` on the CPU: a false crossing or a graze that
+        // turns back changes nothing, so the whole step stands, in the
+        // region where it ends.
+        (*ray).x = x0 + full.x;
+        (*ray).v = v0 + full.v;
+        (*ray).region = region_owner((*ray).x);
+        return out;
+    }
     (*ray).x = at_x;
     (*ray).v = out.c.v;
     (*ray).region = out.c.region;
