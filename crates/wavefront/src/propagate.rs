@@ -483,9 +483,12 @@ fn sharp_patch(
     // ahead within the patch's reach, meets none of their surfaces (it passes
     // beside the object: a silhouette). Corners one layer apart (an oblique
     // wavefront through a thin wall) and corners already beyond are not torn.
-    let events: Vec<Crossed> = first.iter().flatten().copied().collect();
-    for (i, a) in events.iter().enumerate() {
-        for b in &events[i + 1..] {
+    // The four corners' first crossings, without allocating (this runs for
+    // every patch at every step).
+    let events = || first.iter().flatten();
+    for (i, a) in first.iter().enumerate() {
+        let Some(a) = a else { continue };
+        for b in first[i + 1..].iter().flatten() {
             let together = if a.surface == b.surface {
                 a.total == b.total
             } else {
@@ -496,19 +499,19 @@ fn sharp_patch(
             }
         }
     }
-    if events.iter().any(|e| !e.total) {
+    if events().any(|e| !e.total) {
         let reach = span(&moved.map(|c| c.x)).max(span(&x0)) * 2.0 + dt;
         for (k, s) in moved.iter().enumerate() {
             if first[k].is_some() {
                 continue;
             }
             let at = regions.at(s.x);
-            if !events.iter().any(|e| e.from == at) || events.iter().any(|e| e.to == at) {
+            if !events().any(|e| e.from == at) || events().any(|e| e.to == at) {
                 continue;
             }
             let d = s.v.normalize_or_zero();
             let ahead = regions.next_surface(s.x, d, reach).map(|(obj, _)| obj);
-            if !ahead.is_some_and(|o| events.iter().any(|e| e.surface == o)) {
+            if !ahead.is_some_and(|o| events().any(|e| e.surface == o)) {
                 return None;
             }
         }
