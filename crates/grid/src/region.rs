@@ -43,10 +43,11 @@ use serde::Deserialize;
 pub enum Interfaces {
     /// The paper's way [Ihrke07 sec 5.1]: the index is smoothed across
     /// every interface and the ray equation bends rays through the band.
-    #[default]
     Smoothed,
     /// Exact surfaces between regions, the ray equation inside each (this
-    /// module).
+    /// module). The default: what physics, and every renderer with exact
+    /// surfaces, does at an interface.
+    #[default]
     Sharp,
 }
 
@@ -70,6 +71,9 @@ pub struct Regions<'a> {
     scene: &'a Scene,
     /// Each object's bounding box (None: unbounded), padded by `eps`.
     boxes: Vec<Option<(DVec3, DVec3)>>,
+    /// Each object's [`Shape::fixed_size`](crate::Shape::fixed_size), kept
+    /// rather than recomputed per surface test.
+    sizes: Vec<Option<f64>>,
     /// Length below which two points on a ray are the same point: a crossing
     /// is found only beyond it, and the far side of a surface is probed
     /// this far from it. A billionth of a voxel.
@@ -167,9 +171,11 @@ impl<'a> Regions<'a> {
                     .map(|(a, b)| (a - DVec3::splat(eps), b + DVec3::splat(eps)))
             })
             .collect();
+        let sizes = scene.objects.iter().map(|o| o.shape.fixed_size()).collect();
         Self {
             scene,
             boxes,
+            sizes,
             eps,
             clear: None,
         }
@@ -235,7 +241,12 @@ impl<'a> Regions<'a> {
     pub fn at(&self, p: DVec3) -> Region {
         match self.clear_region(p) {
             Some(r) => r,
-            None => self.scene.owner(p),
+            // `Scene::owner`, with the bounding boxes ruling out most
+            // objects before their shapes are asked.
+            None => self.scene.precedence().iter().copied().find(|&i| {
+                self.boxes[i].is_none_or(|(lo, hi)| p.cmpge(lo).all() && p.cmple(hi).all())
+                    && self.scene.objects[i].shape.contains(p)
+            }),
         }
     }
 
@@ -287,7 +298,11 @@ impl<'a> Regions<'a> {
                     _ => continue,
                 }
             }
-            if let Some(c) = obj.shape.first_crossing(o, d, self.eps, limit) {
+            let crossing = match self.sizes[i] {
+                Some(size) => obj.shape.first_crossing_sized(o, d, self.eps, limit, size),
+                None => obj.shape.first_crossing(o, d, self.eps, limit),
+            };
+            if let Some(c) = crossing {
                 if best.is_none_or(|(_, b)| c.t < b.t) {
                     best = Some((i, c));
                 }

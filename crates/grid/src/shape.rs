@@ -145,6 +145,10 @@ impl Shape {
         match self {
             Shape::Vdb(solid) => solid.contains(p),
             Shape::Mesh(solid) => solid.contains(p),
+            Shape::Revolution { base, profile, rot } => {
+                let q = local(p, *base, rot);
+                polygon_contains(profile, DVec2::new(DVec2::new(q.x, q.z).length(), q.y))
+            }
             _ => self.distance(p) < 0.0,
         }
     }
@@ -222,6 +226,33 @@ impl Shape {
 
 /// Signed distance from `p` to the closed polygon `poly` (negative inside),
 /// using the even-odd rule for the inside test.
+/// `polygon_distance(poly, p) < 0` without the distances: inside by the
+/// crossing rule and not on an edge, where the distance would be zero. Only
+/// an edge whose heights span `p.y` can pass through `p`, so only those are
+/// measured.
+fn polygon_contains(poly: &[DVec2], p: DVec2) -> bool {
+    let n = poly.len();
+    let mut inside = false;
+    for i in 0..n {
+        let (a, b) = (poly[i], poly[(i + 1) % n]);
+        if (a.y > p.y) != (b.y > p.y) && p.x < a.x + (p.y - a.y) / (b.y - a.y) * (b.x - a.x) {
+            inside = !inside;
+        }
+    }
+    inside
+        && (0..n).all(|i| {
+            let (a, b) = (poly[i], poly[(i + 1) % n]);
+            if p.y < a.y.min(b.y) || p.y > a.y.max(b.y) {
+                return true;
+            }
+            let e = b - a;
+            let w = p - a;
+            let t = (w.dot(e) / e.length_squared()).clamp(0.0, 1.0);
+            // NaN for a repeated vertex, which the distance ignores too.
+            (w - e * t).length_squared() != 0.0
+        })
+}
+
 fn polygon_distance(poly: &[DVec2], p: DVec2) -> f64 {
     let mut d2 = f64::INFINITY;
     let mut inside = false;
@@ -247,6 +278,48 @@ fn polygon_distance(poly: &[DVec2], p: DVec2) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn polygon_contains_is_the_sign_of_the_distance() {
+        // A wine-glass outline with a repeated vertex; points on a lattice
+        // that hits vertices and edges exactly, and scattered ones.
+        let poly: Vec<DVec2> = [
+            [0.0, 0.0],
+            [0.3, 0.0],
+            [0.3, 0.025],
+            [0.06, 0.05],
+            [0.04, 0.1],
+            [0.04, 0.5],
+            [0.04, 0.5],
+            [0.25, 0.7],
+            [0.27, 1.3],
+            [0.245, 1.3],
+            [0.0, 0.575],
+        ]
+        .iter()
+        .map(|&[x, y]| DVec2::new(x, y))
+        .collect();
+        let mut checked = (0, 0);
+        for i in -4..=70 {
+            for j in -4..=280 {
+                let p = DVec2::new(i as f64 * 0.005, j as f64 * 0.005);
+                let q = p + DVec2::new(0.00123 * (j % 7) as f64, 0.00071 * (i % 5) as f64);
+                for p in [p, q] {
+                    let inside = polygon_distance(&poly, p) < 0.0;
+                    assert_eq!(polygon_contains(&poly, p), inside, "{p}");
+                    if inside {
+                        checked.0 += 1;
+                    } else {
+                        checked.1 += 1;
+                    }
+                }
+            }
+        }
+        assert!(checked.0 > 1000 && checked.1 > 1000, "{checked:?}");
+        for v in &poly {
+            assert!(!polygon_contains(&poly, *v));
+        }
+    }
 
     #[test]
     fn distances_have_the_right_sign_and_size() {

@@ -456,8 +456,11 @@ priority = 2
         assert_eq!(at(cube, both), ([20; 3], 0.5));
         let s = Scene::parse_with(cube, "t.toml", &both).unwrap();
         assert_eq!(s.grid.interfaces, crate::Interfaces::Sharp);
-        // Unset, the scene's own setting (the default) stays.
+        // Unset, the scene's own setting (the default, sharp) stays.
         let s = Scene::parse_with(cube, "t.toml", &GridOverride::default()).unwrap();
+        assert_eq!(s.grid.interfaces, crate::Interfaces::Sharp);
+        let smooth = cube.replace("[grid]", "[grid]\ninterfaces = \"smoothed\"");
+        let s = Scene::parse_with(&smooth, "t.toml", &GridOverride::default()).unwrap();
         assert_eq!(s.grid.interfaces, crate::Interfaces::Smoothed);
         // A misspelt mode is an error naming the field.
         let e = Scene::parse(
