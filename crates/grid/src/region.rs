@@ -143,6 +143,13 @@ pub struct SharpRay {
     pub s: RayState,
     /// The region the ray is in.
     pub region: Region,
+    /// Looking ahead: `None`, each straight step asks for the surfaces
+    /// within its own length (light, whose corners start afresh each
+    /// step); `Some(d)`, the first straight step asks once as far as the
+    /// grid's edge and the ray keeps `d`, how far on along its line no
+    /// surface lies, so the steps after it ask nothing until they come
+    /// near (eye rays gathering cell by cell through a scattering region).
+    pub ahead: Option<f64>,
 }
 
 /// Snell's law for the eikonal gradient `v` (`|v| = n1`) crossing a
@@ -394,16 +401,34 @@ impl<'a> Regions<'a> {
                 .clear
                 .as_ref()
                 .is_some_and(|c| len <= c.reach && self.clear_region(ray.s.x) == Some(ray.region));
-            let hit = if clear {
-                None
-            } else {
-                self.next_surface(ray.s.x, d, len)
+            let hit = match ray.ahead {
+                _ if clear => None,
+                None => self.next_surface(ray.s.x, d, len),
+                Some(free) if len <= free => None,
+                Some(_) => {
+                    // The straight line on to the grid's edge (its surfaces
+                    // beyond are met by the steps after a crossing).
+                    let horizon = self
+                        .scene
+                        .grid
+                        .geometry
+                        .clip_line(ray.s.x, d)
+                        .map_or(len, |(_, t1)| t1.max(len));
+                    match self.next_surface(ray.s.x, d, horizon) {
+                        Some(h) if h.1.t <= len => Some(h),
+                        beyond => {
+                            ray.ahead = Some(beyond.map_or(horizon, |h| h.1.t));
+                            None
+                        }
+                    }
+                }
             };
             match hit {
                 Some((obj, c)) => {
                     ray.s.opl += n * c.t;
                     ray.s.v = d * n;
                     let event = self.cross(ray, obj, ray.s.x + d * c.t, c.normal, ch);
+                    ray.ahead = ray.ahead.map(|_| 0.0);
                     Step {
                         used: c.t * per,
                         event,
@@ -414,6 +439,7 @@ impl<'a> Regions<'a> {
                     ray.s.x += d * len;
                     ray.s.v = d * n;
                     ray.s.opl += n * len;
+                    ray.ahead = ray.ahead.map(|free| free - len);
                     Step {
                         used: h,
                         event: None,
@@ -422,6 +448,8 @@ impl<'a> Regions<'a> {
                 }
             }
         } else {
+            // A curved path leaves the line looked along.
+            ray.ahead = ray.ahead.map(|_| 0.0);
             self.curved_step(ray, form, integrator, h, ch)
         }
     }
@@ -553,6 +581,7 @@ impl<'a> Regions<'a> {
         SharpRay {
             s: RayState::new(x, dir, self.index(region, x, ch).0),
             region,
+            ahead: Some(0.0),
         }
     }
 }

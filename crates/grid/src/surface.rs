@@ -172,6 +172,51 @@ fn bisect(inside: impl Fn(f64) -> bool, mut a: f64, mut b: f64, side_a: bool) ->
     b
 }
 
+/// The change of side of `f` (inside where negative) bracketed by
+/// `(a, f(a))` and `(b, f(b))` on opposite sides, to `tol`: false position
+/// with the Illinois rule (the end that stays has its value halved, so both
+/// ends close in), bisecting where an interpolated point would not shrink
+/// the bracket. Returns the end on `b`'s side, as [`bisect`] does; the
+/// bracket holds throughout, so the answer is a true change of side.
+fn illinois(f: impl Fn(f64) -> f64, a: (f64, f64), b: (f64, f64), tol: f64) -> f64 {
+    let ((mut a, mut fa), (mut b, mut fb)) = (a, b);
+    let side_a = fa < 0.0;
+    // Which end was kept last: -1 a, 1 b.
+    let mut kept = 0;
+    for _ in 0..200 {
+        if (b - a).abs() <= tol {
+            break;
+        }
+        let (lo, hi) = (a.min(b), a.max(b));
+        let mut m = if fa != fb {
+            b - fb * (b - a) / (fb - fa)
+        } else {
+            f64::NAN
+        };
+        if !(m > lo && m < hi) {
+            m = 0.5 * (a + b);
+        }
+        if m <= lo || m >= hi {
+            break;
+        }
+        let fm = f(m);
+        if (fm < 0.0) == side_a {
+            (a, fa) = (m, fm);
+            if kept == 1 {
+                fb *= 0.5;
+            }
+            kept = 1;
+        } else {
+            (b, fb) = (m, fm);
+            if kept == -1 {
+                fa *= 0.5;
+            }
+            kept = -1;
+        }
+    }
+    b
+}
+
 /// Unit vector or `fallback` where it has no direction.
 fn unit_or(v: DVec3, fallback: DVec3) -> DVec3 {
     let n = v.normalize_or_zero();
@@ -308,6 +353,25 @@ impl Shape {
                 Some(Crossing {
                     t,
                     normal: *rot * n,
+                })
+            }
+            Shape::Superquadric {
+                center,
+                radii,
+                e1,
+                e2,
+                rot,
+            } if *e1 == 1.0 && *e2 == 1.0 => {
+                // Both exponents 1: an ellipsoid, |q| = 1 in coordinates
+                // scaled by the radii, where `contains` is |q|^2 < 1.
+                let (ol, dl) = (
+                    local(o, *center, rot) / *radii,
+                    (rot.transpose() * d) / *radii,
+                );
+                let (t, _) = first_end(ball(ol, dl, 1.0), lo, hi)?;
+                Some(Crossing {
+                    t,
+                    normal: self.normal(at(t)),
                 })
             }
             Shape::Torus { .. } | Shape::Superquadric { .. } => {
@@ -465,8 +529,8 @@ impl Shape {
         unit_or(g, DVec3::Y)
     }
 
-    /// Sphere tracing by the distance bound from `lo` to `hi`, then bisection
-    /// of the first change of side (for shapes whose `contains` is the sign
+    /// Sphere tracing by the distance bound from `lo` to `hi`, then
+    /// [`illinois`] on the bound within the first change of side (for shapes whose `contains` is the sign
     /// of `distance`).
     fn march(&self, o: DVec3, d: DVec3, lo: f64, hi: f64, size: f64) -> Option<f64> {
         let dl = d.length();
@@ -493,16 +557,35 @@ impl Shape {
             Shape::Superquadric { .. } => (0.25, size / 128.0 / dl),
             _ => (1.0, f64::INFINITY),
         };
-        let inside = |t: f64| self.distance(o + d * t) < 0.0;
         let mut t0 = lo;
         let mut d0 = self.distance(o + d * t0);
         let side = d0 < 0.0;
+        let tol = 1e-14 * size / dl;
+        let refine = |a, b| illinois(|t| self.distance(o + d * t), a, b, tol);
+        let mut last: Option<(f64, f64)> = None;
         for _ in 0..MAX_MARCH {
-            let t1 = (t0 + (safety * d0.abs() / dl).clamp(h_min, h_max.max(h_min))).min(hi);
+            let step = (safety * d0.abs() / dl).clamp(h_min, h_max.max(h_min));
+            let t1 = (t0 + step).min(hi);
+            // Closing in on a surface, sphere tracing only creeps (each
+            // step a fraction of a bound that shrinks with it): the secant
+            // through the last two samples says where the bound reaches
+            // zero, and a probe a little beyond (within the same largest
+            // step) brackets the crossing in one sample.
+            if let Some((tp, dp)) = last.filter(|&(_, dp)| d0.abs() < dp.abs()) {
+                let ts = t0 - d0 * (t0 - tp) / (d0 - dp);
+                let probe = (t0 + 1.25 * (ts - t0)).min(t0 + h_max).min(hi);
+                if probe > t1 {
+                    let dq = self.distance(o + d * probe);
+                    if (dq < 0.0) != side {
+                        return Some(refine((t0, d0), (probe, dq)));
+                    }
+                }
+            }
             let d1 = self.distance(o + d * t1);
             if (d1 < 0.0) != side {
-                return Some(bisect(inside, t0, t1, side));
+                return Some(refine((t0, d0), (t1, d1)));
             }
+            last = Some((t0, d0));
             if t1 >= hi || !d1.is_finite() {
                 return None;
             }
@@ -1195,7 +1278,8 @@ mod tests {
 
     #[test]
     fn surface_superquadrics_match_brute_force() {
-        for e in [0.5, 2.5] {
+        // 1: the ellipsoid's closed form; 0.7 as in the amber scene.
+        for e in [0.5, 1.0, 0.7, 2.5] {
             let s = Shape::Superquadric {
                 center: DVec3::new(0.0, 0.1, 0.0),
                 radii: DVec3::new(0.6, 0.4, 0.5),

@@ -541,6 +541,7 @@ impl Tracer<'_> {
         let mut ray = SharpRay {
             s: *s,
             region: regions.at(s.x),
+            ahead: None,
         };
         let mut left = self.dt;
         for _ in 0..16 {

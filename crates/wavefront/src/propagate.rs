@@ -453,6 +453,7 @@ fn sharp_patch(
         let mut ray = SharpRay {
             s: *s,
             region: regions.at(s.x),
+            ahead: None,
         };
         let mut left = dt;
         for _ in 0..MAX_CROSSINGS {
