@@ -42,9 +42,9 @@ power = [4, 4, 4]
     )
 }
 
-/// Nested objects with torn silhouettes: a water sphere inside a glass
-/// box (the sphere outranks the box), beside a glass cylinder, under an
-/// oblique directional light, in a `res`^3 grid.
+/// Nested objects with torn silhouettes: a tilted water box inside a
+/// glass ball (the box outranks the ball), under an oblique directional
+/// light, in a `res`^3 grid.
 fn nested(res: usize) -> String {
     format!(
         r#"
@@ -55,22 +55,17 @@ max = [1, 1, 1]
 interfaces = "sharp"
 
 [[object]]
-name = "box"
-shape = {{ type = "box", center = [-0.2, 0.2, 0.0], size = [0.9, 0.8, 0.9], rotation = [10.0, 20.0, 0.0] }}
+name = "ball"
+shape = {{ type = "sphere", center = [0.0, 0.2, 0.0], radius = 0.5 }}
 index = 1.5
 extinction = [0.2, 0.1, 0.1]
 
 [[object]]
-name = "drop"
-shape = {{ type = "sphere", center = [-0.2, 0.2, 0.0], radius = 0.28 }}
+name = "cube"
+shape = {{ type = "box", center = [0.1, 0.25, 0.05], size = [0.35, 0.35, 0.35], rotation = [20.0, 30.0, 10.0] }}
 index = 1.33
 extinction = [0.4, 0.1, 0.05]
 priority = 2
-
-[[object]]
-name = "rod"
-shape = {{ type = "cylinder", center = [0.5, -0.1, 0.1], radius = 0.2, height = 0.9 }}
-index = 1.6
 
 [[light]]
 type = "directional"
@@ -88,11 +83,12 @@ power = [1, 1, 1]
 /// more or fewer than f64 does, so which patches get there differs: on
 /// the ball at 24^3 the CPU's last patch ends at step 81, the GPU's 17
 /// whispering-gallery patches (3e-5 of the entered power) at step 1996.
-/// 160 steps let every patch that is not trapped so end on both, and
-/// keep the test short; what is left is counted as trapped.
-fn opts() -> Options {
+/// A step limit lets every patch that is not trapped so end on both (160
+/// on the ball; the nested scene's light crosses in under 100), and keeps
+/// the tests short; what is left is counted as trapped.
+fn opts(max_steps: usize) -> Options {
     Options {
-        max_steps: Some(160),
+        max_steps: Some(max_steps),
         ..fluence()
     }
 }
@@ -147,22 +143,26 @@ fn report(what: &str, a: &Agreement, g: &Summary, c: &Summary) {
 /// CPU. The GPU steps the same corners across the same surfaces in f32
 /// instead of f64: a crossing point moves by about 1e-7 of the scene, the
 /// Fresnel factors by as much, so where the patch lists stay the same the
-/// volumes agree to a few 1e-6 as without sharp interfaces
-/// (`gpu.rs`, `fluence_energy_and_volumes_match_the_cpu`: 2e-6 for the
-/// point light). A patch at a tessellation threshold, a tear or the
-/// silhouette can take the other fate in f32, and then the lists drift
-/// apart behind the ball (as the smoothed directional light's do there:
-/// median 5e-4, 97% within 1%). Measured on lavapipe: see the numbers
-/// printed and the module docs of `gpu::simulate`. Asserted with the
-/// bounds of `gpu.rs`: median < 2e-3, within 1% > 95%, aligned > 98%,
-/// under 0.1% of the cells lit in one volume only (and at most 2 cells);
-/// the energy account balances within 1e-6 of the entered power (fixed
-/// point tallies of f32 fluxes, `gpu.rs`) and each of its categories,
+/// volumes agree to about 1e-6, as without sharp interfaces (`gpu.rs`,
+/// `fluence_energy_and_volumes_match_the_cpu`: 2e-6 for a point light). A
+/// patch at a tessellation threshold or skimming the silhouette can take
+/// the other fate in f32 (tear or not), and then the lists part behind
+/// the ball. Measured on lavapipe, per light: median relative fluence
+/// difference 7.2e-7, 1.4e-6; within 1% 97.2%, 99.8%; within 10% 99.6%,
+/// 99.96%; aligned 99.8%, 100%; cells lit in one volume only 26 of
+/// 13615 (0.19%), 0; torn pieces 1459 / 1418 and 569 / 569 (GPU / CPU);
+/// energy imbalance 5.5e-9, 5.3e-9; account categories within 1.6e-4,
+/// 2.1e-7 of the entered power of the CPU's. Asserted with the bounds of
+/// `gpu.rs` for lists that part: median < 2e-3, within 1% > 95%, aligned
+/// > 98%; under 1% of the cells lit in one volume only (a tear flipped
+/// at the silhouette lights or darkens a cell at the shadow's edge); the
+/// energy account balances within 1e-6 of the entered power (fixed-point
+/// tallies of f32 fluxes, as in `gpu.rs`) and each of its categories,
 /// torn included, agrees with the CPU's within 1e-3 of it.
 fn ball_lens_matches_the_cpu(gpu: &Gpu) {
     let (scene, m) = medium(&ball(24));
     let sim = GpuSimulator::with_regions(gpu, &m, regions(&scene, &m)).unwrap();
-    let opts = opts();
+    let opts = opts(160);
     for (l, light) in scene.lights.iter().enumerate() {
         let t = std::time::Instant::now();
         let (gv, gs) = sim.simulate(light, &opts, &|_, _| {}).unwrap();
@@ -185,22 +185,28 @@ fn ball_lens_matches_the_cpu(gpu: &Gpu) {
     }
 }
 
-/// Nested objects (a water drop in a glass box, beside a glass rod)
-/// under an oblique light (24^3): patches tear at every silhouette, are
-/// split and traced again on both backends, and the dropped pieces are
-/// tallied as torn. GPU against CPU: as in `ball_lens_matches_the_cpu`,
-/// except that a tear moves with f32 rounding (which corner of a patch
-/// skims a silhouette), so which pieces are dropped, and the pieces'
-/// place, differ in a few cells along the silhouettes' shadows. Asserted:
-/// the energy account balances within 1e-6, each category (torn
-/// included) within 1e-3 of the entered power of the CPU's; the GPU tears
-/// too; median relative fluence difference < 2e-3, within 10% > 95%,
-/// within 1% > 90%, aligned > 95%, under 1% of the cells lit in one
-/// volume only.
+/// Nested objects (a water cube in a glass ball) under an oblique light
+/// (16^3, 100 steps): patches tear at every silhouette, are split and
+/// traced again on both backends, and the dropped pieces are tallied as
+/// torn. Whether a patch tears depends on which side of a silhouette a
+/// corner passes: f32 flips that for corners that skim a surface within
+/// about 1e-7 of the scene, and each flip re-cuts the pieces, so here
+/// (most patches near some surface, ~2700 pieces dropped in 100 steps) the
+/// volumes agree less closely than on the ball. Measured on lavapipe:
+/// median relative fluence difference 4.4e-3, within 1% 81.6%, within 10%
+/// 99.9%, aligned 99.8%, no cell lit in one volume only; torn pieces 2705
+/// (GPU) / 2697 (CPU); energy imbalance 4.9e-7, each category within
+/// 1.0e-4 of the entered power of the CPU's. Asserted: median < 1e-2,
+/// within 10% > 98%, within 1% > 70%, aligned > 98%, under 1% of the
+/// cells lit in one volume only; the account balances within 2e-6 (the
+/// tallies are exact sums of f32 fluxes, 5e-9 on the ball; here f32
+/// rounding of the shares over many more splits, and the guard of
+/// `sharp_trace` for the rare torn patch whose two passes disagree) and
+/// each category agrees within 1e-3 of the entered power.
 fn nested_torn_silhouettes_match_the_cpu(gpu: &Gpu) {
-    let (scene, m) = medium(&nested(24));
+    let (scene, m) = medium(&nested(16));
     let sim = GpuSimulator::with_regions(gpu, &m, regions(&scene, &m)).unwrap();
-    let opts = opts();
+    let opts = opts(100);
     let t = std::time::Instant::now();
     let (gv, gs) = sim.simulate(&scene.lights[0], &opts, &|_, _| {}).unwrap();
     println!("GPU: {:.2} s", t.elapsed().as_secs_f64());
@@ -209,12 +215,12 @@ fn nested_torn_silhouettes_match_the_cpu(gpu: &Gpu) {
     report("nested", &a, &gs, &cs);
     assert!(cs.torn > 0, "the scene tears on the CPU");
     assert!(gs.torn > 0, "the scene tears on the GPU");
-    assert!(gs.energy_imbalance() < 1e-6, "{}", gs.energy_imbalance());
+    assert!(gs.energy_imbalance() < 2e-6, "{}", gs.energy_imbalance());
     let worst = account_difference(&gs, &cs);
     assert!(worst < 1e-3, "account {worst}");
-    assert!(a.median < 2e-3, "{a:?}");
-    assert!(a.within_10 > 0.95 && a.within_1 > 0.90, "{a:?}");
-    assert!(a.aligned > 0.95, "{a:?}");
+    assert!(a.median < 1e-2, "{a:?}");
+    assert!(a.within_10 > 0.98 && a.within_1 > 0.70, "{a:?}");
+    assert!(a.aligned > 0.98, "{a:?}");
     assert!(a.lit_differs * 100 < a.lit_cpu, "{a:?}");
 }
 
@@ -223,13 +229,13 @@ fn nested_torn_silhouettes_match_the_cpu(gpu: &Gpu) {
 /// HistoPyramid of their counts before any is written, and every sum is
 /// fixed point.
 fn sharp_runs_are_bitwise_repeatable(gpu: &Gpu) {
-    let (scene, m) = medium(&nested(20));
+    let (scene, m) = medium(&nested(12));
     let sim = GpuSimulator::with_regions(gpu, &m, regions(&scene, &m)).unwrap();
-    let opts = opts();
+    let opts = opts(60);
     let run = || sim.simulate(&scene.lights[0], &opts, &|_, _| {}).unwrap();
     let (a, sa) = run();
     let (b, sb) = run();
-    println!("nested 20^3: {sa:?}");
+    println!("nested 12^3: {sa:?}");
     assert!(sa.torn > 0, "the scene tears");
     assert_eq!(sa, sb);
     assert!(a.fluence == b.fluence, "fluence differs between runs");
