@@ -558,7 +558,7 @@ struct Crossed {
 pub(crate) const MAX_CROSSINGS: usize = 16;
 
 /// Most times a torn patch is split within one step ([`Sharp`]): what is
-/// still torn below is dropped. The GPU's too (the depth of its stack).
+/// still torn below is dropped. The GPU's too (the depth of its walk).
 pub(crate) const MAX_SPLIT_LEVEL: u32 = 8;
 
 /// [Ihrke07 eq 17] with [Ihrke07 eq 18]'s attenuation already in the flux: the

@@ -153,8 +153,8 @@ fn report(what: &str, a: &Agreement, g: &Summary, c: &Summary) {
 /// 13615 (0.19%), 0; torn pieces 1459 / 1418 and 569 / 569 (GPU / CPU);
 /// energy imbalance 5.5e-9, 5.3e-9; account categories within 1.6e-4,
 /// 2.1e-7 of the entered power of the CPU's. Asserted with the bounds of
-/// `gpu.rs` for lists that part: median < 2e-3, within 1% > 95%, aligned
-/// > 98%; under 1% of the cells lit in one volume only (a tear flipped
+/// `gpu.rs` for lists that part: median < 2e-3, within 1% over 95%,
+/// aligned over 98%; under 1% of the cells lit in one volume only (a tear flipped
 /// at the silhouette lights or darkens a cell at the shadow's edge); the
 /// energy account balances within 1e-6 of the entered power (fixed-point
 /// tallies of f32 fluxes, as in `gpu.rs`) and each of its categories,

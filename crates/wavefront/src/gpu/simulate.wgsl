@@ -932,12 +932,12 @@ fn corner_write(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workg
 // ---------------------------------------------------------------------
 // Sharp interfaces (`propagate::Sharp`, `[grid] interfaces = "sharp"`):
 // each corner crosses every surface on its own with `region_step` (the
-// `region_step` module, shared with the CPU's `Regions::step`), the flux
+// `region_step` module, the twin of the CPU's `Regions::step`), the flux
 // takes each corner's Fresnel transmittance to the power 1/4, and a patch
 // whose corners disagree is taken back to where the step began and split
 // in four, each piece traced again, down to `P.min_span` or
-// MAX_SPLIT_LEVEL levels (`propagate::split_and_trace`, with an explicit
-// stack here). Where the pieces go is fixed before any is written, so the
+// MAX_SPLIT_LEVEL levels (`propagate::split_and_trace`, as a walk over
+// the tree of quarters here: `sharp_trace`). Where the pieces go is fixed before any is written, so the
 // list is the same whatever the order the threads run in: pass 0
 // (`P.sharp_pass` 0) steps every patch that holds together and, for a torn
 // one, traces its pieces without depositing and writes their count; a
