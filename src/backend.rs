@@ -71,7 +71,8 @@ impl Backend {
     /// The light simulator of this backend for `medium`: on the GPU the
     /// medium is uploaded here, once for every light.
     /// With `[grid] interfaces = "sharp"` the simulation crosses the
-    /// scene's exact surfaces (CPU only so far).
+    /// scene's exact surfaces (on the GPU, for the shapes its region table
+    /// holds: `eikon_grid::region::gpu_table`).
     pub fn simulator<'a>(&'a self, medium: &'a Medium, scene: &'a Scene) -> Result<Simulator<'a>> {
         let sharp = scene.grid.interfaces == eikon_grid::Interfaces::Sharp;
         Ok(match self {
@@ -81,15 +82,20 @@ impl Backend {
             ),
             #[cfg(feature = "gpu")]
             Backend::Gpu(g) => {
-                if sharp {
-                    anyhow::bail!(
-                        "{}: [grid] interfaces = \"sharp\" is simulated on the CPU backend only so far; use --backend cpu, or --interfaces smoothed for the GPU",
-                        scene.origin
-                    );
-                }
-                Simulator::Gpu(Box::new(eikon_wavefront::gpu::GpuSimulator::new(
-                    g, medium,
-                )?))
+                use eikon_wavefront::gpu::GpuSimulator;
+                // Sharp interfaces on the GPU: spheres, boxes, cylinders and
+                // half-spaces; any other object is an error naming it (and
+                // the way out: --backend cpu or --interfaces smoothed).
+                let sim = if sharp {
+                    GpuSimulator::with_regions(
+                        g,
+                        medium,
+                        eikon_grid::Regions::new(scene).clear_of(medium),
+                    )?
+                } else {
+                    GpuSimulator::new(g, medium)?
+                };
+                Simulator::Gpu(Box::new(sim))
             }
         })
     }

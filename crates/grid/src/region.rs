@@ -949,3 +949,27 @@ pub static WGSL: eikon_shader::Module = eikon_shader::Module {
     declarations: region_declarations,
     text: include_str!("region.wgsl"),
 };
+
+/// The WGSL of [`Regions::step`] in either form (`region_step.wgsl`:
+/// `region_step`, the straight step through a constant region and the
+/// integrator's step cut at a surface, then [`Regions::cross`]), over the
+/// `region` module. The kernel provides `var<private> field_region: u32`,
+/// which its `index_field` reads (region `field_region`'s own profile while
+/// it is not `NONE`), and the constant `NONE`.
+pub static STEP_WGSL: eikon_shader::Module = eikon_shader::Module {
+    name: "region_step",
+    requires: &[&crate::ray::WGSL, &WGSL],
+    declarations: eikon_shader::nothing,
+    text: include_str!("region_step.wgsl"),
+};
+
+/// The length below which two points on a ray are one on the GPU with
+/// sharp interfaces: the CPU's [`Regions::eps`] is a billionth of a voxel,
+/// below f32's resolution; here a few hundred ulps of the scene's scale,
+/// well above the rounding of a crossing point (a few ulps), so that a
+/// segment starting on a surface does not find its own start and the far
+/// side is probed beyond that rounding.
+pub fn gpu_eps(g: &crate::GridGeometry) -> f64 {
+    let scale = g.min.abs().max(g.max.abs()).max_element() + g.voxel_size();
+    4e-6 * scale
+}

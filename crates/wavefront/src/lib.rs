@@ -119,6 +119,12 @@ pub fn power_bound(light: &Light, grid: &eikon_grid::GridGeometry) -> f64 {
 /// ([`propagate::Sharp::min_span`]).
 pub const SHARP_MIN_SPAN: f64 = 0.0625;
 
+/// [`propagate::Sharp::min_span`] for `opts` on `grid`, world units (both
+/// backends).
+pub(crate) fn sharp_min_span(grid: &eikon_grid::GridGeometry, opts: &Options) -> f64 {
+    SHARP_MIN_SPAN * opts.split.min(opts.patch_size) * grid.voxel_size()
+}
+
 /// Settings of a simulation.
 #[derive(Clone, Copy, Debug)]
 pub struct Options {
@@ -730,7 +736,7 @@ pub fn simulate_light_in(
         (opts.fresnel && regions.is_none()).then(|| Interfaces::new(medium, probe_length(medium)));
     let sharp = regions.map(|regions| propagate::Sharp {
         regions,
-        min_span: SHARP_MIN_SPAN * opts.split.min(opts.patch_size) * grid.voxel_size(),
+        min_span: sharp_min_span(grid, opts),
         fresnel: opts.fresnel,
     });
     let straddles = |x: &[glam::DVec3; 4]| {

@@ -364,7 +364,7 @@ fn split_and_trace(
     lost: &mut Loss,
 ) {
     let x = corners.map(|c| c.x);
-    if span(&x) <= sharp.min_span || level > 8 {
+    if span(&x) <= sharp.min_span || level > MAX_SPLIT_LEVEL {
         for (t, f) in lost.torn.iter_mut().zip(flux) {
             *t += f;
         }
@@ -555,8 +555,12 @@ struct Crossed {
 }
 
 /// Most surfaces one corner crosses in one step (a guard: a step is half
-/// a voxel, and surfaces closer than that are rare).
-const MAX_CROSSINGS: usize = 16;
+/// a voxel, and surfaces closer than that are rare). The GPU's too.
+pub(crate) const MAX_CROSSINGS: usize = 16;
+
+/// Most times a torn patch is split within one step ([`Sharp`]): what is
+/// still torn below is dropped. The GPU's too (the depth of its walk).
+pub(crate) const MAX_SPLIT_LEVEL: u32 = 8;
 
 /// [Ihrke07 eq 17] with [Ihrke07 eq 18]'s attenuation already in the flux: the
 /// differential irradiance of each patch is its flux over its current area.

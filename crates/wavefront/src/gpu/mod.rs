@@ -4,4 +4,6 @@
 //! code's definitions and with the view renderer.
 
 mod simulate;
-pub use simulate::{simulate_light, source, GpuSimulator, PyramidLevel, SimParams};
+pub use simulate::{
+    simulate_light, simulate_light_in, source, GpuSimulator, PyramidLevel, SimParams,
+};

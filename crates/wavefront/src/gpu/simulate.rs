@@ -27,11 +27,44 @@
 //! apply) and the irradiance of [Ihrke07 eq 17]. The only read-back per step is the
 //! new list's length.
 //!
+//! # Sharp interfaces
+//! With [`GpuSimulator::with_regions`] (`[grid] interfaces = "sharp"`)
+//! step 1 is `propagate_sharp`, [`propagate::Sharp`] on the GPU: each
+//! corner steps region by region with the shared `region_step` module
+//! (`eikon_grid::region::STEP_WGSL`, `Regions::step` in the equal-time
+//! form, over the region table of `eikon_grid::region::gpu_table`), the
+//! flux takes each corner's `(1 - R)^(1/4)`, and a torn patch is split in
+//! four where the step began and traced again, recursively (a walk over
+//! the tree of quarters, at most [`propagate::MAX_SPLIT_LEVEL`] deep, each
+//! node's corners derived again down its path: no stack in private
+//! memory), down to the smallest split; what is still torn is dropped and
+//! tallied as torn. The pieces go
+//! where the CPU puts them, deterministically: pass 0 steps every patch
+//! that holds together and only counts a torn one's pieces (tracing them
+//! without depositing); a HistoPyramid of the extra pieces (all but the
+//! first) gives each torn patch its slots after the list in patch order;
+//! the torn patches' count and the pieces' total are read back, and pass
+//! 1 (the same entry point, so the same code) traces the torn patches
+//! again, depositing, and writes the first piece in the patch's slot and
+//! the others in its slots. A torn patch is thus traced twice; tears are
+//! rare. The two passes run the same code on the same input and should
+//! find the same pieces; on lavapipe they disagree for a few torn patches
+//! in a thousand in nested scenes (cause not found): pass 1 then never
+//! writes beyond the slots pass 0 counted (a piece without a slot is
+//! dropped and counted as torn; a slot without a piece carries nothing),
+//! so the list and the energy account stay consistent and the result is
+//! still the same from run to run. New corners (splits, pieces) take the own index of the region
+//! where they lie, and a patch whose corners lie in different regions is
+//! not split (`refine::Hold`), as on the CPU. Crossings are found to
+//! `eikon_grid::region::gpu_eps` (a few ulps of the scene's scale; the
+//! CPU: 1e-9 voxel) and, in a graded region, cut by bisection (the CPU:
+//! false position).
+//!
 //! The fluence deposit adds to 64-bit fixed-point counters as
 //! [`Counters`] does (fluence per cell and channel, the flux vector per
 //! cell, component and wavefront group in two's complement; the same
 //! scales), each as two u32 words added with a carry; the energy tallies
-//! (absorbed, exited, culled, reflected, trapped) are 64-bit fixed point the same
+//! (absorbed, exited, culled, reflected, trapped, torn) are 64-bit fixed point the same
 //! way. Integer addition commutes, so neither depends on the order the
 //! threads run in: the volumes and the summary are the same bit for bit
 //! from run to run. At the end the words are read back and added to the
@@ -100,7 +133,8 @@ use eikon_gpu::{
 use eikon_grid::blocks::BLOCK;
 use eikon_grid::geometry::GridGpu;
 use eikon_grid::interface::{probe_length, Interfaces};
-use eikon_grid::{EmptySpace, Integrator, Light, Medium, Progress};
+use eikon_grid::region::{gpu_eps, gpu_table, RegionGpu};
+use eikon_grid::{EmptySpace, Integrator, Light, Medium, Progress, Regions};
 use eikon_shader::{compose, layout, Consts, Layout, VECTOR};
 use glam::DVec3;
 use ndarray::Array4;
@@ -170,6 +204,24 @@ layout! {
         pub fresnel: u32,
         /// Where the split flags' pyramid starts in the pyramid buffer.
         pub splits_base: u32,
+        /// 1: sharp interfaces (`propagate_sharp` over `regions`).
+        pub sharp: u32,
+        /// Objects in the region table (the ambient medium follows them).
+        pub region_count: u32,
+        /// With sharp interfaces: the length below which two points on a
+        /// ray are one (`eikon_grid::region::gpu_eps`).
+        pub sharp_eps: f32,
+        /// [`propagate::Sharp::min_span`].
+        pub min_span: f32,
+        /// The pass of `propagate_sharp`: 0 steps every patch and counts
+        /// the torn ones' pieces, 1 writes them.
+        pub sharp_pass: u32,
+        /// Where the pieces' pyramid starts in the pyramid buffer.
+        pub pieces_base: u32,
+        /// The index channel of the wavefront (its regions' index).
+        pub channel: u32,
+        /// Padding.
+        pub pad: u32,
     }
 }
 
@@ -178,8 +230,9 @@ layout! {
     pub struct PyramidLevel {
         /// The level built (>= 1).
         pub level: u32,
-        /// 1: the split flags' pyramid, 0: the counts'.
-        pub splits: u32,
+        /// Which pyramid: 0 the counts', 1 the split flags', 2 the torn
+        /// patches' extra pieces (sharp interfaces).
+        pub pyramid: u32,
         /// Padding.
         pub pad: [u32; 2],
     }
@@ -187,22 +240,28 @@ layout! {
 
 /// Energy categories of the tallies, each 64-bit fixed point per channel
 /// (two words): words `2 (3 category + channel)`.
-const ENERGY: [&str; 5] = [
+const ENERGY: [&str; 6] = [
     "E_ABSORBED",
     "E_EXITED",
     "E_CULLED",
     "E_REFLECTED",
     "E_TRAPPED",
+    "E_TORN",
 ];
 /// Stats words after the energies: counts.
-const S_EXITED: usize = 30;
-const S_ABSORBED: usize = 31;
-const S_CAUSTIC: usize = 32;
-const S_HELD: usize = 33;
-const S_KEPT: usize = 34;
-const S_SPLITS: usize = 35;
-const S_FAINT: usize = 36;
-const STATS_WORDS: usize = 37;
+const S_EXITED: usize = 6 * ENERGY.len();
+const S_ABSORBED: usize = S_EXITED + 1;
+const S_CAUSTIC: usize = S_EXITED + 2;
+const S_HELD: usize = S_EXITED + 3;
+const S_KEPT: usize = S_EXITED + 4;
+const S_SPLITS: usize = S_EXITED + 5;
+const S_FAINT: usize = S_EXITED + 6;
+/// Pieces torn at a sharp interface and dropped.
+const S_TORN: usize = S_EXITED + 7;
+/// Patches torn in this step (cleared per step; read back to know whether
+/// `propagate_sharp`'s pass 1 is needed).
+const S_TORN_NOW: usize = S_EXITED + 8;
+const STATS_WORDS: usize = S_EXITED + 9;
 /// What `Incident` is, for `incident_at`.
 const INCIDENT_UNIFORM: u32 = 0;
 const INCIDENT_POINT: u32 = 1;
@@ -224,7 +283,11 @@ fn declarations() -> String {
         .u32("S_KEPT", S_KEPT as u32)
         .u32("S_SPLITS", S_SPLITS as u32)
         .u32("S_FAINT", S_FAINT as u32)
+        .u32("S_TORN", S_TORN as u32)
+        .u32("S_TORN_NOW", S_TORN_NOW as u32)
         .u32("STATS_WORDS", STATS_WORDS as u32)
+        .u32("MAX_CROSSINGS", propagate::MAX_CROSSINGS as u32)
+        .u32("MAX_SPLIT_LEVEL", propagate::MAX_SPLIT_LEVEL)
         .u32("FATE_EXIT", Fate::Exit as u32)
         .u32("FATE_ABSORBED", Fate::Absorbed as u32)
         .u32("FATE_FAINT", Fate::Faint as u32)
@@ -260,6 +323,7 @@ pub fn source() -> String {
             &deposit::WGSL,
             &propagate::WGSL,
             &histopyramid::WGSL,
+            &eikon_grid::region::STEP_WGSL,
         ],
         SOURCE,
     )
@@ -281,7 +345,7 @@ const FIRST_CAP: usize = 4096;
 /// Format of the medium's textures.
 const TEXEL: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 /// Storage buffers bound at once (groups 0 to 2 of `simulate.wgsl`).
-const STORAGE_BUFFERS: u32 = 23;
+const STORAGE_BUFFERS: u32 = 24;
 /// Most pyramid levels (4^15 entries).
 const MAX_LEVELS: usize = 16;
 
@@ -309,9 +373,11 @@ enum Kernel {
     Grant,
     /// The patches left at the step limit.
     CullRest,
+    /// Step 1 with sharp interfaces (both passes).
+    PropagateSharp,
 }
 
-const KERNELS: [&str; 13] = [
+const KERNELS: [&str; 14] = [
     "rebuild",
     "mid_max",
     "mid_owner",
@@ -325,6 +391,7 @@ const KERNELS: [&str; 13] = [
     "reduce",
     "grant",
     "cull_rest",
+    "propagate_sharp",
 ];
 
 /// The paper's deposit's six kernels, in order.
@@ -354,6 +421,24 @@ pub fn simulate_light(
     GpuSimulator::new(gpu, medium)?.simulate(light, opts, progress)
 }
 
+/// [`simulate_light`] with sharp interfaces when `regions` are given
+/// (`[grid] interfaces = "sharp"`): [`crate::simulate_light_in`] on the
+/// GPU ([`GpuSimulator::with_regions`]).
+pub fn simulate_light_in<'a>(
+    gpu: &'a Gpu,
+    light: &Light,
+    medium: &'a Medium,
+    regions: Option<Regions<'a>>,
+    opts: &Options,
+    progress: Progress,
+) -> Result<(LightVolume, Summary), Error> {
+    let sim = match regions {
+        Some(r) => GpuSimulator::with_regions(gpu, medium, r)?,
+        None => GpuSimulator::new(gpu, medium)?,
+    };
+    sim.simulate(light, opts, progress)
+}
+
 /// One medium uploaded to the GPU with the simulator's kernels, to light
 /// it with any number of lights.
 pub struct GpuSimulator<'a> {
@@ -375,6 +460,13 @@ pub struct GpuSimulator<'a> {
     /// Blocks of the empty-space tables and their inverse size.
     empty_dims: [u32; 3],
     inv_block: DVec3,
+    /// With sharp interfaces, the scene's regions (emission, the pre-step
+    /// tessellation) and their table on the device
+    /// (`eikon_grid::region::gpu_table`); else one placeholder region.
+    regions: Option<Regions<'a>>,
+    table: Buffer,
+    /// Objects in the table (the ambient medium follows them).
+    region_count: u32,
 }
 
 fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
@@ -473,11 +565,13 @@ impl PatchSet {
     }
 }
 
-/// Bytes of the per-patch scratch over `n` patches: the two pyramids (one
-/// buffer), the fates, and each patch's deposits (`dep_bytes` per patch).
-fn scratch_bytes(n: usize, dep_bytes: u64) -> [u64; 3] {
+/// Bytes of the per-patch scratch over `n` patches: the `pyramids` pyramids
+/// (one buffer: the counts', the split flags' and, with sharp interfaces,
+/// the torn patches' extra pieces'), the fates, and each patch's deposits
+/// (`dep_bytes` per patch).
+fn scratch_bytes(n: usize, dep_bytes: u64, pyramids: u64) -> [u64; 3] {
     [
-        2 * pyramid_size(n) as u64 * 4,
+        pyramids * pyramid_size(n) as u64 * 4,
         n as u64 * 4,
         n as u64 * dep_bytes,
     ]
@@ -526,7 +620,7 @@ struct Run {
     /// Per pyramid (counts, then splits) and level, the uniform and its
     /// bind group (the uniforms live as long as their bind groups, so the
     /// tally of live bytes is what the device holds).
-    levels: [Vec<(Buffer, wgpu::BindGroup)>; 2],
+    levels: [Vec<(Buffer, wgpu::BindGroup)>; 3],
 }
 
 /// The patch lists of one wavefront (the live one and the one the walk
@@ -543,6 +637,8 @@ struct Lists {
     /// Scratch bytes per patch of the paper's deposits (0 for the
     /// fluence deposit).
     dep_bytes: u64,
+    /// Pyramids in the pyramid buffer: 3 with sharp interfaces, else 2.
+    pyramids: u64,
     /// The index channel and whether Fresnel's interfaces are bound.
     channel: usize,
     fresnel: bool,
@@ -572,6 +668,11 @@ impl Lists {
     fn splits_base(&self) -> u32 {
         pyramid_size(self.scratch_cap) as u32
     }
+
+    /// Where the torn patches' extra pieces' pyramid starts.
+    fn pieces_base(&self) -> u32 {
+        2 * pyramid_size(self.scratch_cap) as u32
+    }
 }
 
 impl<'a> GpuSimulator<'a> {
@@ -590,10 +691,49 @@ impl<'a> GpuSimulator<'a> {
         medium: &'a Medium,
         limit: u64,
     ) -> Result<Self, GpuError> {
+        Self::build(gpu, medium, limit, None)
+    }
+
+    /// [`Self::new`] with sharp interfaces (`[grid] interfaces = "sharp"`,
+    /// [`propagate::Sharp`]): corners cross the exact surfaces of
+    /// `regions`' scene, each region's own index between them, as
+    /// [`crate::simulate_light_in`] on the CPU. The GPU's region table
+    /// holds spheres, boxes, cylinders and half-spaces
+    /// (`eikon_grid::region::gpu_table`); a scene with any other object is
+    /// a [`GpuError::Unsupported`] naming it.
+    pub fn with_regions(
+        gpu: &'a Gpu,
+        medium: &'a Medium,
+        regions: Regions<'a>,
+    ) -> Result<Self, GpuError> {
+        let limit = gpu.device.limits().max_storage_buffer_binding_size as u64;
+        Self::build(gpu, medium, limit, Some(regions))
+    }
+
+    fn build(
+        gpu: &'a Gpu,
+        medium: &'a Medium,
+        limit: u64,
+        regions: Option<Regions<'a>>,
+    ) -> Result<Self, GpuError> {
+        let table = match &regions {
+            Some(r) => {
+                let scene = r.scene();
+                let table = gpu_table(scene)
+                    .map_err(|e| GpuError::Unsupported(format!("{}: {e}", scene.origin)))?;
+                Some(table)
+            }
+            None => None,
+        };
         let binding_limit = Self::check_limits(gpu, medium, limit)?;
-        let (layouts, kernels) = Self::compile(gpu)?;
+        let (layouts, kernels) = Self::compile(gpu, table.is_some())?;
         let (_, empty_dims, inv_block) = empty_table(medium, 0);
         let (index, extinction, no_fresnel) = Self::upload_medium(gpu, medium)?;
+        let region_count = table.as_ref().map_or(0, |t| t.len() as u32 - 1);
+        let table = gpu.checked("uploading the regions", || match &table {
+            Some(t) => gpu.storage("regions", t),
+            None => gpu.storage("no regions", &[RegionGpu::default()]),
+        })?;
         Ok(Self {
             gpu,
             medium,
@@ -606,6 +746,9 @@ impl<'a> GpuSimulator<'a> {
             binding_limit,
             empty_dims,
             inv_block,
+            regions,
+            table,
+            region_count,
         })
     }
 
@@ -647,10 +790,13 @@ impl<'a> GpuSimulator<'a> {
     }
 
     /// The bind group layouts (medium and scratch, patch lists, light
-    /// volume, pyramid level) and one pipeline per kernel of [`source`].
+    /// volume, pyramid level) and one pipeline per kernel of [`source`]
+    /// (`propagate_sharp`, the last, only with `sharp` interfaces: it is
+    /// the largest kernel to compile).
     #[allow(clippy::type_complexity)]
     fn compile(
         gpu: &Gpu,
+        sharp: bool,
     ) -> Result<([wgpu::BindGroupLayout; 4], Vec<wgpu::ComputePipeline>), GpuError> {
         let layouts = gpu.checked("light simulator layouts", || {
             let make = |label, entries: &[wgpu::BindGroupLayoutEntry]| {
@@ -664,6 +810,7 @@ impl<'a> GpuSimulator<'a> {
             g0.push(storage_entry(3, true));
             g0.extend((4..8).map(|b| storage_entry(b, false)));
             g0.push(texture_entry(8));
+            g0.push(storage_entry(9, true));
             let g1: Vec<_> = (0..6).map(|b| storage_entry(b, false)).collect();
             let g2: Vec<_> = (0..VOLUME_BUFFERS as u32)
                 .map(|b| storage_entry(b, false))
@@ -689,7 +836,12 @@ impl<'a> GpuSimulator<'a> {
                     bind_group_layouts: &[&layouts[0], &layouts[1], &layouts[2], &layouts[3]],
                     push_constant_ranges: &[],
                 });
-            KERNELS
+            let kernels = if sharp {
+                &KERNELS[..]
+            } else {
+                &KERNELS[..KERNELS.len() - 1]
+            };
+            kernels
                 .iter()
                 .map(|entry| {
                     gpu.device
@@ -758,8 +910,9 @@ impl<'a> GpuSimulator<'a> {
     ///   (kept by the simulator for later lights);
     /// * the light volume: one u32 per cell for each of its 12 arrays
     ///   (fluence deposit) or 9 (paper's, 3 unused placeholders);
-    /// * the uniforms (parameters, one per pyramid and level), the stats
-    ///   and the word the list's length is read from;
+    /// * the uniforms (parameters, one per pyramid and level), the stats,
+    ///   the words the list's length is read from and the placeholder
+    ///   region table;
     /// * the two patch lists at `opts.max_patches` (the grants never let a
     ///   list grow past it; the device may lower it to
     ///   [`Self::patch_limit`], which only lowers the need);
@@ -769,6 +922,10 @@ impl<'a> GpuSimulator<'a> {
     ///   larger one, or the staging buffer one volume array is read back
     ///   through.
     ///
+    /// With sharp interfaces ([`Self::with_regions`]) the region table (one
+    /// [`RegionGpu`] per object), the third pyramid (the torn patches'
+    /// pieces, a third more scratch) and the pieces beyond `max_patches`
+    /// that torn patches add to a list (as on the CPU) are not counted.
     /// A wavefront emitted larger than `opts.max_patches` (emission checks
     /// only that it stays under `EMIT_PER_PATCH_LIMIT` times it) sizes the
     /// lists itself and is not covered. Not counted either: wgpu's own
@@ -797,13 +954,17 @@ impl<'a> GpuSimulator<'a> {
                 + (VOLUME_BUFFERS - PAPER_VOLUME_BUFFERS) as u64 * MIN_BUFFER_BYTES
         };
         let small = buffer(SimParams::size() as u64)
-            + 2 * MAX_LEVELS as u64 * PyramidLevel::size() as u64
+            + 3 * MAX_LEVELS as u64 * PyramidLevel::size() as u64
+            + buffer(RegionGpu::size() as u64)
             + buffer(STATS_WORDS as u64 * 4)
             + MIN_BUFFER_BYTES;
         let cap = opts.max_patches;
         let lists = 2 * PatchSet::bytes(cap);
         let dep_bytes = if fluence { 0 } else { DEPOSIT_BYTES };
-        let scratch: u64 = scratch_bytes(cap, dep_bytes).into_iter().map(buffer).sum();
+        let scratch: u64 = scratch_bytes(cap, dep_bytes, 2)
+            .into_iter()
+            .map(buffer)
+            .sum();
         let transient = scratch.max(word).max(PatchSet::bytes(0));
         medium + volume + small + lists + scratch + transient
     }
@@ -889,7 +1050,9 @@ impl<'a> GpuSimulator<'a> {
             max_steps,
         } = crate::Plan::new(light, medium, opts);
         rules.max_patches = opts.max_patches.min(self.patch_limit());
-        let faces = if opts.fresnel {
+        // Sharp interfaces know both indices at each surface: Fresnel there
+        // needs no interface sides.
+        let faces = if opts.fresnel && self.regions.is_none() {
             Some(self.fresnel_textures()?)
         } else {
             None
@@ -915,19 +1078,35 @@ impl<'a> GpuSimulator<'a> {
             let (mask, group) = crate::group(g, ngroups);
             rules.incident = Incident::new(light, mask);
             // Emission, the start sphere's deposit and the pre-step
-            // tessellation are the CPU's own.
+            // tessellation are the CPU's own (with sharp interfaces from
+            // each region's own index, splits held across a surface).
             let field = propagate::Bounded::new(medium, g);
+            let exact = self.regions.as_ref().map(|regions| propagate::RegionIndex {
+                regions,
+                channel: g,
+            });
+            let shell: &dyn eikon_grid::IndexField = match &exact {
+                Some(e) => e,
+                None => &field,
+            };
+            let straddles = |x: &[DVec3; 4]| {
+                self.regions.as_ref().is_some_and(|r| {
+                    let at = r.at(x[0]);
+                    x[1..].iter().any(|&p| r.at(p) != at)
+                })
+            };
+            let hold: Option<refine::Hold> = self.regions.is_some().then_some(&straddles);
             crate::start_wavefront(
                 light,
                 medium,
-                &field,
+                shell,
                 opts,
                 &rules,
                 (mask, group),
                 (&mut p, &mut next, &mut scratch),
                 tally.as_ref(),
                 &mut summary,
-                None,
+                hold,
             );
             if p.is_empty() {
                 directions.push(Array4::zeros((grid.dims[0], grid.dims[1], grid.dims[2], 3)));
@@ -943,6 +1122,7 @@ impl<'a> GpuSimulator<'a> {
                 .into());
             }
             let mut params = self.params(&rules, dt, opts, group, tally.as_ref(), &p);
+            params.channel = g as u32;
             let mut lists = self.upload(&run, g, faces.is_some(), &p, rules.max_patches, fluence);
             self.begin_group(&run, fluence);
             let traced = self.trace(
@@ -1016,14 +1196,14 @@ impl<'a> GpuSimulator<'a> {
                 .map(|b| b.as_entire_binding())
                 .collect::<Vec<_>>(),
         );
-        let levels = [0u32, 1].map(|splits| {
+        let levels = [0u32, 1, 2].map(|pyramid| {
             (0..MAX_LEVELS as u32)
                 .map(|level| {
                     let u = gpu.uniform(
                         "pyramid level",
                         &[PyramidLevel {
                             level,
-                            splits,
+                            pyramid,
                             ..Default::default()
                         }],
                     );
@@ -1037,7 +1217,7 @@ impl<'a> GpuSimulator<'a> {
             volume_group,
             stats: gpu.storage_empty("stats", STATS_WORDS as u64 * 4),
             params: gpu.uniform("params", &[SimParams::default()]),
-            top: gpu.storage_empty("pyramid top", 4),
+            top: gpu.storage_empty("pyramid top", 8),
             levels,
         }
     }
@@ -1091,6 +1271,10 @@ impl<'a> GpuSimulator<'a> {
             scale: scale as f32,
             fluence: u32::from(tally.is_some()),
             fresnel: u32::from(opts.fresnel),
+            sharp: u32::from(self.regions.is_some()),
+            region_count: self.region_count,
+            sharp_eps: gpu_eps(grid) as f32,
+            min_span: crate::sharp_min_span(grid, opts) as f32,
             ..Default::default()
         };
         match rules.incident {
@@ -1128,7 +1312,14 @@ impl<'a> GpuSimulator<'a> {
     ) -> Lists {
         let gpu = self.gpu;
         let n0 = p.len();
-        let most = max_patches.max(n0);
+        // With sharp interfaces the torn patches' pieces join the list
+        // whatever `max_patches` says (as on the CPU): up to what the
+        // device holds.
+        let most = if self.regions.is_some() {
+            self.patch_limit().max(n0)
+        } else {
+            max_patches.max(n0)
+        };
         let cap = (2 * n0).max(FIRST_CAP).min(most);
         let sets = [PatchSet::new(gpu, cap), PatchSet::new(gpu, cap)];
         let mut pos = Vec::with_capacity(n0 * 16);
@@ -1155,7 +1346,8 @@ impl<'a> GpuSimulator<'a> {
         gpu.queue
             .write_buffer(&sets[0].aux, 0, bytemuck::cast_slice(&aux));
         let dep_bytes = if fluence { 0 } else { DEPOSIT_BYTES };
-        let [pb, fb, db] = scratch_bytes(cap, dep_bytes);
+        let pyramids = if self.regions.is_some() { 3 } else { 2 };
+        let [pb, fb, db] = scratch_bytes(cap, dep_bytes, pyramids);
         let (pyramid, fates, deps) = (
             gpu.storage_empty("pyramids", pb),
             gpu.storage_empty("fates", fb),
@@ -1172,6 +1364,7 @@ impl<'a> GpuSimulator<'a> {
             most,
             scratch_cap: cap,
             dep_bytes,
+            pyramids,
             channel: g,
             fresnel,
             pyramid,
@@ -1208,6 +1401,7 @@ impl<'a> GpuSimulator<'a> {
                 fates.as_entire_binding(),
                 deps.as_entire_binding(),
                 wgpu::BindingResource::TextureView(&faces.view),
+                self.table.as_entire_binding(),
             ],
         )
     }
@@ -1234,6 +1428,10 @@ impl<'a> GpuSimulator<'a> {
 
     /// The steps of one wavefront, one submission and one read-back (the
     /// new list's length) each, until no patch is left or the step limit.
+    /// With sharp interfaces a step is two: the first ends after
+    /// `propagate_sharp`'s pass 0 with the read-back of the torn patches
+    /// and their extra pieces; the second writes the pieces (when any
+    /// patch tore) and refines the longer list.
     fn trace(
         &self,
         run: &Run,
@@ -1244,6 +1442,8 @@ impl<'a> GpuSimulator<'a> {
         progress: Progress,
     ) -> Result<Traced, Error> {
         let gpu = self.gpu;
+        let sharp = self.regions.is_some();
+        let fluence = params.fluence != 0;
         let mut out = Traced::default();
         let mut n = n0;
         let mut n_old = 0usize;
@@ -1254,11 +1454,42 @@ impl<'a> GpuSimulator<'a> {
             params.n_old = n_old as u32;
             params.stamp = *stamp;
             params.splits_base = lists.splits_base();
+            params.pieces_base = lists.pieces_base();
+            params.sharp_pass = 0;
             *stamp += 2;
             gpu.queue
                 .write_buffer(&run.params, 0, bytemuck::bytes_of(params));
+            // The list refined: the live one, with the pieces of the
+            // patches torn in this step after it.
+            let mut len = n;
+            let mut torn = false;
+            if sharp && stepping {
+                gpu.checked("light simulation step", || {
+                    let mut enc = gpu.device.create_command_encoder(&Default::default());
+                    self.encode_front(&mut enc, run, lists, n, rebuild, fluence, true);
+                    gpu.queue.submit([enc.finish()]);
+                })?;
+                let words = gpu.read::<u32>(&run.top, 2)?;
+                if words[1] > 0 {
+                    torn = true;
+                    len = n + words[0] as usize;
+                    self.fit_pieces(run, lists, n, len)?;
+                    params.n = len as u32;
+                    params.n_old = n as u32;
+                    params.splits_base = lists.splits_base();
+                    params.pieces_base = lists.pieces_base();
+                    params.sharp_pass = 1;
+                    gpu.queue
+                        .write_buffer(&run.params, 0, bytemuck::bytes_of(params));
+                }
+            }
             gpu.checked("light simulation step", || {
-                self.encode_step(run, lists, n, rebuild, stepping, params.fluence != 0)
+                let mut enc = gpu.device.create_command_encoder(&Default::default());
+                if !(sharp && stepping) {
+                    self.encode_front(&mut enc, run, lists, n, rebuild, fluence, stepping);
+                }
+                self.encode_back(&mut enc, run, lists, (n, len), torn, stepping);
+                gpu.queue.submit([enc.finish()]);
             })?;
             if !stepping {
                 out.left = n;
@@ -1269,7 +1500,7 @@ impl<'a> GpuSimulator<'a> {
             out.peak = out.peak.max(total);
             progress(out.steps, total);
             self.fit(run, lists, total)?;
-            n_old = n;
+            n_old = len;
             n = total;
             rebuild = true;
             lists.cur = 1 - lists.cur;
@@ -1279,26 +1510,26 @@ impl<'a> GpuSimulator<'a> {
         }
     }
 
-    /// One step in one submission, in the CPU loop's order: the walk that
+    /// The first part of a step, in the CPU loop's order: the walk that
     /// rebuilds the list the last step's grants asked for, the paper's
-    /// deposit, step 1 (propagate, with the fluence deposit), and
-    /// `refine`: its tallies (`analyse`), the split grants (the split
-    /// flags' pyramid, `grant`) and the counts' pyramid the next walk
-    /// reads, whose top is copied out; at the step limit, the patches
-    /// left are tallied as trapped instead.
-    fn encode_step(
+    /// deposit, and step 1 (propagate, with the fluence deposit) when
+    /// `stepping`. With sharp interfaces step 1 is `propagate_sharp`'s
+    /// pass 0, followed by the pyramid of the torn patches' extra pieces,
+    /// whose top and the count of torn patches are copied out.
+    #[allow(clippy::too_many_arguments)]
+    fn encode_front(
         &self,
+        enc: &mut wgpu::CommandEncoder,
         run: &Run,
         lists: &Lists,
         n: usize,
         rebuild: bool,
-        stepping: bool,
         fluence: bool,
+        stepping: bool,
     ) {
-        let gpu = self.gpu;
-        let levels = pyramid_levels(n);
-        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        let sharp = self.regions.is_some();
         enc.clear_buffer(&run.stats, S_KEPT as u64 * 4, Some(8));
+        enc.clear_buffer(&run.stats, S_TORN_NOW as u64 * 4, Some(4));
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
             pass.set_bind_group(0, &lists.medium_group, &[]);
@@ -1317,31 +1548,133 @@ impl<'a> GpuSimulator<'a> {
                 }
             }
             if stepping {
-                let step = if fluence {
+                let step = if sharp {
+                    Kernel::PropagateSharp
+                } else if fluence {
                     Kernel::PropagateTube
                 } else {
                     Kernel::Propagate
                 };
                 dispatch(&mut pass, self.kernel(step), n);
-                dispatch(&mut pass, self.kernel(Kernel::Analyse), n);
-                for (splits, pyramid) in run.levels.iter().enumerate().rev() {
-                    if splits == 0 {
-                        dispatch(&mut pass, self.kernel(Kernel::Grant), n);
-                    }
-                    for (l, &(_, len)) in levels.iter().enumerate().skip(1) {
-                        pass.set_bind_group(3, &pyramid[l].1, &[]);
+                if sharp {
+                    for (l, &(_, len)) in pyramid_levels(n).iter().enumerate().skip(1) {
+                        pass.set_bind_group(3, &run.levels[2][l].1, &[]);
                         dispatch(&mut pass, self.kernel(Kernel::Reduce), len);
                     }
                 }
+            }
+        }
+        if sharp && stepping {
+            let (off, _) = *pyramid_levels(n).last().expect("a level");
+            let top = (lists.pieces_base() as usize + off) as u64 * 4;
+            enc.copy_buffer_to_buffer(&lists.pyramid, top, &run.top, 0, 4);
+            enc.copy_buffer_to_buffer(&run.stats, S_TORN_NOW as u64 * 4, &run.top, 4, 4);
+        }
+    }
+
+    /// The rest of a step over the `len` patches the list holds now (`n`
+    /// before the torn patches' pieces): with `pieces`, `propagate_sharp`'s
+    /// pass 1 writes them; then `refine`: its tallies (`analyse`), the split
+    /// grants (the split flags' pyramid, `grant`) and the counts' pyramid
+    /// the next walk reads, whose top is copied out. At the step limit
+    /// (not `stepping`), the patches left are tallied as trapped instead.
+    fn encode_back(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        run: &Run,
+        lists: &Lists,
+        (n, len): (usize, usize),
+        pieces: bool,
+        stepping: bool,
+    ) {
+        let levels = pyramid_levels(len);
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_bind_group(0, &lists.medium_group, &[]);
+            pass.set_bind_group(1, &lists.patch_groups[lists.cur], &[]);
+            pass.set_bind_group(2, &run.volume_group, &[]);
+            pass.set_bind_group(3, &run.levels[0][0].1, &[]);
+            if stepping {
+                if pieces {
+                    dispatch(&mut pass, self.kernel(Kernel::PropagateSharp), n);
+                }
+                dispatch(&mut pass, self.kernel(Kernel::Analyse), len);
+                for (splits, pyramid) in run.levels[..2].iter().enumerate().rev() {
+                    if splits == 0 {
+                        dispatch(&mut pass, self.kernel(Kernel::Grant), len);
+                    }
+                    for (l, &(_, size)) in levels.iter().enumerate().skip(1) {
+                        pass.set_bind_group(3, &pyramid[l].1, &[]);
+                        dispatch(&mut pass, self.kernel(Kernel::Reduce), size);
+                    }
+                }
             } else {
-                dispatch(&mut pass, self.kernel(Kernel::CullRest), n);
+                dispatch(&mut pass, self.kernel(Kernel::CullRest), len);
             }
         }
         if stepping {
             let (off, _) = *levels.last().expect("a level");
             enc.copy_buffer_to_buffer(&lists.pyramid, off as u64 * 4, &run.top, 0, 4);
         }
-        gpu.queue.submit([enc.finish()]);
+    }
+
+    /// Make room in the live list for the `len` patches it holds once the
+    /// torn patches' pieces are written after its `n`: the list grown with
+    /// its patches copied, and the scratch with the fates and the pieces'
+    /// pyramid, which `propagate_sharp`'s pass 1 reads.
+    fn fit_pieces(&self, run: &Run, lists: &mut Lists, n: usize, len: usize) -> Result<(), Error> {
+        let gpu = self.gpu;
+        let cur = lists.cur;
+        if len > lists.sets[cur].cap {
+            let cap = len.max(2 * lists.sets[cur].cap).min(lists.most);
+            if len > cap {
+                return Err(too_large(
+                    "the wavefront with the pieces of torn patches (patches)",
+                    len as u64,
+                    cap as u64,
+                    "lower the resolution or use --backend cpu",
+                )
+                .into());
+            }
+            lists.patch_groups.clear();
+            let set = PatchSet::new(gpu, cap);
+            let old = &lists.sets[cur];
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            let n = n as u64;
+            enc.copy_buffer_to_buffer(&old.pos, 0, &set.pos, 0, n * POS_BYTES);
+            enc.copy_buffer_to_buffer(&old.vel, 0, &set.vel, 0, n * VEL_BYTES);
+            enc.copy_buffer_to_buffer(&old.aux, 0, &set.aux, 0, n * AUX_BYTES);
+            gpu.queue.submit([enc.finish()]);
+            lists.sets[cur] = set;
+            lists.patch_groups = vec![
+                self.bind_patches(&lists.sets[0], &lists.sets[1]),
+                self.bind_patches(&lists.sets[1], &lists.sets[0]),
+            ];
+        }
+        if len > lists.scratch_cap {
+            let cap = len.max(2 * lists.scratch_cap).min(lists.most);
+            let [pb, fb, db] = scratch_bytes(cap, lists.dep_bytes, lists.pyramids);
+            let pyramid = gpu.storage_empty("pyramids", pb);
+            let fates = gpu.storage_empty("fates", fb);
+            let old_base = lists.pieces_base() as u64 * 4;
+            lists.scratch_cap = cap;
+            let new_base = lists.pieces_base() as u64 * 4;
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            let words = pyramid_size(n) as u64 * 4;
+            enc.copy_buffer_to_buffer(&lists.pyramid, old_base, &pyramid, new_base, words);
+            enc.copy_buffer_to_buffer(&lists.fates, 0, &fates, 0, n as u64 * 4);
+            gpu.queue.submit([enc.finish()]);
+            lists.pyramid = pyramid;
+            lists.fates = fates;
+            lists.deps = gpu.storage_empty("deposits", db);
+            lists.medium_group = self.bind_medium(
+                run,
+                lists.channel,
+                lists.fresnel,
+                [&lists.pyramid, &lists.fates, &lists.deps],
+            );
+        }
+        Ok(())
     }
 
     /// Make room for the `total` patches the next walk writes: the list it
@@ -1373,7 +1706,7 @@ impl<'a> GpuSimulator<'a> {
         }
         if total > lists.scratch_cap {
             let cap = total.max(2 * lists.scratch_cap).min(lists.most);
-            let [pb, fb, db] = scratch_bytes(cap, lists.dep_bytes);
+            let [pb, fb, db] = scratch_bytes(cap, lists.dep_bytes, lists.pyramids);
             let pyramid = gpu.storage_empty("pyramids", pb);
             let mut enc = gpu.device.create_command_encoder(&Default::default());
             let counts = pyramid_size(lists.scratch_cap) as u64 * 4;
@@ -1419,7 +1752,9 @@ impl<'a> GpuSimulator<'a> {
             summary.culled_power[c] += energy(2, c);
             summary.reflected_power[c] += energy(3, c);
             summary.trapped_power[c] += energy(4, c);
+            summary.torn_power[c] += energy(5, c);
         }
+        summary.torn += s[S_TORN] as usize;
         summary.exited += s[S_EXITED] as usize;
         summary.absorbed += s[S_ABSORBED] as usize;
         summary.faint += s[S_FAINT] as usize;

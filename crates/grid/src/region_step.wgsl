@@ -1,0 +1,170 @@
+// `Regions::step` (region.rs) in either form of the ray equation: one step
+// of a ray with sharp interfaces, within its region, cut at the first
+// surface it meets and crossed there (Snell's law or total internal
+// reflection, `region_cross`). Light corners step in the equal-time form
+// (`propagate::Sharp`), eye rays in the equal-distance form.
+//
+// Hooks: `var<private> field_region: u32`, which the kernel's
+// `index_field` (the `ray` module's hook) reads: while it is not NONE,
+// `index_field` returns region `field_region`'s own profile
+// (`region_index`); and the constant NONE. Needs: the `ray` and `region`
+// modules.
+
+// A ray with sharp interfaces (region.rs `SharpRay`): position, eikonal
+// gradient, optical path so far and the region it is in.
+struct RegionRay {
+    x: vec3<f32>,
+    v: vec3<f32>,
+    opl: f32,
+    region: u32,
+}
+
+// region.rs `Step`, with the event's surface and regions.
+struct RegionStep {
+    // How much of the step was used, in the form's units.
+    used: f32,
+    // The step stopped at a surface (a true or a false crossing).
+    at_surface: bool,
+    // What the crossing did (`c.event`: a true crossing).
+    c: RegionCross,
+    // With an event: the surface's region, the region the ray came from
+    // (`Event::from`) and the one beyond the surface (`Event::to`, also
+    // under total reflection, where the ray stays where it was).
+    surface: u32,
+    came: u32,
+    beyond: u32,
+}
+
+// One step of h of the integrator from (x, v) in the current
+// `field_region`: the increment.
+fn region_take(form: u32, integrator: u32, x: vec3<f32>, v: vec3<f32>, h: f32) -> RayDeriv {
+    let k0 = ray_deriv(form, x, v);
+    return ray_increment(form, integrator, x, v, k0, h);
+}
+
+// `Regions::cross` at the end of a step that stopped on the surface of
+// region `surface`: the ray's state afterwards and the step's event.
+fn region_step_cross(ray: ptr<function, RegionRay>, out: ptr<function, RegionStep>, surface: u32, v: vec3<f32>, point: vec3<f32>, normal: vec3<f32>, ch: u32, eps: f32) {
+    let here = (*ray).region;
+    let c = region_cross(here, v, point, normal, eps, ch);
+    (*out).c = c;
+    (*out).surface = surface;
+    (*out).came = here;
+    (*out).beyond = c.region;
+    if c.total {
+        // `region_cross` keeps the ray in its region; the event names
+        // the region beyond, as the CPU's `Event::to`.
+        (*out).beyond = region_owner(point + c.normal * eps);
+    }
+    (*ray).x = point;
+    (*ray).v = c.v;
+    (*ray).region = c.region;
+}
+
+// `Regions::step`: advance the ray by at most h (distance in the
+// equal-distance form, optical path in the equal-time form) within its
+// region, stopping at the first surface it meets and crossing it there. A
+// region of constant index is crossed straight; elsewhere one step of the
+// integrator on the region's profile is taken and cut where it meets a
+// surface (by bisection on the step length, where the CPU takes false
+// position; both stop within eps). eps: the length below which two points
+// on a ray are one.
+fn region_step(ray: ptr<function, RegionRay>, form: u32, integrator: u32, h: f32, ch: u32, eps: f32) -> RegionStep {
+    var out: RegionStep;
+    out.used = h;
+    out.at_surface = false;
+    out.c.event = false;
+    out.c.total = false;
+    out.surface = NONE;
+    out.came = (*ray).region;
+    out.beyond = (*ray).region;
+    let r = (*ray).region;
+    let x0 = (*ray).x;
+    if region_uniform(r) {
+        let n = region_index(r, x0, ch).x;
+        let d = normalize_or_zero((*ray).v);
+        // The distance that uses the whole step.
+        let per = select(n, 1.0, form == FORM_EQUAL_DISTANCE);
+        let len = h / per;
+        let hit = region_next_surface(x0, d, eps, len);
+        if hit.ok {
+            (*ray).opl += n * hit.t;
+            region_step_cross(ray, &out, hit.obj, d * n, x0 + d * hit.t, hit.normal, ch, eps);
+            out.used = hit.t * per;
+            out.at_surface = true;
+        } else {
+            (*ray).x = x0 + d * len;
+            (*ray).v = d * n;
+            (*ray).opl += n * len;
+        }
+        return out;
+    }
+    field_region = r;
+    // On the eikonal shell of the region's index, so that in the
+    // equal-time form every step is exactly h of optical path.
+    let v0 = ray_onto_shell((*ray).v, region_index(r, x0, ch).x);
+    let opl0 = (*ray).opl;
+    let full = region_take(form, integrator, x0, v0, h);
+    let chord = full.x;
+    let len = length(chord);
+    var hit = RegionHit(false, 0u, 0.0, vec3<f32>(0.0));
+    if len > 0.0 {
+        hit = region_next_surface(x0, chord / len, eps, len);
+    }
+    if !hit.ok {
+        (*ray).x = x0 + full.x;
+        (*ray).v = v0 + full.v;
+        (*ray).opl = opl0 + full.opl;
+        field_region = NONE;
+        return out;
+    }
+    // Cut the step where its end lies on the surface: the object's signed
+    // distance changes sign between the start's side and the far one.
+    let obj = region_object(hit.obj);
+    let u = chord / len;
+    let side = select(1.0, -1.0, region_shape_distance(obj, x0 + u * (0.5 * hit.t)) < 0.0);
+    var a = 0.0;
+    var b = h;
+    var at = full;
+    if side * region_shape_distance(obj, x0 + full.x) > 0.0 {
+        // The end is back on the start's side (the step crossed the
+        // surface twice, or grazed it): cut at the chord's crossing.
+        b = h * (hit.t / len);
+        at = region_take(form, integrator, x0, v0, b);
+    }
+    for (var k = 0u; k < 48u; k++) {
+        if b - a <= eps {
+            break;
+        }
+        let m = 0.5 * (a + b);
+        if m <= a || m >= b {
+            break;
+        }
+        let inc = region_take(form, integrator, x0, v0, m);
+        if side * region_shape_distance(obj, x0 + inc.x) > 0.0 {
+            a = m;
+        } else {
+            b = m;
+            at = inc;
+        }
+    }
+    field_region = NONE;
+    let at_x = x0 + at.x;
+    var probe = *ray;
+    region_step_cross(&probe, &out, hit.obj, v0 + at.v, at_x, region_shape_normal(obj, at_x), ch, eps);
+    if !out.c.event {
+        // A false crossing, or a graze that turns back into the region:
+        // nothing changes there, so the whole step stands, in the region
+        // where it ends (as on the CPU).
+        (*ray).x = x0 + full.x;
+        (*ray).v = v0 + full.v;
+        (*ray).opl = opl0 + full.opl;
+        (*ray).region = region_owner((*ray).x);
+        return out;
+    }
+    *ray = probe;
+    (*ray).opl = opl0 + at.opl;
+    out.used = b;
+    out.at_surface = true;
+    return out;
+}
