@@ -78,7 +78,7 @@ impl Backend {
         Ok(match self {
             Backend::Cpu => Simulator::Cpu(
                 medium,
-                sharp.then(|| eikon_grid::Regions::new(scene).clear_of(medium)),
+                sharp.then(|| Box::new(eikon_grid::Regions::new(scene).clear_of(medium))),
             ),
             #[cfg(feature = "gpu")]
             Backend::Gpu(g) => {
@@ -150,7 +150,7 @@ impl Backend {
 pub enum Simulator<'a> {
     /// [`eikon_wavefront::simulate_light_in`] on the CPU cores, with the
     /// scene's regions for sharp interfaces.
-    Cpu(&'a Medium, Option<eikon_grid::Regions<'a>>),
+    Cpu(&'a Medium, Option<Box<eikon_grid::Regions<'a>>>),
     /// The wgpu compute simulation, the medium uploaded.
     #[cfg(feature = "gpu")]
     Gpu(Box<eikon_wavefront::gpu::GpuSimulator<'a>>),
@@ -165,9 +165,13 @@ impl Simulator<'_> {
         progress: Progress,
     ) -> Result<(LightVolume, Summary), eikon_wavefront::Error> {
         match self {
-            Simulator::Cpu(medium, regions) => {
-                eikon_wavefront::simulate_light_in(light, medium, regions.as_ref(), opts, progress)
-            }
+            Simulator::Cpu(medium, regions) => eikon_wavefront::simulate_light_in(
+                light,
+                medium,
+                regions.as_deref(),
+                opts,
+                progress,
+            ),
             #[cfg(feature = "gpu")]
             Simulator::Gpu(sim) => sim.simulate(light, opts, progress),
         }

@@ -24,6 +24,18 @@ fn standard() -> Vec<(&'static str, String)> {
             "glass-sphere-256",
             sphere.replace("resolution = 128", "resolution = 256"),
         ),
+        (
+            "wine-glass",
+            include_str!("../configs/wine-glass.toml").to_string(),
+        ),
+        (
+            "rounded-cube",
+            include_str!("../configs/rounded-cube.toml").to_string(),
+        ),
+        (
+            "bumpy-amber-96",
+            include_str!("../configs/bumpy-amber.toml").to_string(),
+        ),
     ]
 }
 
@@ -31,7 +43,8 @@ fn standard() -> Vec<(&'static str, String)> {
 #[derive(clap::Args)]
 pub struct Args {
     /// Scene files to run instead of the standard scenes (the 128^3 and
-    /// 256^3 glass sphere of [Ihrke07 fig 7]).
+    /// 256^3 glass sphere of [Ihrke07 fig 7], the wine glass, the rounded
+    /// cube and the bumpy amber at 96^3).
     #[arg(long)]
     scene: Vec<PathBuf>,
     /// Backends to run (default: the CPU, and the GPU when an adapter
@@ -96,8 +109,22 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
     let sim = backend.simulator(&medium, &scene)?;
     let bname = backend.name();
     eprintln!("  {name} on {bname}: {}", crate::grid::describe(&scene));
+    // Round trips to the GPU per simulation (all lights): the same every run.
+    // (submissions, readbacks) so far.
+    let traffic = || -> Option<(u64, u64)> {
+        match &backend {
+            Backend::Cpu => None,
+            #[cfg(feature = "gpu")]
+            Backend::Gpu(g) => {
+                let t = g.traffic();
+                Some((t.submissions, t.readbacks))
+            }
+        }
+    };
+    let mut round_trips = None;
     for run in 0..runs.max(1) {
         let t = Instant::now();
+        let before = traffic();
         volumes.clear();
         for l in &scene.lights {
             let (v, s) = sim.simulate(l, &opts, &quiet)?;
@@ -105,6 +132,9 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
             volumes.push(v);
         }
         sims.push(t.elapsed().as_secs_f64());
+        if let (Some(a), Some(b)) = (traffic(), before) {
+            round_trips = Some((a.0 - b.0, a.1 - b.1));
+        }
         eprintln!(
             "  {name} on {bname}: light simulation {}/{}: {:.3} s, {patches} peak patches",
             run + 1,
@@ -174,6 +204,8 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
         "simulate_seconds": median(sims.clone()),
         "simulate_runs": sims,
         "peak_patches": patches,
+        "simulate_submissions": round_trips.map(|t| t.0),
+        "simulate_readbacks": round_trips.map(|t| t.1),
         "frame": [args.width, args.height],
         "frame_seconds": frame,
         "frames_per_second": 1.0 / frame,
@@ -281,16 +313,28 @@ pub fn run(args: Args) -> Result<()> {
         .map(str::len)
         .fold(5, usize::max);
     println!(
-        "{:<w$} {:<5} {:<8} {:>12} {:>12} {:>10} {:>10}  device",
-        "scene", "", "surfaces", "simulate s", "frame ms", "fps", "peak MiB"
+        "{:<w$} {:<5} {:<8} {:>12} {:>9} {:>9} {:>12} {:>10} {:>10}  device",
+        "scene",
+        "",
+        "surfaces",
+        "simulate s",
+        "submits",
+        "readbacks",
+        "frame ms",
+        "fps",
+        "peak MiB"
     );
+    // Submissions and readbacks per simulation: "-" on the CPU.
+    let count = |v: &Value| v.as_u64().map_or("-".to_string(), |n| n.to_string());
     for r in &rows {
         println!(
-            "{:<w$} {:<5} {:<8} {:>12.3} {:>12.2} {:>10.1} {:>10.0}  {}",
+            "{:<w$} {:<5} {:<8} {:>12.3} {:>9} {:>9} {:>12.2} {:>10.1} {:>10.0}  {}",
             r["scene"].as_str().unwrap_or("?"),
             r["backend"].as_str().unwrap_or("?"),
             r["interfaces"].as_str().unwrap_or("?"),
             r["simulate_seconds"].as_f64().unwrap_or(f64::NAN),
+            count(&r["simulate_submissions"]),
+            count(&r["simulate_readbacks"]),
             1e3 * r["frame_seconds"].as_f64().unwrap_or(f64::NAN),
             r["frames_per_second"].as_f64().unwrap_or(f64::NAN),
             r["peak_rss_mib"].as_f64().unwrap_or(f64::NAN),

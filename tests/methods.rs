@@ -238,6 +238,14 @@ fn bench_prints_a_row_per_scene_and_backend() {
         assert!(r["simulate_seconds"].as_f64().unwrap() > 0.0);
         assert!(r["frame_seconds"].as_f64().unwrap() > 0.0);
         assert_eq!(r["dims"], serde_json::json!([16, 16, 16]));
+        // The GPU's round trips per simulation are counted; the CPU has none.
+        if r["backend"] == "gpu" {
+            let submits = r["simulate_submissions"].as_u64().unwrap();
+            let reads = r["simulate_readbacks"].as_u64().unwrap();
+            assert!(submits > 0 && reads > 0 && reads <= submits, "{r}");
+        } else {
+            assert!(r["simulate_submissions"].is_null(), "{r}");
+        }
     }
 }
 

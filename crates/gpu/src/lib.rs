@@ -93,6 +93,21 @@ struct Tally {
     live: AtomicU64,
     /// Highest `live` since the device opened or [`Gpu::reset_peak`].
     peak: AtomicU64,
+    /// Command submissions made through [`Gpu::submit`] and [`Gpu::read`].
+    submissions: AtomicU64,
+    /// Reads back to the CPU ([`Gpu::read`]): each waits for the GPU.
+    readbacks: AtomicU64,
+}
+
+/// How often the CPU handed work to the GPU and waited for results, since
+/// the device opened: what a run costs in round trips beside its time
+/// (`eikon bench`). The difference of two readings counts one run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Traffic {
+    /// Command submissions.
+    pub submissions: u64,
+    /// Reads back to the CPU, each a wait for the GPU to finish.
+    pub readbacks: u64,
 }
 
 impl Tally {
@@ -254,6 +269,20 @@ impl Gpu {
     /// and drivers' padding.
     pub fn peak_bytes(&self) -> u64 {
         self.tally.peak.load(Ordering::Relaxed)
+    }
+
+    /// Submissions and readbacks so far ([`Traffic`]).
+    pub fn traffic(&self) -> Traffic {
+        Traffic {
+            submissions: self.tally.submissions.load(Ordering::Relaxed),
+            readbacks: self.tally.readbacks.load(Ordering::Relaxed),
+        }
+    }
+
+    /// Submit command buffers to the queue, counted ([`Gpu::traffic`]).
+    pub fn submit(&self, commands: impl IntoIterator<Item = wgpu::CommandBuffer>) {
+        self.tally.submissions.fetch_add(1, Ordering::Relaxed);
+        self.queue.submit(commands);
     }
 
     /// Start a new peak from what is live now (before measuring a run).
@@ -506,7 +535,8 @@ impl Gpu {
         }));
         let mut enc = self.device.create_command_encoder(&Default::default());
         enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, bytes);
-        self.queue.submit([enc.finish()]);
+        self.tally.readbacks.fetch_add(1, Ordering::Relaxed);
+        self.submit([enc.finish()]);
         let slice = staging.slice(..);
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
@@ -602,7 +632,7 @@ impl Eval {
                 let (x, y) = groups(inputs.len());
                 pass.dispatch_workgroups(x, y, 1);
             }
-            gpu.queue.submit([enc.finish()]);
+            gpu.submit([enc.finish()]);
         })?;
         gpu.read(&output, len)
     }

@@ -484,7 +484,7 @@ impl<'g> Raster<'g> {
         let mut enc = self.gpu.device.create_command_encoder(&Default::default());
         let _block = self.gpu.checked("wyman refraction passes", || {
             let b = self.encode_refraction(&mut enc, view, tir, t);
-            self.gpu.queue.submit([enc.finish()]);
+            self.gpu.submit([enc.finish()]);
             b
         })?;
         let mut images = read_rgba(
@@ -588,7 +588,7 @@ impl<'g> Raster<'g> {
             let photons = settings.photons * settings.photons;
             let (pipe, label) = (&self.splat, "wyman splats");
             pass(&mut enc, label, pipe, &group, &[&dummy], None, [6, photons]);
-            self.gpu.queue.submit([enc.finish()]);
+            self.gpu.submit([enc.finish()]);
             b
         })?;
         let words: Vec<u32> = self.gpu.read(&sums, texels * WORDS)?;
@@ -723,7 +723,7 @@ fn read_rgba(
                 },
             );
         }
-        gpu.queue.submit([enc.finish()]);
+        gpu.submit([enc.finish()]);
     })?;
     let floats: Vec<[f32; 4]> = gpu.read(&buffer, (each / 16) as usize * textures.len())?;
     let per_row = (row / 16) as usize;

@@ -1423,7 +1423,7 @@ impl<'a> GpuSimulator<'a> {
                 enc.clear_buffer(b, 0, None);
             }
         }
-        gpu.queue.submit([enc.finish()]);
+        gpu.submit([enc.finish()]);
     }
 
     /// The steps of one wavefront, one submission and one read-back (the
@@ -1467,7 +1467,7 @@ impl<'a> GpuSimulator<'a> {
                 gpu.checked("light simulation step", || {
                     let mut enc = gpu.device.create_command_encoder(&Default::default());
                     self.encode_front(&mut enc, run, lists, n, rebuild, fluence, true);
-                    gpu.queue.submit([enc.finish()]);
+                    gpu.submit([enc.finish()]);
                 })?;
                 let words = gpu.read::<u32>(&run.top, 2)?;
                 if words[1] > 0 {
@@ -1489,7 +1489,7 @@ impl<'a> GpuSimulator<'a> {
                     self.encode_front(&mut enc, run, lists, n, rebuild, fluence, stepping);
                 }
                 self.encode_back(&mut enc, run, lists, (n, len), torn, stepping);
-                gpu.queue.submit([enc.finish()]);
+                gpu.submit([enc.finish()]);
             })?;
             if !stepping {
                 out.left = n;
@@ -1644,7 +1644,7 @@ impl<'a> GpuSimulator<'a> {
             enc.copy_buffer_to_buffer(&old.pos, 0, &set.pos, 0, n * POS_BYTES);
             enc.copy_buffer_to_buffer(&old.vel, 0, &set.vel, 0, n * VEL_BYTES);
             enc.copy_buffer_to_buffer(&old.aux, 0, &set.aux, 0, n * AUX_BYTES);
-            gpu.queue.submit([enc.finish()]);
+            gpu.submit([enc.finish()]);
             lists.sets[cur] = set;
             lists.patch_groups = vec![
                 self.bind_patches(&lists.sets[0], &lists.sets[1]),
@@ -1663,7 +1663,7 @@ impl<'a> GpuSimulator<'a> {
             let words = pyramid_size(n) as u64 * 4;
             enc.copy_buffer_to_buffer(&lists.pyramid, old_base, &pyramid, new_base, words);
             enc.copy_buffer_to_buffer(&lists.fates, 0, &fates, 0, n as u64 * 4);
-            gpu.queue.submit([enc.finish()]);
+            gpu.submit([enc.finish()]);
             lists.pyramid = pyramid;
             lists.fates = fates;
             lists.deps = gpu.storage_empty("deposits", db);
@@ -1711,7 +1711,7 @@ impl<'a> GpuSimulator<'a> {
             let mut enc = gpu.device.create_command_encoder(&Default::default());
             let counts = pyramid_size(lists.scratch_cap) as u64 * 4;
             enc.copy_buffer_to_buffer(&lists.pyramid, 0, &pyramid, 0, counts);
-            gpu.queue.submit([enc.finish()]);
+            gpu.submit([enc.finish()]);
             lists.pyramid = pyramid;
             lists.fates = gpu.storage_empty("fates", fb);
             lists.deps = gpu.storage_empty("deposits", db);
