@@ -6,6 +6,9 @@
 // The regions (region.rs `gpu_table`): the objects in precedence order,
 // then the ambient medium.
 @group(0) @binding(20) var<storage, read> regions: array<RegionGpu>;
+// Their shapes' data (region.rs `GpuRegions::data`): profiles, mesh
+// triangles and BVH nodes.
+@group(0) @binding(21) var<storage, read> region_data: array<vec4<u32>>;
 
 // The `region` module's hooks.
 fn region_count() -> u32 {
@@ -14,6 +17,11 @@ fn region_count() -> u32 {
 
 fn region_object(i: u32) -> RegionGpu {
     return regions[i];
+}
+
+// The `surface` module's hook.
+fn surface_data(i: u32) -> vec4<u32> {
+    return region_data[i];
 }
 
 // `index_field` in region `field_region`: its own profile.
