@@ -1034,6 +1034,28 @@ pub fn gpu_table(scene: &Scene) -> Result<Vec<RegionGpu>, String> {
     Ok(regions.table)
 }
 
+/// `REGION_KINDS` of every kind: a kernel holds every shape's code unless
+/// [`only_kinds`] narrows it.
+const ALL_KINDS: u32 = u32::MAX;
+
+/// The shape kinds (`SHAPE_*` bits) of a region table.
+pub fn table_kinds(table: &[RegionGpu]) -> u32 {
+    table.iter().fold(0, |k, r| k | (1 << r.kind))
+}
+
+/// `source`, a kernel composed with [`WGSL`], holding the code of the
+/// shape kinds in `kinds` only (bits `1 << SHAPE_*`, [`table_kinds`]):
+/// drivers inline every call of the region functions, and a kernel with
+/// every shape's code at each call site takes minutes to compile on
+/// lavapipe. A table with other kinds must not be bound to it.
+pub fn only_kinds(source: &str, kinds: u32) -> String {
+    source.replacen(
+        &format!("const REGION_KINDS: u32 = {ALL_KINDS}u;"),
+        &format!("const REGION_KINDS: u32 = {kinds}u;"),
+        1,
+    )
+}
+
 fn region_declarations() -> String {
     use eikon_shader::Layout;
     format!(
@@ -1051,6 +1073,7 @@ fn region_declarations() -> String {
             .u32("SHAPE_SUPERQUADRIC", SHAPE_SUPERQUADRIC)
             .u32("SHAPE_MESH", SHAPE_MESH)
             .u32("FLAG_SMOOTH", FLAG_SMOOTH)
+            .u32("REGION_KINDS", ALL_KINDS)
             .u32("PROFILE_CONSTANT", PROFILE_CONSTANT)
             .u32("PROFILE_LUNEBURG", PROFILE_LUNEBURG)
             .u32("PROFILE_LINEAR", PROFILE_LINEAR)

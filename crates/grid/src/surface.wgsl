@@ -396,15 +396,14 @@ fn surface_superquadric_normal(q: vec3<f32>, radii: vec3<f32>, e1: f32, e2: f32,
     if m > 0.0 && m < SURFACE_FAR {
         return normalize(g / m);
     }
+    // The central difference, one evaluation per iteration.
     let h = SURFACE_NUMERIC_STEP * size;
-    let dx = vec3<f32>(h, 0.0, 0.0);
-    let dy = vec3<f32>(0.0, h, 0.0);
-    let dz = vec3<f32>(0.0, 0.0, h);
-    let n = vec3<f32>(
-        surface_superquadric_distance(q + dx, radii, e1, e2) - surface_superquadric_distance(q - dx, radii, e1, e2),
-        surface_superquadric_distance(q + dy, radii, e1, e2) - surface_superquadric_distance(q - dy, radii, e1, e2),
-        surface_superquadric_distance(q + dz, radii, e1, e2) - surface_superquadric_distance(q - dz, radii, e1, e2),
-    );
+    var n = vec3<f32>(0.0);
+    for (var k = 0u; k < 6u; k++) {
+        var off = vec3<f32>(0.0);
+        off[k / 2u] = select(h, -h, (k & 1u) == 1u);
+        n[k / 2u] += select(1.0, -1.0, (k & 1u) == 1u) * surface_superquadric_distance(q + off, radii, e1, e2);
+    }
     return surface_unit_or(n, vec3<f32>(0.0, 1.0, 0.0));
 }
 
@@ -443,33 +442,50 @@ fn surface_march(sq: bool, o: vec3<f32>, d: vec3<f32>, dims: vec3<f32>, a: f32, 
         safety = SUPERQUADRIC_SAFETY;
         h_max = size / SUPERQUADRIC_STEPS / dl;
     }
+    // One evaluation of the bound per iteration (drivers inline each call):
+    // the start, then the march's steps, then, once the side changed, the
+    // bisection of that step.
     var t0 = lo;
-    var d0 = surface_implicit_distance(sq, o + d * t0, dims, a, b);
-    let side = d0 < 0.0;
+    var d0 = 0.0;
+    var side = false;
+    var t1 = lo;
+    var ta = 0.0;
+    var tb = 0.0;
+    var bisecting = false;
     for (var i = 0u; i < SURFACE_MAX_MARCH; i++) {
-        let t1 = min(t0 + clamp(safety * abs(d0) / dl, h_min, max(h_max, h_min)), hi);
-        let d1 = surface_implicit_distance(sq, o + d * t1, dims, a, b);
-        if (d1 < 0.0) != side {
-            var ta = t0;
-            var tb = t1;
-            for (var k = 0u; k < 256u; k++) {
-                let m = 0.5 * (ta + tb);
-                if m <= min(ta, tb) || m >= max(ta, tb) {
-                    break;
-                }
-                if (surface_implicit_distance(sq, o + d * m, dims, a, b) < 0.0) == side {
-                    ta = m;
-                } else {
-                    tb = m;
-                }
+        var tq = lo;
+        if bisecting {
+            tq = 0.5 * (ta + tb);
+            if tq <= min(ta, tb) || tq >= max(ta, tb) {
+                return vec2<f32>(tb, 1.0);
             }
-            return vec2<f32>(tb, 1.0);
+        } else if i > 0u {
+            t1 = min(t0 + clamp(safety * abs(d0) / dl, h_min, max(h_max, h_min)), hi);
+            tq = t1;
         }
-        if t1 >= hi || !(abs(d1) < SURFACE_FAR) {
+        let dq = surface_implicit_distance(sq, o + d * tq, dims, a, b);
+        if bisecting {
+            if (dq < 0.0) == side {
+                ta = tq;
+            } else {
+                tb = tq;
+            }
+        } else if i == 0u {
+            d0 = dq;
+            side = dq < 0.0;
+        } else if (dq < 0.0) != side {
+            ta = t0;
+            tb = t1;
+            bisecting = true;
+        } else if t1 >= hi || !(abs(dq) < SURFACE_FAR) {
             return vec2<f32>(0.0);
+        } else {
+            t0 = t1;
+            d0 = dq;
         }
-        t0 = t1;
-        d0 = d1;
+    }
+    if bisecting {
+        return vec2<f32>(tb, 1.0);
     }
     return vec2<f32>(0.0);
 }
@@ -635,6 +651,7 @@ struct SurfaceMesh {
     tris: u32,
     nodes: u32,
     node_count: u32,
+    // Shaded with vertex normals (`smooth` is a WGSL keyword).
     shaded: bool,
 }
 

@@ -755,7 +755,7 @@ fn view_params(
 /// The kernel of [`source`] and its bind group layout.
 fn compile(
     gpu: &Gpu,
-    sharp: bool,
+    kinds: Option<u32>,
 ) -> Result<(wgpu::ComputePipeline, wgpu::BindGroupLayout), GpuError> {
     gpu.checked("view renderer pipeline", || {
         let tex = |binding: u32| wgpu::BindGroupLayoutEntry {
@@ -809,7 +809,14 @@ fn compile(
             .device
             .create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some("view renderer"),
-                source: wgpu::ShaderSource::Wgsl(source(sharp).into()),
+                source: wgpu::ShaderSource::Wgsl(
+                    match kinds {
+                        // Only the scene's shapes' code (`only_kinds`).
+                        Some(k) => eikon_grid::region::only_kinds(&source(true), k),
+                        None => source(false),
+                    }
+                    .into(),
+                ),
             });
         let pipeline = gpu
             .device
@@ -973,7 +980,10 @@ impl<'a> GpuRenderer<'a> {
             ),
         };
         let params = gpu.uniform("view params", &[params]);
-        let (pipeline, layout) = compile(gpu, table.is_some())?;
+        let kinds = table
+            .as_ref()
+            .map(|t| eikon_grid::region::table_kinds(&t.table));
+        let (pipeline, layout) = compile(gpu, kinds)?;
         let single_chunk = frame.chunk >= camera.samples();
         let mut all = textures.textures;
         all.extend(lit.textures);
