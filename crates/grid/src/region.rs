@@ -732,6 +732,18 @@ pub const SHAPE_CYLINDER: u32 = 2;
 pub const SHAPE_HALF_SPACE: u32 = 3;
 /// The ambient medium (no shape).
 pub const SHAPE_AMBIENT: u32 = 4;
+/// A rounded box (`radius` the rounding).
+pub const SHAPE_ROUNDED_BOX: u32 = 5;
+/// A solid of revolution (its profile in the data buffer).
+pub const SHAPE_REVOLUTION: u32 = 6;
+/// A torus (`radius` the major radius, `shape_a` the minor).
+pub const SHAPE_TORUS: u32 = 7;
+/// A superquadric (`half` the radii, `shape_a`, `shape_b` the exponents).
+pub const SHAPE_SUPERQUADRIC: u32 = 8;
+/// A triangle mesh (its triangles and BVH in the data buffer).
+pub const SHAPE_MESH: u32 = 9;
+/// [`RegionGpu::flags`]: the mesh is shaded with its vertex normals.
+pub const FLAG_SMOOTH: u32 = 1;
 /// Index profiles of [`RegionGpu`].
 pub const PROFILE_CONSTANT: u32 = 0;
 /// [`crate::IndexProfile::Luneburg`].
@@ -786,7 +798,46 @@ eikon_shader::layout! {
         pub emission: [f32; 3],
         /// Padding.
         pub pad2: f32,
+        /// Torus: the minor radius; superquadric: e1; solid of
+        /// revolution: the profile's orientation (+1 counter-clockwise).
+        pub shape_a: f32,
+        /// Superquadric: e2.
+        pub shape_b: f32,
+        /// The shape's size (its bounding box's diagonal): the scale of its
+        /// root finding's steps.
+        pub size: f32,
+        /// `FLAG_*`.
+        pub flags: u32,
+        /// Where the shape's records start in the data buffer
+        /// ([`GpuRegions::data`]): a profile's points, a mesh's triangles.
+        pub data: u32,
+        /// Profile points, or mesh triangles.
+        pub data_len: u32,
+        /// A mesh's first BVH node record.
+        pub nodes: u32,
+        /// A mesh's BVH nodes.
+        pub node_count: u32,
     }
+}
+
+/// The regions of a scene as kernels read them ([`gpu_regions`]).
+pub struct GpuRegions {
+    /// Its objects in precedence order (highest priority first), then the
+    /// ambient medium.
+    pub table: Vec<RegionGpu>,
+    /// The per-shape data the table's `data` and `nodes` point into, in
+    /// 16-byte records (`vec4<u32>`, floats by their bits): per profile
+    /// point of a solid of revolution `(r, y, n_r, n_y)`, with `n` the
+    /// outward normal of the edge to the next point; per mesh triangle
+    /// [`crate::surface::MESH_TRIANGLE_RECORDS`], per BVH node
+    /// [`crate::surface::MESH_NODE_RECORDS`]. Never
+    /// empty (a buffer binding cannot be).
+    pub data: Vec<[u32; 4]>,
+}
+
+/// A record of four floats, by their bits.
+fn record(x: f32, y: f32, z: f32, w: u32) -> [u32; 4] {
+    [x.to_bits(), y.to_bits(), z.to_bits(), w]
 }
 
 fn f3(v: DVec3) -> [f32; 3] {
@@ -835,26 +886,30 @@ fn gpu_material(m: &Material, out: &mut RegionGpu) -> Result<(), &'static str> {
 }
 
 /// The regions of `scene` as a kernel reads them: its objects in
-/// precedence order (highest priority first), then the ambient medium.
-/// Sharp interfaces on the GPU support spheres, boxes (not rounded),
-/// cylinders and half-spaces with constant, Luneburg or linear index
-/// profiles; any other object is an error naming it.
-pub fn gpu_table(scene: &Scene) -> Result<Vec<RegionGpu>, String> {
+/// precedence order (highest priority first), then the ambient medium,
+/// and the data of the shapes that need more than the table holds.
+/// Sharp interfaces on the GPU support every shape but VDB grids, with
+/// constant, Luneburg or linear index profiles; any other object is an
+/// error naming it.
+pub fn gpu_regions(scene: &Scene) -> Result<GpuRegions, String> {
     use crate::shape::Shape;
     let unsupported = |what: &str, why: &str| {
         format!(
-            "{what}: {why}; sharp interfaces on the GPU support sphere, box, cylinder and half-space objects with constant, Luneburg or linear index profiles so far (use --backend cpu, or --interfaces smoothed)"
+            "{what}: {why}; sharp interfaces on the GPU support every shape but VDB grids, with constant, Luneburg or linear index profiles (use --backend cpu, or --interfaces smoothed)"
         )
     };
     let mut out = Vec::with_capacity(scene.objects.len() + 1);
+    let mut data: Vec<[u32; 4]> = Vec::new();
     for &i in scene.precedence() {
         let o = &scene.objects[i];
         let what = format!("object {} (\"{}\")", i, o.name);
+        let size = o.shape.aabb().map_or(0.0, |(a, b)| (b - a).length() as f32);
         let mut r = RegionGpu {
             object: i as u32,
             axis_x: [1.0, 0.0, 0.0],
             axis_y: [0.0, 1.0, 0.0],
             axis_z: [0.0, 0.0, 1.0],
+            size: if size.is_finite() { size } else { 0.0 },
             ..Default::default()
         };
         let mut frame = |rot: &glam::DMat3| {
@@ -873,11 +928,16 @@ pub fn gpu_table(scene: &Scene) -> Result<Vec<RegionGpu>, String> {
                 half,
                 radius,
                 rot,
-            } if *radius == 0.0 => {
+            } => {
                 frame(rot);
-                r.kind = SHAPE_BOX;
+                r.kind = if *radius > 0.0 {
+                    SHAPE_ROUNDED_BOX
+                } else {
+                    SHAPE_BOX
+                };
                 r.center = f3(*center);
                 r.half = f3(*half);
+                r.radius = *radius as f32;
             }
             Shape::Cylinder {
                 center,
@@ -896,7 +956,86 @@ pub fn gpu_table(scene: &Scene) -> Result<Vec<RegionGpu>, String> {
                 r.center = f3(*point);
                 r.half = f3(*normal);
             }
-            other => {
+            Shape::Revolution { base, profile, rot } => {
+                frame(rot);
+                r.kind = SHAPE_REVOLUTION;
+                r.center = f3(*base);
+                let orient = crate::surface::profile_orientation(profile);
+                r.shape_a = orient as f32;
+                r.data = data.len() as u32;
+                r.data_len = profile.len() as u32;
+                // The edges' normals in f64, rounded once.
+                let n = profile.len();
+                for k in 0..n {
+                    let (a, b) = (profile[k], profile[(k + 1) % n]);
+                    let e = crate::surface::edge_normal(a, b, orient);
+                    data.push(record(
+                        a.x as f32,
+                        a.y as f32,
+                        e.x as f32,
+                        (e.y as f32).to_bits(),
+                    ));
+                }
+            }
+            Shape::Torus {
+                center,
+                major,
+                minor,
+                rot,
+            } => {
+                frame(rot);
+                r.kind = SHAPE_TORUS;
+                r.center = f3(*center);
+                r.radius = *major as f32;
+                r.shape_a = *minor as f32;
+            }
+            Shape::Superquadric {
+                center,
+                radii,
+                e1,
+                e2,
+                rot,
+            } => {
+                frame(rot);
+                r.kind = SHAPE_SUPERQUADRIC;
+                r.center = f3(*center);
+                r.half = f3(*radii);
+                r.shape_a = *e1 as f32;
+                r.shape_b = *e2 as f32;
+            }
+            Shape::Mesh(solid) => {
+                r.kind = SHAPE_MESH;
+                if solid.smooth() {
+                    r.flags |= FLAG_SMOOTH;
+                }
+                let bvh = solid.bvh();
+                r.data = data.len() as u32;
+                r.data_len = bvh.triangle_count() as u32;
+                for (c, n, id) in bvh.leaf_triangles() {
+                    for (k, p) in c.iter().enumerate() {
+                        let [x, y, z] = f3(*p);
+                        data.push(record(x, y, z, if k == 0 { id } else { 0 }));
+                    }
+                    for v in n {
+                        let [x, y, z] = f3(*v);
+                        data.push(record(x, y, z, 0));
+                    }
+                }
+                r.nodes = data.len() as u32;
+                r.node_count = bvh.node_count() as u32;
+                for node in bvh.flat_nodes() {
+                    let [x, y, z] = f3(node.lo);
+                    data.push(record(x, y, z, node.offset));
+                    let [x, y, z] = f3(node.hi);
+                    data.push(record(
+                        x,
+                        y,
+                        z,
+                        u32::from(node.count) | (u32::from(node.axis) << 16),
+                    ));
+                }
+            }
+            other @ Shape::Vdb(_) => {
                 return Err(unsupported(
                     &what,
                     &format!("its shape is a {}", other.kind()),
@@ -914,7 +1053,51 @@ pub fn gpu_table(scene: &Scene) -> Result<Vec<RegionGpu>, String> {
     gpu_material(&scene.ambient, &mut ambient)
         .map_err(|why| unsupported("the ambient medium", why))?;
     out.push(ambient);
-    Ok(out)
+    if data.is_empty() {
+        data.push([0; 4]);
+    }
+    Ok(GpuRegions { table: out, data })
+}
+
+/// The region table of [`gpu_regions`] alone, for a kernel that binds no
+/// data buffer: the shapes that need one (solids of revolution, meshes)
+/// are refused, naming the object.
+pub fn gpu_table(scene: &Scene) -> Result<Vec<RegionGpu>, String> {
+    let regions = gpu_regions(scene)?;
+    for r in &regions.table {
+        if matches!(r.kind, SHAPE_REVOLUTION | SHAPE_MESH) {
+            let o = &scene.objects[r.object as usize];
+            return Err(format!(
+                "object {} (\"{}\"): its shape is a {}, whose data this kernel does not bind (use --backend cpu, or --interfaces smoothed)",
+                r.object,
+                o.name,
+                o.shape.kind()
+            ));
+        }
+    }
+    Ok(regions.table)
+}
+
+/// `REGION_KINDS` of every kind: a kernel holds every shape's code unless
+/// [`only_kinds`] narrows it.
+const ALL_KINDS: u32 = u32::MAX;
+
+/// The shape kinds (`SHAPE_*` bits) of a region table.
+pub fn table_kinds(table: &[RegionGpu]) -> u32 {
+    table.iter().fold(0, |k, r| k | (1 << r.kind))
+}
+
+/// `source`, a kernel composed with [`WGSL`], holding the code of the
+/// shape kinds in `kinds` only (bits `1 << SHAPE_*`, [`table_kinds`]):
+/// drivers inline every call of the region functions, and a kernel with
+/// every shape's code at each call site takes minutes to compile on
+/// lavapipe. A table with other kinds must not be bound to it.
+pub fn only_kinds(source: &str, kinds: u32) -> String {
+    source.replacen(
+        &format!("const REGION_KINDS: u32 = {ALL_KINDS}u;"),
+        &format!("const REGION_KINDS: u32 = {kinds}u;"),
+        1,
+    )
 }
 
 fn region_declarations() -> String {
@@ -928,6 +1111,13 @@ fn region_declarations() -> String {
             .u32("SHAPE_CYLINDER", SHAPE_CYLINDER)
             .u32("SHAPE_HALF_SPACE", SHAPE_HALF_SPACE)
             .u32("SHAPE_AMBIENT", SHAPE_AMBIENT)
+            .u32("SHAPE_ROUNDED_BOX", SHAPE_ROUNDED_BOX)
+            .u32("SHAPE_REVOLUTION", SHAPE_REVOLUTION)
+            .u32("SHAPE_TORUS", SHAPE_TORUS)
+            .u32("SHAPE_SUPERQUADRIC", SHAPE_SUPERQUADRIC)
+            .u32("SHAPE_MESH", SHAPE_MESH)
+            .u32("FLAG_SMOOTH", FLAG_SMOOTH)
+            .u32("REGION_KINDS", ALL_KINDS)
             .u32("PROFILE_CONSTANT", PROFILE_CONSTANT)
             .u32("PROFILE_LUNEBURG", PROFILE_LUNEBURG)
             .u32("PROFILE_LINEAR", PROFILE_LINEAR)

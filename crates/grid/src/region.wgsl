@@ -5,13 +5,29 @@
 // The table of regions is `RegionGpu` (generated), the objects in
 // precedence order (highest priority first), then the ambient medium at
 // index `region_count()`. A kernel provides the hooks
-// `region_count() -> u32` and `region_object(i: u32) -> RegionGpu`.
+// `region_count() -> u32` and `region_object(i: u32) -> RegionGpu`, and the
+// `surface` module's `surface_data(i: u32) -> vec4<u32>` (the data buffer
+// of `GpuRegions::data`: profiles, mesh triangles and BVH nodes).
 //
-// Needs: `RegionGpu`, `SHAPE_*`, `PROFILE_*` (generated), the `vector`,
-// `surface` and `fresnel` modules.
+// Needs: `RegionGpu`, `SHAPE_*`, `PROFILE_*`, `FLAG_*` (generated), the
+// `vector`, `surface` and `fresnel` modules.
 
 fn region_rot(r: RegionGpu) -> mat3x3<f32> {
     return mat3x3<f32>(r.axis_x, r.axis_y, r.axis_z);
+}
+
+// Whether the kernel holds the code of shape `kind` (`REGION_KINDS`, a bit
+// per kind: every kind unless `region::only_kinds` narrowed it). Drivers
+// inline every call, so a kernel that compiled every shape's code at each
+// call site grew too large to compile in time on lavapipe; a constant
+// false branch is dropped before that.
+fn region_has(kind: u32) -> bool {
+    return (REGION_KINDS & (1u << kind)) != 0u;
+}
+
+// Region r's mesh in the data buffer.
+fn region_mesh(r: RegionGpu) -> SurfaceMesh {
+    return SurfaceMesh(r.data, r.nodes, r.node_count, (r.flags & FLAG_SMOOTH) != 0u);
 }
 
 // `Shape::first_crossing` of region r's shape (d unit) on lo < t <= hi.
@@ -29,14 +45,50 @@ fn region_shape_crossing(r: RegionGpu, o: vec3<f32>, d: vec3<f32>, lo: f32, hi: 
         case SHAPE_HALF_SPACE: {
             return surface_half_space(o, d, r.center, r.half, lo, hi);
         }
+        case SHAPE_ROUNDED_BOX: {
+            if region_has(SHAPE_ROUNDED_BOX) {
+                return surface_rounded_box(o, d, r.center, region_rot(r), r.half, r.radius, lo, hi);
+            }
+        }
+        case SHAPE_REVOLUTION: {
+            if region_has(SHAPE_REVOLUTION) {
+                return surface_revolution(o, d, r.center, region_rot(r), r.data, r.data_len, lo, hi);
+            }
+        }
+        case SHAPE_TORUS: {
+            if region_has(SHAPE_TORUS) {
+                return surface_torus(o, d, r.center, region_rot(r), r.radius, r.shape_a, r.size, lo, hi);
+            }
+        }
+        case SHAPE_SUPERQUADRIC: {
+            if region_has(SHAPE_SUPERQUADRIC) {
+                return surface_superquadric(o, d, r.center, region_rot(r), r.half, r.shape_a, r.shape_b, r.size, lo, hi);
+            }
+        }
+        case SHAPE_MESH: {
+            if region_has(SHAPE_MESH) {
+                return surface_mesh(region_mesh(r), o, d, lo, hi);
+            }
+        }
         default: {
             return surface_miss();
         }
     }
+    return surface_miss();
 }
 
 // `Shape::distance` of region r's shape (negative inside).
 fn region_shape_distance(r: RegionGpu, p: vec3<f32>) -> f32 {
+    if r.kind == SHAPE_MESH && region_has(SHAPE_MESH) {
+        return surface_mesh_distance(region_mesh(r), p);
+    }
+    return region_solid_distance(r, p);
+}
+
+// `Shape::distance` of every shape but the mesh (whose nearest-triangle
+// search `region_shape_contains` does without: drivers inline each call,
+// so code that cannot run there is left out).
+fn region_solid_distance(r: RegionGpu, p: vec3<f32>) -> f32 {
     switch r.kind {
         case SHAPE_SPHERE: {
             return length(p - r.center) - r.radius;
@@ -50,10 +102,31 @@ fn region_shape_distance(r: RegionGpu, p: vec3<f32>) -> f32 {
         case SHAPE_HALF_SPACE: {
             return dot(p - r.center, r.half);
         }
+        case SHAPE_ROUNDED_BOX: {
+            if region_has(SHAPE_ROUNDED_BOX) {
+                return surface_rounded_box_distance(p, r.center, region_rot(r), r.half, r.radius);
+            }
+        }
+        case SHAPE_REVOLUTION: {
+            if region_has(SHAPE_REVOLUTION) {
+                return surface_revolution_distance(p, r.center, region_rot(r), r.data, r.data_len);
+            }
+        }
+        case SHAPE_TORUS: {
+            if region_has(SHAPE_TORUS) {
+                return surface_torus_distance((p - r.center) * region_rot(r), r.radius, r.shape_a);
+            }
+        }
+        case SHAPE_SUPERQUADRIC: {
+            if region_has(SHAPE_SUPERQUADRIC) {
+                return surface_superquadric_distance((p - r.center) * region_rot(r), r.half, r.shape_a, r.shape_b);
+            }
+        }
         default: {
             return SURFACE_FAR;
         }
     }
+    return SURFACE_FAR;
 }
 
 // `Shape::normal` of region r's shape at (or nearest to) p.
@@ -68,10 +141,45 @@ fn region_shape_normal(r: RegionGpu, p: vec3<f32>) -> vec3<f32> {
         case SHAPE_CYLINDER: {
             return surface_cylinder_normal(p, r.center, region_rot(r), r.radius, r.half.y);
         }
+        case SHAPE_ROUNDED_BOX: {
+            if region_has(SHAPE_ROUNDED_BOX) {
+                return surface_rounded_box_normal(p, r.center, region_rot(r), r.half, r.radius);
+            }
+        }
+        case SHAPE_REVOLUTION: {
+            if region_has(SHAPE_REVOLUTION) {
+                return surface_revolution_normal(p, r.center, region_rot(r), r.data, r.data_len);
+            }
+        }
+        case SHAPE_TORUS: {
+            if region_has(SHAPE_TORUS) {
+                return region_rot(r) * surface_torus_normal((p - r.center) * region_rot(r), r.radius);
+            }
+        }
+        case SHAPE_SUPERQUADRIC: {
+            if region_has(SHAPE_SUPERQUADRIC) {
+                return region_rot(r) * surface_superquadric_normal((p - r.center) * region_rot(r), r.half, r.shape_a, r.shape_b, r.size);
+            }
+        }
+        case SHAPE_MESH: {
+            if region_has(SHAPE_MESH) {
+                return surface_mesh_normal(region_mesh(r), p);
+            }
+        }
         default: {
             return r.half;
         }
     }
+    return r.half;
+}
+
+// `Shape::contains` of region r's shape: the sign of its distance, for a
+// mesh the parity alone (its distance needs a nearest-triangle search).
+fn region_shape_contains(r: RegionGpu, p: vec3<f32>) -> bool {
+    if r.kind == SHAPE_MESH && region_has(SHAPE_MESH) {
+        return surface_mesh_inside(region_mesh(r), p);
+    }
+    return region_solid_distance(r, p) < 0.0;
 }
 
 // `Scene::owner`: the region that owns p, the first object in precedence
@@ -79,7 +187,7 @@ fn region_shape_normal(r: RegionGpu, p: vec3<f32>) -> vec3<f32> {
 fn region_owner(p: vec3<f32>) -> u32 {
     let count = region_count();
     for (var i = 0u; i < count; i++) {
-        if region_shape_distance(region_object(i), p) < 0.0 {
+        if region_shape_contains(region_object(i), p) {
             return i;
         }
     }

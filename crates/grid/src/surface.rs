@@ -24,18 +24,64 @@ use crate::mesh_solid::MeshSolid;
 use crate::shape::Shape;
 use crate::vdb::VdbSolid;
 use eikon_mesh::Ray;
-use eikon_shader::{nothing, Module, VECTOR};
+use eikon_shader::{Module, VECTOR};
 use glam::{DMat3, DVec2, DVec3};
 
-/// The WGSL of the analytic shapes' closed forms (sphere, box, capped
-/// cylinder, half-space): [`Shape::first_crossing`], [`Shape::normal`] and
-/// [`Shape::distance`] in f32 (`surface.wgsl`).
+/// The WGSL of every shape but the VDB grid: [`Shape::first_crossing`],
+/// [`Shape::normal`] and [`Shape::distance`] in f32 (`surface.wgsl`), by
+/// the same methods as here. A kernel provides the hook
+/// `surface_data(i: u32) -> vec4<u32>`, record `i` of the data buffer that
+/// holds profiles, mesh triangles and BVH nodes
+/// (`crate::region::GpuRegions::data`).
 pub static WGSL: Module = Module {
     name: "surface",
     requires: &[&VECTOR],
-    declarations: nothing,
+    declarations: surface_declarations,
     text: include_str!("surface.wgsl"),
 };
+
+/// Records (16 bytes) per mesh triangle in the GPU's data buffer: its three
+/// corners (the first's `w` the mesh triangle id), then its three vertex
+/// normals.
+pub const MESH_TRIANGLE_RECORDS: u32 = 6;
+/// Records per BVH node there: `(lo, offset)`, `(hi, count | axis << 16)`.
+pub const MESH_NODE_RECORDS: u32 = 2;
+/// The superquadric's march takes this fraction of its distance bound...
+const SUPERQUADRIC_SAFETY: f64 = 0.25;
+/// ... and steps of at most its size over this (see [`Shape::march`]).
+const SUPERQUADRIC_STEPS: f64 = 128.0;
+/// [`MIN_STEP`] in f32: a step must move `t` by a few ulps of the shape's
+/// size, or a march that starts on the surface stands still.
+const MIN_STEP_F32: f32 = 1e-6;
+/// [`MAX_MARCH`] on the GPU, where a thread cannot run for long: a march
+/// that grazes a surface for more steps than this gives up (no crossing).
+const MAX_MARCH_F32: u32 = 1 << 14;
+/// The step of the numeric normal (a superquadric's pinch) relative to the
+/// size: the CPU's 1e-7 is at f32's resolution, 1e-4 keeps the rounding of
+/// the difference near 1e-3 of the normal.
+const NUMERIC_STEP_F32: f32 = 1e-4;
+
+/// The BVH's widening of its box tests (`eikon_mesh::bvh`: twice the
+/// rounding bound of three operations, Ize 2013) for f32's unit roundoff.
+const BVH_WIDEN_F32: f32 = {
+    let e = f32::EPSILON as f64 * 0.5;
+    (2.0 * 3.0 * e / (1.0 - 3.0 * e)) as f32
+};
+
+fn surface_declarations() -> String {
+    eikon_shader::Consts::new()
+        .u32("MESH_TRIANGLE_RECORDS", MESH_TRIANGLE_RECORDS)
+        .u32("MESH_NODE_RECORDS", MESH_NODE_RECORDS)
+        .u32("BVH_STACK", eikon_mesh::bvh::STACK as u32)
+        .f32("SUPERQUADRIC_SAFETY", SUPERQUADRIC_SAFETY as f32)
+        .f32("SUPERQUADRIC_STEPS", SUPERQUADRIC_STEPS as f32)
+        .f32("SURFACE_MIN_STEP", MIN_STEP_F32)
+        .u32("SURFACE_MAX_MARCH", MAX_MARCH_F32)
+        .f32("SURFACE_NUMERIC_STEP", NUMERIC_STEP_F32)
+        .f32("BVH_WIDEN", BVH_WIDEN_F32)
+        .wgsl()
+        .to_string()
+}
 
 /// Where a straight segment first crosses a shape's surface.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -554,7 +600,7 @@ impl Shape {
         // unbounded: a quarter of it and steps of at most 1/128 of the size
         // keep the march from jumping a thin part. The torus's is exact.
         let (safety, h_max) = match self {
-            Shape::Superquadric { .. } => (0.25, size / 128.0 / dl),
+            Shape::Superquadric { .. } => (SUPERQUADRIC_SAFETY, size / SUPERQUADRIC_STEPS / dl),
             _ => (1.0, f64::INFINITY),
         };
         let mut t0 = lo;
@@ -650,7 +696,7 @@ fn rounded_box(o: DVec3, d: DVec3, half: DVec3, r: f64) -> (f64, f64) {
 
 /// Twice the signed area of the profile: positive when counter-clockwise
 /// in the (radius, height) plane.
-fn profile_orientation(profile: &[DVec2]) -> f64 {
+pub(crate) fn profile_orientation(profile: &[DVec2]) -> f64 {
     let n = profile.len();
     let mut a = 0.0;
     for i in 0..n {
@@ -683,7 +729,7 @@ fn swept_normal(n2: DVec2, p: DVec3) -> DVec3 {
 }
 
 /// The outward 2-D normal of profile edge `a -> b`.
-fn edge_normal(a: DVec2, b: DVec2, orient: f64) -> DVec2 {
+pub(crate) fn edge_normal(a: DVec2, b: DVec2, orient: f64) -> DVec2 {
     let e = b - a;
     (DVec2::new(e.y, -e.x) * orient).normalize_or_zero()
 }

@@ -1,11 +1,16 @@
-// Exact ray-surface crossings, outward normals and signed distances of the
-// analytic shapes (`surface.rs`, `shape.rs`) in f32: the sphere, the box
-// (not rounded), the capped cylinder and the half-space, with the same
-// closed forms as `Shape::first_crossing`, `Shape::normal` and
-// `Shape::distance`. A local frame is the rotation `rot` (its columns the
-// shape's axes) about the centre: `local = transpose(rot) * (p - c)`.
+// Exact ray-surface crossings, outward normals and signed distances of
+// every shape but the VDB grid (`surface.rs`, `shape.rs`) in f32, by the
+// same methods as `Shape::first_crossing`, `Shape::normal` and
+// `Shape::distance`: closed forms for the sphere, the box, the rounded box,
+// the capped cylinder, the half-space and the solid of revolution; a march
+// on the distance bound and bisection for the torus and the superquadric;
+// the BVH (a stack traversal, the watertight test) for the mesh. A local
+// frame is the rotation `rot` (its columns the shape's axes) about the
+// centre: `local = transpose(rot) * (p - c)`.
 //
-// Needs: the `vector` module.
+// Needs: the `vector` module, the constants of `surface.rs`, and the hook
+// `surface_data(i: u32) -> vec4<u32>`: record i of the data buffer that
+// holds profiles, mesh triangles and BVH nodes (floats by their bits).
 
 const SURFACE_FAR: f32 = 3.0e38;
 
@@ -212,4 +217,781 @@ fn surface_cylinder_distance(p: vec3<f32>, c: vec3<f32>, rot: mat3x3<f32>, r: f3
     let q = (p - c) * rot;
     let e = vec2<f32>(length(q.xz) - r, abs(q.y) - hh);
     return length(max(e, vec2<f32>(0.0))) + min(max(e.x, e.y), 0.0);
+}
+
+// ---- Rounded box, torus, superquadric, solid of revolution, mesh ----
+
+// Record i of the data buffer as floats.
+fn surface_data_f(i: u32) -> vec4<f32> {
+    return bitcast<vec4<f32>>(surface_data(i));
+}
+
+// `f64::powf` of a non-negative base as the CPU gets it: pow(0, y) is 0
+// for y > 0, 1 for y = 0 and infinite (SURFACE_FAR) for y < 0, where WGSL
+// leaves it undefined.
+fn surface_pow(x: f32, y: f32) -> f32 {
+    if y == 0.0 {
+        return 1.0;
+    }
+    if x == 0.0 {
+        return select(SURFACE_FAR, 0.0, y > 0.0);
+    }
+    return pow(x, y);
+}
+
+// Real roots of a t^2 + 2 b t + c in the cancellation-free form
+// (`quadratic`): (root, root, how many).
+fn surface_quadratic(a: f32, b: f32, c: f32) -> vec3<f32> {
+    if a == 0.0 {
+        if b == 0.0 {
+            return vec3<f32>(0.0);
+        }
+        return vec3<f32>(-c / (2.0 * b), 0.0, 1.0);
+    }
+    let disc = b * b - a * c;
+    if disc < 0.0 {
+        return vec3<f32>(0.0);
+    }
+    let q = -(b + select(-sqrt(disc), sqrt(disc), b >= 0.0));
+    if q == 0.0 {
+        return vec3<f32>(0.0, 0.0, 1.0);
+    }
+    return vec3<f32>(q / a, c / q, 2.0);
+}
+
+// The hull of interval `acc` and a non-empty `iv`.
+fn surface_hull(acc: vec2<f32>, iv: vec2<f32>) -> vec2<f32> {
+    if iv.x < iv.y {
+        return vec2<f32>(min(acc.x, iv.x), max(acc.y, iv.y));
+    }
+    return acc;
+}
+
+// `rounded_box`: the entry and exit of a line into a rounded box (local
+// frame), the hull of the intervals of its convex parts (three slabs,
+// twelve edge cylinders, eight corner balls).
+fn surface_rounded_box_interval(o: vec3<f32>, d: vec3<f32>, half: vec3<f32>, r: f32) -> vec2<f32> {
+    let inner = max(half - vec3<f32>(r), vec3<f32>(0.0));
+    var acc = vec2<f32>(SURFACE_FAR, -SURFACE_FAR);
+    for (var k = 0u; k < 3u; k++) {
+        var h = inner;
+        h[k] += r;
+        var a = -SURFACE_FAR;
+        var b = SURFACE_FAR;
+        for (var j = 0u; j < 3u; j++) {
+            let s = surface_slab(o[j], d[j], -h[j], h[j]);
+            a = max(a, s.x);
+            b = min(b, s.y);
+        }
+        acc = surface_hull(acc, vec2<f32>(a, b));
+    }
+    for (var k = 0u; k < 3u; k++) {
+        var flat = vec3<f32>(1.0);
+        flat[k] = 0.0;
+        let s = surface_slab(o[k], d[k], -inner[k], inner[k]);
+        let i = (k + 1u) % 3u;
+        let j = (k + 2u) % 3u;
+        for (var corner = 0u; corner < 4u; corner++) {
+            var c = inner;
+            if (corner & 1u) == 1u {
+                c[i] = -c[i];
+            }
+            if (corner & 2u) == 2u {
+                c[j] = -c[j];
+            }
+            let ab = surface_ball((o - c) * flat, d * flat, r);
+            acc = surface_hull(acc, vec2<f32>(max(ab.x, s.x), min(ab.y, s.y)));
+        }
+    }
+    for (var corner = 0u; corner < 8u; corner++) {
+        let c = vec3<f32>(
+            select(inner.x, -inner.x, (corner & 1u) == 1u),
+            select(inner.y, -inner.y, (corner & 2u) == 2u),
+            select(inner.z, -inner.z, (corner & 4u) == 4u),
+        );
+        acc = surface_hull(acc, surface_ball(o - c, d, r));
+    }
+    return acc;
+}
+
+// `Shape::normal` of a rounded box at local q: the gradient of the
+// distance to the inner box outside it, else the nearest face's.
+fn surface_rounded_box_normal_local(q: vec3<f32>, half: vec3<f32>, r: f32) -> vec3<f32> {
+    let inner = max(half - vec3<f32>(r), vec3<f32>(0.0));
+    let out = abs(q) - inner;
+    var n = vec3<f32>(0.0);
+    if r > 0.0 && max3(out) > 0.0 {
+        n = max(out, vec3<f32>(0.0)) * vec3<f32>(surface_signum(q.x), surface_signum(q.y), surface_signum(q.z));
+    } else {
+        let e = abs(q) - half;
+        var k = 2u;
+        if e.x >= e.y && e.x >= e.z {
+            k = 0u;
+        } else if e.y >= e.z {
+            k = 1u;
+        }
+        n[k] = surface_signum(q[k]);
+    }
+    return surface_unit_or(n, vec3<f32>(0.0, 1.0, 0.0));
+}
+
+fn surface_rounded_box_normal(p: vec3<f32>, c: vec3<f32>, rot: mat3x3<f32>, half: vec3<f32>, r: f32) -> vec3<f32> {
+    return rot * surface_rounded_box_normal_local((p - c) * rot, half, r);
+}
+
+// `Shape::distance` of a rounded box.
+fn surface_rounded_box_distance(p: vec3<f32>, c: vec3<f32>, rot: mat3x3<f32>, half: vec3<f32>, r: f32) -> f32 {
+    let e = abs((p - c) * rot) - (half - vec3<f32>(r));
+    return length(max(e, vec3<f32>(0.0))) + min(max3(e), 0.0) - r;
+}
+
+// `Shape::first_crossing` of a rounded box (rounding radius r).
+fn surface_rounded_box(o: vec3<f32>, d: vec3<f32>, c: vec3<f32>, rot: mat3x3<f32>, half: vec3<f32>, r: f32, lo: f32, hi: f32) -> SurfaceHit {
+    let ol = (o - c) * rot;
+    let dl = d * rot;
+    let e = surface_first_end(surface_rounded_box_interval(ol, dl, half, r), lo, hi);
+    if e.z == 0.0 {
+        return surface_miss();
+    }
+    return SurfaceHit(true, e.x, rot * surface_rounded_box_normal_local(ol + dl * e.x, half, r));
+}
+
+// `Shape::distance` of a torus at local q.
+fn surface_torus_distance(q: vec3<f32>, major: f32, minor: f32) -> f32 {
+    return length(vec2<f32>(length(q.xz) - major, q.y)) - minor;
+}
+
+// `Shape::normal` of a torus at local q.
+fn surface_torus_normal(q: vec3<f32>, major: f32) -> vec3<f32> {
+    let rho = length(q.xz);
+    var n = vec3<f32>(0.0, q.y, 0.0);
+    if rho > 0.0 {
+        let k = 1.0 - major / rho;
+        n = vec3<f32>(q.x * k, q.y, q.z * k);
+    }
+    return surface_unit_or(n, vec3<f32>(0.0, 1.0, 0.0));
+}
+
+// `Shape::distance` of a superquadric at local q: the conservative bound.
+fn surface_superquadric_distance(q: vec3<f32>, radii: vec3<f32>, e1: f32, e2: f32) -> f32 {
+    let s = abs(q / radii);
+    let xz = surface_pow(surface_pow(s.x, 2.0 / e2) + surface_pow(s.z, 2.0 / e2), e2 / e1);
+    let f = xz + surface_pow(s.y, 2.0 / e1);
+    return (surface_pow(f, e1 / 2.0) - 1.0) * min3(radii) * 0.5;
+}
+
+// `Shape::normal` of a superquadric at local q (size: the shape's): the
+// implicit function's gradient, or at a pinch or crease (zero or infinite
+// partials) the central difference of the distance bound.
+fn surface_superquadric_normal(q: vec3<f32>, radii: vec3<f32>, e1: f32, e2: f32, size: f32) -> vec3<f32> {
+    let s = q / radii;
+    let a = abs(s);
+    let k = surface_pow(surface_pow(a.x, 2.0 / e2) + surface_pow(a.z, 2.0 / e2), e2 / e1 - 1.0);
+    let g = vec3<f32>(
+        k * surface_pow(a.x, 2.0 / e2 - 1.0) * surface_signum(s.x),
+        surface_pow(a.y, 2.0 / e1 - 1.0) * surface_signum(s.y),
+        k * surface_pow(a.z, 2.0 / e2 - 1.0) * surface_signum(s.z),
+    ) / radii;
+    let m = max3(abs(g));
+    if m > 0.0 && m < SURFACE_FAR {
+        return normalize(g / m);
+    }
+    // The central difference, one evaluation per iteration.
+    let h = SURFACE_NUMERIC_STEP * size;
+    var n = vec3<f32>(0.0);
+    for (var k = 0u; k < 6u; k++) {
+        var off = vec3<f32>(0.0);
+        off[k / 2u] = select(h, -h, (k & 1u) == 1u);
+        n[k / 2u] += select(1.0, -1.0, (k & 1u) == 1u) * surface_superquadric_distance(q + off, radii, e1, e2);
+    }
+    return surface_unit_or(n, vec3<f32>(0.0, 1.0, 0.0));
+}
+
+// The distance bound of the marched shapes at local q: a superquadric of
+// radii `dims` and exponents (a, b), else a torus of radii (a, b).
+fn surface_implicit_distance(sq: bool, q: vec3<f32>, dims: vec3<f32>, a: f32, b: f32) -> f32 {
+    if sq {
+        return surface_superquadric_distance(q, dims, a, b);
+    }
+    return surface_torus_distance(q, a, b);
+}
+
+// `Shape::march` in the local frame (half extents `bound`): sphere tracing
+// by the distance bound from lo to hi, then bisection of the first change
+// of side until no f32 lies between: (t, 1 found).
+fn surface_march(sq: bool, o: vec3<f32>, d: vec3<f32>, dims: vec3<f32>, a: f32, b: f32, bound: vec3<f32>, size: f32, lo_in: f32, hi_in: f32) -> vec2<f32> {
+    let dl = length(d);
+    // Outside the bounding box nothing changes: start and stop there.
+    var lo = lo_in;
+    var hi = hi_in;
+    let pad = SURFACE_MIN_STEP * size;
+    for (var k = 0u; k < 3u; k++) {
+        let s = surface_slab(o[k], d[k], -bound[k] - pad, bound[k] + pad);
+        lo = max(lo, s.x);
+        hi = min(hi, s.y);
+    }
+    if !(lo < hi) {
+        return vec2<f32>(0.0);
+    }
+    let h_min = SURFACE_MIN_STEP * size / dl;
+    // The superquadric's bound over-estimates near its pinches: a fraction
+    // of it, and steps of at most a fraction of its size (as the CPU).
+    var safety = 1.0;
+    var h_max = SURFACE_FAR;
+    if sq {
+        safety = SUPERQUADRIC_SAFETY;
+        h_max = size / SUPERQUADRIC_STEPS / dl;
+    }
+    // One evaluation of the bound per iteration (drivers inline each call):
+    // the start, then the march's steps, then, once the side changed, the
+    // bisection of that step.
+    var t0 = lo;
+    var d0 = 0.0;
+    var side = false;
+    var t1 = lo;
+    var ta = 0.0;
+    var tb = 0.0;
+    var bisecting = false;
+    for (var i = 0u; i < SURFACE_MAX_MARCH; i++) {
+        var tq = lo;
+        if bisecting {
+            tq = 0.5 * (ta + tb);
+            if tq <= min(ta, tb) || tq >= max(ta, tb) {
+                return vec2<f32>(tb, 1.0);
+            }
+        } else if i > 0u {
+            t1 = min(t0 + clamp(safety * abs(d0) / dl, h_min, max(h_max, h_min)), hi);
+            tq = t1;
+        }
+        let dq = surface_implicit_distance(sq, o + d * tq, dims, a, b);
+        if bisecting {
+            if (dq < 0.0) == side {
+                ta = tq;
+            } else {
+                tb = tq;
+            }
+        } else if i == 0u {
+            d0 = dq;
+            side = dq < 0.0;
+        } else if (dq < 0.0) != side {
+            ta = t0;
+            tb = t1;
+            bisecting = true;
+        } else if t1 >= hi || !(abs(dq) < SURFACE_FAR) {
+            return vec2<f32>(0.0);
+        } else {
+            t0 = t1;
+            d0 = dq;
+        }
+    }
+    if bisecting {
+        return vec2<f32>(tb, 1.0);
+    }
+    return vec2<f32>(0.0);
+}
+
+// `Shape::first_crossing` of a torus (major, minor radius) about the local
+// y axis.
+fn surface_torus(o: vec3<f32>, d: vec3<f32>, c: vec3<f32>, rot: mat3x3<f32>, major: f32, minor: f32, size: f32, lo: f32, hi: f32) -> SurfaceHit {
+    let ol = (o - c) * rot;
+    let dl = d * rot;
+    let bound = vec3<f32>(major + minor, minor, major + minor);
+    let m = surface_march(false, ol, dl, vec3<f32>(0.0), major, minor, bound, size, lo, hi);
+    if m.y == 0.0 {
+        return surface_miss();
+    }
+    return SurfaceHit(true, m.x, rot * surface_torus_normal(ol + dl * m.x, major));
+}
+
+// `Shape::first_crossing` of a superquadric of `radii`, exponents e1, e2.
+fn surface_superquadric(o: vec3<f32>, d: vec3<f32>, c: vec3<f32>, rot: mat3x3<f32>, radii: vec3<f32>, e1: f32, e2: f32, size: f32, lo: f32, hi: f32) -> SurfaceHit {
+    let ol = (o - c) * rot;
+    let dl = d * rot;
+    let m = surface_march(true, ol, dl, radii, e1, e2, radii, size, lo, hi);
+    if m.y == 0.0 {
+        return surface_miss();
+    }
+    return SurfaceHit(true, m.x, rot * surface_superquadric_normal(ol + dl * m.x, radii, e1, e2, size));
+}
+
+// `swept_normal`: the outward normal (local frame) at p of the surface
+// swept by a profile edge of outward 2-D normal n2.
+fn surface_swept_normal(n2: vec2<f32>, p: vec3<f32>) -> vec3<f32> {
+    let l = length(p.xz);
+    var radial = vec2<f32>(0.0);
+    if l > 0.0 && l < SURFACE_FAR {
+        radial = p.xz / l;
+    }
+    return surface_unit_or(vec3<f32>(n2.x * radial.x, n2.y, n2.x * radial.y), vec3<f32>(0.0, surface_signum(n2.y), 0.0));
+}
+
+// `revolution_crossing`: the first crossing (local frame) of the solid of
+// revolution whose n profile points (r, y, and the outward normal of the
+// edge to the next) are records first.. of the data buffer: each edge
+// sweeps an annulus (linear) or a cone or cylinder (quadratic, one Newton
+// step on the unexpanded equation).
+fn surface_revolution(o: vec3<f32>, d: vec3<f32>, c: vec3<f32>, rot: mat3x3<f32>, first: u32, n: u32, lo: f32, hi: f32) -> SurfaceHit {
+    let ol = (o - c) * rot;
+    let dl = d * rot;
+    var best_t = 0.0;
+    var best = n;
+    for (var i = 0u; i < n; i++) {
+        let a = surface_data_f(first + i).xy;
+        let b = surface_data_f(first + (i + 1u) % n).xy;
+        if a.y == b.y {
+            // An annulus in the plane y = a.y.
+            if dl.y == 0.0 {
+                continue;
+            }
+            let t = (a.y - ol.y) / dl.y;
+            let rho = length((ol + dl * t).xz);
+            if rho >= min(a.x, b.x) && rho <= max(a.x, b.x) && t > lo && t <= hi && (best == n || t < best_t) {
+                best_t = t;
+                best = i;
+            }
+            continue;
+        }
+        if a.x <= 0.0 && b.x <= 0.0 {
+            continue; // on the axis: inside the solid, no surface
+        }
+        // rho = m + k (y - o.y) along the edge's line.
+        let k = (b.x - a.x) / (b.y - a.y);
+        let m = a.x + k * (ol.y - a.y);
+        let qa = dl.x * dl.x + dl.z * dl.z - k * k * dl.y * dl.y;
+        let qb = ol.x * dl.x + ol.z * dl.z - k * m * dl.y;
+        let qc = ol.x * ol.x + ol.z * ol.z - m * m;
+        let y0 = min(a.y, b.y);
+        let y1 = max(a.y, b.y);
+        let roots = surface_quadratic(qa, qb, qc);
+        for (var j = 0u; j < u32(roots.z); j++) {
+            var t = roots[j];
+            // The Newton step's guard is wider than the CPU's 1e-6: an f32
+            // root is off by more than that where the roots are close.
+            let p = ol + dl * t;
+            let r = m + k * dl.y * t;
+            let g = p.x * p.x + p.z * p.z - r * r;
+            let dg = 2.0 * (p.x * dl.x + p.z * dl.z - r * k * dl.y);
+            if dg != 0.0 {
+                let step = g / dg;
+                if abs(step) <= 1e-3 * (abs(t) + 1.0) {
+                    t -= step;
+                }
+            }
+            let y = ol.y + dl.y * t;
+            if y >= y0 && y <= y1 && m + k * dl.y * t >= 0.0 && t > lo && t <= hi && (best == n || t < best_t) {
+                best_t = t;
+                best = i;
+            }
+        }
+    }
+    if best == n {
+        return surface_miss();
+    }
+    let n2 = surface_data_f(first + best).zw;
+    return SurfaceHit(true, best_t, rot * surface_swept_normal(n2, ol + dl * best_t));
+}
+
+// `revolution_normal`: the outward normal of the solid of revolution at
+// (or nearest to) p, that of the profile edge nearest it.
+fn surface_revolution_normal(p: vec3<f32>, c: vec3<f32>, rot: mat3x3<f32>, first: u32, n: u32) -> vec3<f32> {
+    if n < 2u {
+        return rot * vec3<f32>(0.0, 1.0, 0.0);
+    }
+    let q = (p - c) * rot;
+    let m = vec2<f32>(length(q.xz), q.y);
+    var best_d2 = SURFACE_FAR;
+    var best = 0u;
+    for (var i = 0u; i < n; i++) {
+        let a = surface_data_f(first + i).xy;
+        let e = surface_data_f(first + (i + 1u) % n).xy - a;
+        let l2 = dot(e, e);
+        var s = 0.0;
+        if l2 > 0.0 {
+            s = clamp(dot(m - a, e) / l2, 0.0, 1.0);
+        }
+        let w = m - (a + e * s);
+        let d2 = dot(w, w);
+        if d2 < best_d2 {
+            best_d2 = d2;
+            best = i;
+        }
+    }
+    return rot * surface_swept_normal(surface_data_f(first + best).zw, q);
+}
+
+// `Shape::distance` of the solid of revolution: the profile polygon's
+// signed distance (even-odd inside test) at (radius, height).
+fn surface_revolution_distance(p: vec3<f32>, c: vec3<f32>, rot: mat3x3<f32>, first: u32, n: u32) -> f32 {
+    let q = (p - c) * rot;
+    let m = vec2<f32>(length(q.xz), q.y);
+    var d2 = SURFACE_FAR;
+    var inside = false;
+    for (var i = 0u; i < n; i++) {
+        let a = surface_data_f(first + i).xy;
+        let b = surface_data_f(first + (i + 1u) % n).xy;
+        let e = b - a;
+        let w = m - a;
+        let l2 = dot(e, e);
+        var t = 0.0;
+        if l2 > 0.0 {
+            t = clamp(dot(w, e) / l2, 0.0, 1.0);
+        }
+        let x = w - e * t;
+        d2 = min(d2, dot(x, x));
+        if (a.y > m.y) != (b.y > m.y) && m.x < a.x + (m.y - a.y) / (b.y - a.y) * e.x {
+            inside = !inside;
+        }
+    }
+    return select(sqrt(d2), -sqrt(d2), inside);
+}
+
+// A mesh as its data-buffer records: triangles from `tris` (six records
+// each, in leaf order), BVH nodes from `nodes` (two each).
+struct SurfaceMesh {
+    tris: u32,
+    nodes: u32,
+    node_count: u32,
+    // Shaded with vertex normals (`smooth` is a WGSL keyword).
+    shaded: bool,
+}
+
+// Node i's box, and its offset and count | axis << 16.
+struct SurfaceNode {
+    lo: vec3<f32>,
+    hi: vec3<f32>,
+    offset: u32,
+    count: u32,
+    axis: u32,
+}
+
+fn surface_node(m: SurfaceMesh, i: u32) -> SurfaceNode {
+    let a = surface_data(m.nodes + MESH_NODE_RECORDS * i);
+    let b = surface_data(m.nodes + MESH_NODE_RECORDS * i + 1u);
+    return SurfaceNode(bitcast<vec3<f32>>(a.xyz), bitcast<vec3<f32>>(b.xyz), a.w, b.w & 0xffffu, b.w >> 16u);
+}
+
+// Corner k (0..2) of leaf slot s, or its vertex normal (k 3..5).
+fn surface_corner(m: SurfaceMesh, s: u32, k: u32) -> vec3<f32> {
+    return surface_data_f(m.tris + MESH_TRIANGLE_RECORDS * s + k).xyz;
+}
+
+// The watertight ray-triangle test (`Prepared::hits_triangle`, Woop et
+// al.) for the ray sheared along its dominant axis kz: (t, b0, b1, b2
+// barycentric) with t in (lo, hi], or t = -SURFACE_FAR for none.
+fn surface_triangle(o: vec3<f32>, kk: vec3<u32>, shear: vec3<f32>, ta: vec3<f32>, tb: vec3<f32>, tc: vec3<f32>, lo: f32, hi: f32) -> vec4<f32> {
+    let a = ta - o;
+    let b = tb - o;
+    let c = tc - o;
+    let ax = a[kk.x] - shear.x * a[kk.z];
+    let ay = a[kk.y] - shear.y * a[kk.z];
+    let bx = b[kk.x] - shear.x * b[kk.z];
+    let by = b[kk.y] - shear.y * b[kk.z];
+    let cx = c[kk.x] - shear.x * c[kk.z];
+    let cy = c[kk.y] - shear.y * c[kk.z];
+    let u = cx * by - cy * bx;
+    let v = ax * cy - ay * cx;
+    let w = bx * ay - by * ax;
+    let none = vec4<f32>(-SURFACE_FAR, 0.0, 0.0, 0.0);
+    if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
+        return none;
+    }
+    let det = u + v + w;
+    if det == 0.0 {
+        return none;
+    }
+    let t = (u * shear.z * a[kk.z] + v * shear.z * b[kk.z] + w * shear.z * c[kk.z]) / det;
+    if !(t > lo && t <= hi) {
+        return none;
+    }
+    return vec4<f32>(t, u / det, v / det, w / det);
+}
+
+// `mesh_crossing`: the nearest triangle the segment crosses, through the
+// BVH (`Bvh::closest_hit`: nearer child first, boxes widened by the f32
+// rounding bound, ties to the lower triangle id).
+fn surface_mesh(m: SurfaceMesh, o: vec3<f32>, d: vec3<f32>, lo: f32, hi: f32) -> SurfaceHit {
+    if m.node_count == 0u || is_zero(d) {
+        return surface_miss();
+    }
+    // The dominant axis becomes z; swapping x and y when it points down
+    // keeps the triangles' winding.
+    let ad = abs(d);
+    var kz = 2u;
+    if ad.x >= ad.y && ad.x >= ad.z {
+        kz = 0u;
+    } else if ad.y >= ad.z {
+        kz = 1u;
+    }
+    var kx = (kz + 1u) % 3u;
+    var ky = (kx + 1u) % 3u;
+    if d[kz] < 0.0 {
+        let k = kx;
+        kx = ky;
+        ky = k;
+    }
+    let kk = vec3<u32>(kx, ky, kz);
+    let shear = vec3<f32>(d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]);
+    // A zero component: a reciprocal that stays finite (WGSL promises no
+    // infinities), large enough that the slab is all or nothing.
+    let neg = d < vec3<f32>(0.0);
+    let safe = select(d, select(vec3<f32>(1e-30), vec3<f32>(-1e-30), neg), d == vec3<f32>(0.0));
+    let inv = 1.0 / safe;
+    var best_t = hi;
+    var best_b = vec3<f32>(0.0);
+    var best_slot = 0xffffffffu;
+    var best_id = 0u;
+    var stack: array<u32, BVH_STACK>;
+    stack[0] = 0u;
+    var sp = 1u;
+    while sp > 0u {
+        sp -= 1u;
+        let index = stack[sp];
+        let node = surface_node(m, index);
+        // `hits_box`, widened.
+        var near = lo;
+        var far = best_t;
+        for (var k = 0u; k < 3u; k++) {
+            let b0 = select(node.lo[k], node.hi[k], neg[k]);
+            let b1 = select(node.hi[k], node.lo[k], neg[k]);
+            let t0 = (b0 - o[k]) * inv[k];
+            let t1 = (b1 - o[k]) * inv[k];
+            near = max(near, t0 * (1.0 - select(-BVH_WIDEN, BVH_WIDEN, t0 >= 0.0)));
+            far = min(far, t1 * (1.0 + select(-BVH_WIDEN, BVH_WIDEN, t1 >= 0.0)));
+        }
+        if near > far {
+            continue;
+        }
+        if node.count > 0u {
+            for (var s = node.offset; s < node.offset + node.count; s++) {
+                let h = surface_triangle(o, kk, shear, surface_corner(m, s, 0u), surface_corner(m, s, 1u), surface_corner(m, s, 2u), lo, hi);
+                if h.x == -SURFACE_FAR {
+                    continue;
+                }
+                let id = surface_data(m.tris + MESH_TRIANGLE_RECORDS * s).w;
+                if best_slot == 0xffffffffu || h.x < best_t || (h.x == best_t && id < best_id) {
+                    best_t = h.x;
+                    best_b = h.yzw;
+                    best_slot = s;
+                    best_id = id;
+                }
+            }
+        } else if sp + 2u <= BVH_STACK {
+            let left = index + 1u;
+            let right = node.offset;
+            if neg[node.axis] {
+                stack[sp] = left;
+                stack[sp + 1u] = right;
+            } else {
+                stack[sp] = right;
+                stack[sp + 1u] = left;
+            }
+            sp += 2u;
+        }
+    }
+    if best_slot == 0xffffffffu {
+        return surface_miss();
+    }
+    let a = surface_corner(m, best_slot, 0u);
+    let face = normalize_or_zero(cross(surface_corner(m, best_slot, 1u) - a, surface_corner(m, best_slot, 2u) - a));
+    var n = face;
+    if m.shaded {
+        let s = normalize_or_zero(surface_corner(m, best_slot, 3u) * best_b.x + surface_corner(m, best_slot, 4u) * best_b.y + surface_corner(m, best_slot, 5u) * best_b.z);
+        if !is_zero(s) {
+            n = s;
+        }
+    }
+    return SurfaceHit(true, best_t, n);
+}
+
+// The point of triangle (a, b, c) closest to p [Ericson05 sec 5.1.5].
+fn surface_closest_point(a: vec3<f32>, b: vec3<f32>, c: vec3<f32>, p: vec3<f32>) -> vec3<f32> {
+    let ab = b - a;
+    let ac = c - a;
+    let ap = p - a;
+    let d1 = dot(ab, ap);
+    let d2 = dot(ac, ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return a;
+    }
+    let bp = p - b;
+    let d3 = dot(ab, bp);
+    let d4 = dot(ac, bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return b;
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        return a + ab * (d1 / (d1 - d3));
+    }
+    let cp = p - c;
+    let d5 = dot(ab, cp);
+    let d6 = dot(ac, cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return c;
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        return a + ac * (d2 / (d2 - d6));
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+    }
+    let denom = 1.0 / (va + vb + vc);
+    return a + ab * (vb * denom) + ac * (vc * denom);
+}
+
+// The mesh's triangle nearest p (`MeshSolid::closest_triangle`, here a
+// BVH search, nearer child first, pruned by the boxes' distance):
+// (closest point, squared distance) and its leaf slot.
+struct SurfaceNearest {
+    x: vec3<f32>,
+    d2: f32,
+    slot: u32,
+}
+
+fn surface_mesh_nearest(m: SurfaceMesh, p: vec3<f32>) -> SurfaceNearest {
+    var best = SurfaceNearest(p, SURFACE_FAR, 0xffffffffu);
+    if m.node_count == 0u {
+        return best;
+    }
+    var stack: array<u32, BVH_STACK>;
+    stack[0] = 0u;
+    var sp = 1u;
+    while sp > 0u {
+        sp -= 1u;
+        let index = stack[sp];
+        let node = surface_node(m, index);
+        let gap = max(max(node.lo - p, p - node.hi), vec3<f32>(0.0));
+        if dot(gap, gap) >= best.d2 {
+            continue;
+        }
+        if node.count > 0u {
+            for (var s = node.offset; s < node.offset + node.count; s++) {
+                let x = surface_closest_point(surface_corner(m, s, 0u), surface_corner(m, s, 1u), surface_corner(m, s, 2u), p);
+                let d2 = dot(x - p, x - p);
+                if d2 < best.d2 {
+                    best = SurfaceNearest(x, d2, s);
+                }
+            }
+        } else if sp + 2u <= BVH_STACK {
+            let left = index + 1u;
+            let right = node.offset;
+            let l = surface_node(m, left);
+            let r = surface_node(m, right);
+            let gl = max(max(l.lo - p, p - l.hi), vec3<f32>(0.0));
+            let gr = max(max(r.lo - p, p - r.hi), vec3<f32>(0.0));
+            // The nearer child on top.
+            if dot(gl, gl) <= dot(gr, gr) {
+                stack[sp] = right;
+                stack[sp + 1u] = left;
+            } else {
+                stack[sp] = left;
+                stack[sp + 1u] = right;
+            }
+            sp += 2u;
+        }
+    }
+    return best;
+}
+
+// The edge function of the yz-projected edge a -> b at (y, z) in a
+// canonical orientation, never zero (`mesh_solid::edge`: simulation of
+// simplicity), so that both triangles of an edge get opposite values.
+fn surface_edge(a_in: vec3<f32>, b_in: vec3<f32>, y: f32, z: f32) -> f32 {
+    let swap = a_in.y > b_in.y || (a_in.y == b_in.y && a_in.z > b_in.z);
+    let a = select(a_in, b_in, swap);
+    let b = select(b_in, a_in, swap);
+    let dy = b.y - a.y;
+    let dz = b.z - a.z;
+    var e = dy * (z - a.z) - dz * (y - a.y);
+    if e == 0.0 {
+        e = select(dy, -dz, dz != 0.0);
+    }
+    return select(e, -e, swap);
+}
+
+// `MeshSolid::contains`: the parity of the crossings of the ray from p
+// along +x (`crossing_x` per triangle, over the BVH's boxes that the ray
+// meets; each triangle sits in one leaf).
+fn surface_mesh_inside(m: SurfaceMesh, p: vec3<f32>) -> bool {
+    if m.node_count == 0u {
+        return false;
+    }
+    var inside = false;
+    var stack: array<u32, BVH_STACK>;
+    stack[0] = 0u;
+    var sp = 1u;
+    while sp > 0u {
+        sp -= 1u;
+        let index = stack[sp];
+        let node = surface_node(m, index);
+        if p.y < node.lo.y || p.y > node.hi.y || p.z < node.lo.z || p.z > node.hi.z || node.hi.x <= p.x {
+            continue;
+        }
+        if node.count > 0u {
+            for (var s = node.offset; s < node.offset + node.count; s++) {
+                let t0 = surface_corner(m, s, 0u);
+                let t1 = surface_corner(m, s, 1u);
+                let t2 = surface_corner(m, s, 2u);
+                let e0 = surface_edge(t1, t2, p.y, p.z);
+                let e1 = surface_edge(t2, t0, p.y, p.z);
+                let e2 = surface_edge(t0, t1, p.y, p.z);
+                let hit = (e0 > 0.0 && e1 > 0.0 && e2 > 0.0) || (e0 < 0.0 && e1 < 0.0 && e2 < 0.0);
+                if !hit {
+                    continue;
+                }
+                let x = clamp((e0 * t0.x + e1 * t1.x + e2 * t2.x) / (e0 + e1 + e2), min(t0.x, min(t1.x, t2.x)), max(t0.x, max(t1.x, t2.x)));
+                if x > p.x {
+                    inside = !inside;
+                }
+            }
+        } else if sp + 2u <= BVH_STACK {
+            stack[sp] = index + 1u;
+            stack[sp + 1u] = node.offset;
+            sp += 2u;
+        }
+    }
+    return inside;
+}
+
+// `Shape::distance` of a mesh: the distance to its nearest triangle,
+// negative inside (the CPU's is a lower bound, exact near the surface).
+fn surface_mesh_distance(m: SurfaceMesh, p: vec3<f32>) -> f32 {
+    let d = sqrt(surface_mesh_nearest(m, p).d2);
+    return select(d, -d, surface_mesh_inside(m, p));
+}
+
+// `mesh_normal`: the normal at the mesh's point nearest p, the face's, or
+// for a smooth mesh the vertex normals interpolated there.
+fn surface_mesh_normal(m: SurfaceMesh, p: vec3<f32>) -> vec3<f32> {
+    let near = surface_mesh_nearest(m, p);
+    if near.slot == 0xffffffffu {
+        return vec3<f32>(0.0, 1.0, 0.0);
+    }
+    let a = surface_corner(m, near.slot, 0u);
+    let b = surface_corner(m, near.slot, 1u);
+    let c = surface_corner(m, near.slot, 2u);
+    let face = surface_unit_or(cross(b - a, c - a), vec3<f32>(0.0, 1.0, 0.0));
+    if !m.shaded {
+        return face;
+    }
+    // Barycentric weights of the closest point.
+    let v0 = b - a;
+    let v1 = c - a;
+    let v2 = near.x - a;
+    let d00 = dot(v0, v0);
+    let d01 = dot(v0, v1);
+    let d11 = dot(v1, v1);
+    let d20 = dot(v2, v0);
+    let d21 = dot(v2, v1);
+    let den = d00 * d11 - d01 * d01;
+    if den == 0.0 {
+        return face;
+    }
+    let w1 = (d11 * d20 - d01 * d21) / den;
+    let w2 = (d00 * d21 - d01 * d20) / den;
+    let w0 = 1.0 - w1 - w2;
+    let n = surface_corner(m, near.slot, 3u) * w0 + surface_corner(m, near.slot, 4u) * w1 + surface_corner(m, near.slot, 5u) * w2;
+    return surface_unit_or(n, face);
 }

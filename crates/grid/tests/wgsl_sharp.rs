@@ -11,7 +11,7 @@
 //! prints the largest errors.
 
 use eikon_gpu::{Gpu, DISPATCH};
-use eikon_grid::region::{gpu_table, refract, RegionGpu, WGSL as REGION};
+use eikon_grid::region::{gpu_regions, refract, RegionGpu, WGSL as REGION};
 use eikon_grid::{Regions, Scene};
 use eikon_shader::compose;
 use eikon_testkit::parity::{v4, xyz, Cases, IO};
@@ -60,20 +60,134 @@ index = 1.33
     .unwrap()
 }
 
+/// The shapes without a closed form in `surface.wgsl`'s first part: a
+/// rotated rounded box, a solid of revolution (the wine glass of
+/// `surface.rs`'s tests), a rotated torus, a rounded and a pinched (star)
+/// superquadric, a smooth mesh (bumpy sphere) and a flat one
+/// (cuboctahedron), overlapping, with priorities.
+fn other_shapes() -> Scene {
+    Scene::parse(
+        r#"
+[grid]
+resolution = 32
+min = [-1.5, -1.5, -1.5]
+max = [1.5, 1.5, 1.5]
+interfaces = "sharp"
+
+[ambient]
+index = 1.0
+
+[[object]]
+name = "cube"
+shape = { type = "rounded_box", center = [-0.6, 0.5, 0.1], size = [1.0, 0.7, 0.8], radius = 0.15, rotation = [23, -41, 67] }
+index = 1.5
+priority = 6
+
+[[object]]
+name = "glass"
+shape = { type = "revolution", base = [0.5, -0.9, 0.1], rotation = [10, 0, -15], profile = [[0.0, 0.0], [0.4, 0.0], [0.4, 0.03], [0.06, 0.08], [0.05, 0.5], [0.35, 0.7], [0.45, 1.0], [0.42, 1.0], [0.32, 0.73], [0.0, 0.6]] }
+index = { type = "linear", n0 = 1.4, gradient = [0.0, 0.1, 0.0], origin = [0.0, 0.0, 0.0] }
+priority = 5
+
+[[object]]
+name = "ring"
+shape = { type = "torus", center = [0.1, 0.0, -0.2], major_radius = 0.6, minor_radius = 0.2, rotation = [50, 10, 30] }
+index = 1.33
+priority = 4
+
+[[object]]
+name = "pebble"
+shape = { type = "superquadric", center = [-0.5, -0.6, 0.5], radii = [0.6, 0.4, 0.5], exponents = [0.5, 0.5], rotation = [23, -41, 67] }
+index = 1.6
+priority = 3
+
+[[object]]
+name = "star"
+shape = { type = "superquadric", center = [0.6, 0.6, -0.6], radii = [0.6, 0.4, 0.5], exponents = [2.5, 2.5], rotation = [-20, 30, 5] }
+index = 1.45
+priority = 2
+
+[[object]]
+name = "bumpy"
+shape = { type = "bumpy_sphere", center = [0.0, 0.1, 0.6], radius = 0.55, amplitude = 0.08, bumps = 6, frequency = 6 }
+index = 1.7
+priority = 1
+
+[[object]]
+name = "gem"
+shape = { type = "cuboctahedron", center = [-0.5, 0.2, -0.7], edge = 0.6, rotation = [20, 35, 0] }
+index = 2.4
+"#,
+        "wgsl sharp parity, other shapes",
+    )
+    .unwrap()
+}
+
 const TABLE_HOOKS: &str = "
 @group(0) @binding(2) var<storage, read> table: array<RegionGpu>;
+@group(0) @binding(3) var<storage, read> shape_data: array<vec4<u32>>;
 fn region_count() -> u32 {
     return arrayLength(&table) - 1u;
 }
 fn region_object(i: u32) -> RegionGpu {
     return table[i];
 }
+fn surface_data(i: u32) -> vec4<u32> {
+    return shape_data[i];
+}
 ";
+
+/// How closely one shape's WGSL must follow the CPU.
+struct Bounds {
+    /// A crossing's parameter, in ulps of (scale + t) over the cosine of
+    /// incidence.
+    t_ulps: f64,
+    /// The normal at the crossing (length of the difference).
+    normal: f64,
+    /// The signed distance at the CPU's crossing, in ulps of the scale.
+    distance_ulps: f64,
+}
+
+/// The bounds, derived: inputs are exact in f32 and the shapes' data
+/// rounded to f32 (relative 6e-8); a crossing's parameter is a root of a
+/// line against a surface, its rounding error a few ulps of the scene's
+/// scale (3) divided by the cosine of incidence |d . n|; a normal is a
+/// normalized f32 vector (a few ulps), the signed distance at the CPU's
+/// crossing a few ulps of the scale. That holds for the marched shapes
+/// too: the march stops where the f32 distance bound changes sign, and the
+/// bound's rounding (a few ulps of the scale) moves that root by a few ulps
+/// over the cosine; the solid of revolution's cones are quadratics whose
+/// coefficients cancel, but one Newton step on the unexpanded equation
+/// brings them back to a few ulps (measured: at most 2 ulps for every
+/// shape, where 64 are allowed). The superquadric's normal is a gradient
+/// of powers (2/e, e2/e1, each multiplying the relative error of its
+/// inputs, up to 4 times for e = 0.5), and a star's (e > 2) turns fast
+/// near its pinches, where a crossing a few ulps off has a normal a
+/// curvature times that further off: it is held to 1e-4 (measured 5e-5).
+fn bounds(shape: &eikon_grid::Shape) -> Bounds {
+    let normal = match shape {
+        eikon_grid::Shape::Superquadric { .. } => 1e-4,
+        _ => 1e-5,
+    };
+    Bounds {
+        t_ulps: 64.0,
+        normal,
+        distance_ulps: 16.0,
+    }
+}
 
 /// Input: (o, k), (d, hi), (q, lo): shape k's first crossing of o + d t on
 /// (lo, hi] as (t, ok), its normal; at q (the CPU's crossing point) the
-/// normal and the signed distance; at o the owner and its index.
-fn surfaces_owner_and_index_match_the_cpu(gpu: &Gpu) {
+/// normal and the signed distance; at o the owner and its index. Returns
+/// per shape (kind, crossings compared, max |dt| cos / (scale + t), max
+/// normal error).
+fn check_surfaces(
+    gpu: &Gpu,
+    scene: &Scene,
+    seed: u64,
+    cases_n: usize,
+    aim: bool,
+) -> Vec<(String, usize, f64, f64)> {
     let main = format!(
         "{IO}{TABLE_HOOKS}
 @compute @workgroup_size(WORKGROUP)
@@ -96,12 +210,13 @@ fn surfaces(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
 "
     );
     let source = compose("", &[&DISPATCH, &REGION], &main);
-    let scene = scene();
-    let regions = Regions::new(&scene);
-    let table: Vec<RegionGpu> = gpu_table(&scene).unwrap();
+    let regions = Regions::new(scene);
+    let gpu_regions = gpu_regions(scene).unwrap();
+    let table: Vec<RegionGpu> = gpu_regions.table;
     let count = table.len() - 1;
     let buffer = gpu.storage("regions", &table);
-    let mut r = Cases::new(11);
+    let data = gpu.storage("shape data", &gpu_regions.data);
+    let mut r = Cases::new(seed);
     struct Case {
         o: DVec3,
         d: DVec3,
@@ -110,7 +225,7 @@ fn surfaces(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
         hi: f64,
         cpu: Option<eikon_grid::Crossing>,
     }
-    let cases: Vec<Case> = (0..20000)
+    let cases: Vec<Case> = (0..cases_n)
         .map(|j| {
             let o = r.v(-1.5, 1.5);
             let d = loop {
@@ -119,11 +234,20 @@ fn surfaces(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
                     break d.normalize();
                 }
             };
-            let d = DVec3::new(d.x as f32 as f64, d.y as f32 as f64, d.z as f32 as f64);
             let k = j % count;
+            let shape = &scene.objects[table[k].object as usize].shape;
+            // With `aim`, every other segment heads for a point of the
+            // shape's bounding box.
+            let d = match shape.aabb() {
+                Some((a, b)) if aim && j % 2 == 1 => {
+                    let p = a + (b - a) * DVec3::new(r.f(0.0, 1.0), r.f(0.0, 1.0), r.f(0.0, 1.0));
+                    (p - o).normalize_or(d)
+                }
+                _ => d,
+            };
+            let d = DVec3::new(d.x as f32 as f64, d.y as f32 as f64, d.z as f32 as f64);
             let lo = 1e-3;
             let hi = r.f(0.1, 4.0);
-            let shape = &scene.objects[table[k].object as usize].shape;
             let cpu = shape.first_crossing(o, d, lo, hi);
             Case {
                 o,
@@ -148,23 +272,25 @@ fn surfaces(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
             "surfaces",
             &inputs,
             4,
-            &[buffer.as_entire_binding()],
+            &[buffer.as_entire_binding(), data.as_entire_binding()],
         )
         .unwrap();
-    // The bounds, derived: inputs are exact in f32 and the shapes' data
-    // rounded to f32 (relative 6e-8); a crossing's parameter is a root of
-    // a line against a surface, its rounding error a few ulps of the
-    // scene's scale (3) divided by the cosine of incidence |d . n|; a
-    // normal is a normalized f32 vector (a few ulps), the signed distance
-    // at the CPU's crossing a few ulps of the scale.
     const ULP: f64 = 6e-8;
     let scale = 3.0;
+    let mut per_shape: Vec<(String, usize, f64, f64)> = table[..count]
+        .iter()
+        .map(|t| {
+            let o = &scene.objects[t.object as usize];
+            (format!("{} {}", o.shape.kind(), o.name), 0, 0.0, 0.0)
+        })
+        .collect();
     let (mut max_t, mut max_n, mut max_q, mut max_dist, mut max_index) =
         (0f64, 0f64, 0f64, 0f64, 0f64);
     let (mut hits, mut excused, mut owners) = (0, 0, 0);
     for (j, c) in cases.iter().enumerate() {
         let o = &out[4 * j..4 * j + 4];
         let shape = &scene.objects[table[c.k].object as usize].shape;
+        let b = bounds(shape);
         let gpu_hit = (o[0][1] != 0.0).then_some(o[0][0] as f64);
         // Near-degenerate: a crossing within rounding of either end of the
         // segment, or grazing (cosine below 0.02), may fall either way.
@@ -173,12 +299,12 @@ fn surfaces(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
         match (c.cpu, gpu_hit) {
             (Some(x), Some(t)) => {
                 let cos = x.normal.dot(c.d).abs();
-                let tol = 64.0 * ULP * (scale + x.t) / cos.max(1e-3);
-                if (t - x.t).abs() > tol || (xyz(o[1]) - x.normal).length() > 1e-5 {
+                let tol = b.t_ulps * ULP * (scale + x.t) / cos.max(1e-3);
+                if (t - x.t).abs() > tol || (xyz(o[1]) - x.normal).length() > b.normal {
                     assert!(
                         near_end(x.t) || near_end(t) || grazing(x.normal) || grazing(xyz(o[1])),
-                        "shape {} from {} along {}: GPU t {t} normal {}, CPU {x:?}",
-                        c.k,
+                        "{} from {} along {}: GPU t {t} normal {}, CPU {x:?}",
+                        shape.kind(),
                         c.o,
                         c.d,
                         xyz(o[1])
@@ -187,13 +313,24 @@ fn surfaces(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
                     continue;
                 }
                 hits += 1;
-                max_t = max_t.max((t - x.t).abs() * cos.max(1e-3) / (scale + x.t));
-                max_n = max_n.max((xyz(o[1]) - x.normal).length());
+                let et = (t - x.t).abs() * cos.max(1e-3) / (scale + x.t);
+                let en = (xyz(o[1]) - x.normal).length();
+                let ps = &mut per_shape[c.k];
+                ps.1 += 1;
+                ps.2 = ps.2.max(et);
+                ps.3 = ps.3.max(en);
+                max_t = max_t.max(et);
+                max_n = max_n.max(en);
                 // At the CPU's crossing point: on the surface, with its
-                // normal (a box's edge or a cylinder's rim has two).
+                // normal (a box's edge or a cylinder's rim has two, a
+                // mesh's edge its two faces').
                 let q = c.o + c.d * x.t;
                 let dist = o[2][3] as f64;
-                assert!(dist.abs() < 16.0 * ULP * scale, "distance {dist} at {q}");
+                assert!(
+                    dist.abs() < b.distance_ulps * ULP * scale,
+                    "{}: distance {dist} at {q}",
+                    shape.kind()
+                );
                 max_dist = max_dist.max(dist.abs());
                 let nq = shape.normal(q);
                 let err = (xyz(o[2]) - nq).length();
@@ -207,8 +344,8 @@ fn surfaces(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
             (Some(x), None) => {
                 assert!(
                     near_end(x.t) || grazing(x.normal),
-                    "shape {} from {} along {}: GPU none, CPU {x:?}",
-                    c.k,
+                    "{} from {} along {}: GPU none, CPU {x:?}",
+                    shape.kind(),
                     c.o,
                     c.d
                 );
@@ -217,8 +354,8 @@ fn surfaces(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
             (None, Some(t)) => {
                 assert!(
                     near_end(t) || grazing(xyz(o[1])),
-                    "shape {} from {} along {}: GPU {t}, CPU none",
-                    c.k,
+                    "{} from {} along {}: GPU {t}, CPU none",
+                    shape.kind(),
                     c.o,
                     c.d
                 );
@@ -252,9 +389,34 @@ fn surfaces(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
          max |dt| cos / (scale + t) {max_t:.2e}, max normal error {max_n:.2e} (at the CPU's point {max_q:.2e}), \
          max |distance| there {max_dist:.2e}, max index error {max_index:.2e}"
     );
-    assert!(hits > 2500, "{hits}");
+    for (name, n, et, en) in &per_shape {
+        println!("  {name}: {n} crossings, max |dt| cos / (scale + t) {et:.2e} ({:.0} ulps), max normal error {en:.2e}", et / ULP);
+    }
+    assert!(hits > cases_n / 8, "{hits}");
     assert!(excused * 100 < cases.len(), "{excused} excused");
-    assert!(max_t < 64.0 * ULP && max_n < 1e-5 && max_q < 1e-3);
+    assert!(max_q < 1e-3);
+    per_shape
+}
+
+fn surfaces_owner_and_index_match_the_cpu(gpu: &Gpu) {
+    let per_shape = check_surfaces(gpu, &scene(), 11, 20000, false);
+    for (name, n, et, en) in per_shape {
+        assert!(n > 500, "{name}: {n}");
+        assert!(et < 64.0 * 6e-8 && en < 1e-5, "{name}");
+    }
+}
+
+/// The same for the rounded box, solid of revolution, torus,
+/// superquadrics and meshes (bounds per shape: [`bounds`]).
+fn other_surfaces_owner_and_index_match_the_cpu(gpu: &Gpu) {
+    let scene = other_shapes();
+    let per_shape = check_surfaces(gpu, &scene, 12, 28000, true);
+    for (k, (name, n, et, _)) in per_shape.iter().enumerate() {
+        // Each shape is hit by a fair share of its 4000 segments (the
+        // star, thin between its pinches, by fewer).
+        assert!(*n > 250, "{name} (region {k}): {n} crossings");
+        assert!(*et < 64.0 * 6e-8, "{name}: {et}");
+    }
 }
 
 /// Input: (v, n2), (normal, 0): region_refract against `region::refract`.
@@ -267,6 +429,9 @@ fn region_count() -> u32 {{
 fn region_object(i: u32) -> RegionGpu {{
     var r: RegionGpu;
     return r;
+}}
+fn surface_data(i: u32) -> vec4<u32> {{
+    return vec4<u32>(0u);
 }}
 @compute @workgroup_size(WORKGROUP)
 fn refr(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
@@ -343,10 +508,20 @@ fn refr(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
 /// object), its normal, and the crossing there from the region owning o
 /// (`Regions::cross`): (event, total, region, reflectance), the new v.
 fn next_surface_and_cross_match_the_cpu(gpu: &Gpu) {
+    check_next_surface(gpu, &scene(), 23);
+}
+
+/// The same over the rounded box, solid of revolution, torus,
+/// superquadrics and meshes.
+fn other_next_surface_and_cross_match_the_cpu(gpu: &Gpu) {
+    check_next_surface(gpu, &other_shapes(), 24);
+}
+
+fn check_next_surface(gpu: &Gpu, scene: &Scene, seed: u64) {
     let main = format!(
         "{IO}{TABLE_HOOKS}
 @compute @workgroup_size(WORKGROUP)
-fn cross(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+fn next_and_cross(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
     let i = item(id, groups);
     if 2u * i >= arrayLength(&input) {{
         return;
@@ -365,14 +540,15 @@ fn cross(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
 "
     );
     let source = compose("", &[&DISPATCH, &REGION], &main);
-    let scene = scene();
-    let regions = Regions::new(&scene);
-    let table: Vec<RegionGpu> = gpu_table(&scene).unwrap();
+    let regions = Regions::new(scene);
+    let gpu_regions = gpu_regions(scene).unwrap();
+    let table: Vec<RegionGpu> = gpu_regions.table;
     let count = table.len() - 1;
     let buffer = gpu.storage("regions", &table);
+    let data = gpu.storage("shape data", &gpu_regions.data);
     // The GPU renderer's tolerance for a 3-unit scene (`sharp_eps`).
     let eps = 4e-6 * 1.6;
-    let mut r = Cases::new(23);
+    let mut r = Cases::new(seed);
     let cases: Vec<(DVec3, DVec3, f64)> = (0..20000)
         .map(|_| {
             let o = r.v(-1.5, 1.5);
@@ -391,7 +567,13 @@ fn cross(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
         .flat_map(|&(o, d, t)| [v4(o, eps), v4(d, t)])
         .collect();
     let out = gpu
-        .eval(&source, "cross", &inputs, 4, &[buffer.as_entire_binding()])
+        .eval(
+            &source,
+            "next_and_cross",
+            &inputs,
+            4,
+            &[buffer.as_entire_binding(), data.as_entire_binding()],
+        )
         .unwrap();
     const ULP: f64 = 6e-8;
     let (mut compared, mut excused, mut events, mut total) = (0, 0, 0, 0);
@@ -473,7 +655,10 @@ fn cross(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
         );
         total += usize::from(ev.total);
         let cos_t = rest.max(0.0).sqrt().max(1e-3);
-        let tol_v = 1e-5 * (1.0 + ev.n2) / cos_t.min(1.0) / cos.min(1.0);
+        // Both follow the normal's error (1e-5, a superquadric's 1e-4:
+        // `bounds`).
+        let nb = bounds(&scene.objects[obj].shape).normal;
+        let tol_v = nb * (1.0 + ev.n2) / cos_t.min(1.0) / cos.min(1.0);
         let err_v = (xyz(g[3]) - ray.s.v).length();
         assert!(
             err_v < tol_v,
@@ -484,10 +669,14 @@ fn cross(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
         max_v = max_v.max(err_v);
         let err_r = (g[2][3] as f64 - ev.reflectance).abs();
         assert!(
-            err_r < 1e-5 / cos_t.min(1.0) / cos.min(1.0),
-            "R after {o} along {d}: {} vs {}",
+            err_r < nb / cos_t.min(1.0) / cos.min(1.0),
+            "R after {o} along {d}: {} vs {} (surface of object {obj}, cos {cos}, cos_t {cos_t}, n1 {} n2 {}, GPU normal {}, CPU {})",
             g[2][3],
-            ev.reflectance
+            ev.reflectance,
+            ev.n1,
+            ev.n2,
+            xyz(g[1]),
+            c.normal
         );
         max_r = max_r.max(err_r);
     }
@@ -495,7 +684,7 @@ fn cross(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
         "next surface: {compared} compared, {excused} near-degenerate excused, {events} true crossings ({total} total reflections): \
          max |dt| cos / (scale + t) {max_t:.2e}, max v error {max_v:.2e}, max R error {max_r:.2e}"
     );
-    assert!(compared > 5000 && events > 1000, "{compared} {events}");
+    assert!(compared > 4000 && events > 1000, "{compared} {events}");
     assert!(excused * 100 < cases.len(), "{excused} excused");
 }
 
@@ -505,7 +694,15 @@ fn main() {
             "sharp_surfaces_owner_and_index_match_the_cpu",
             surfaces_owner_and_index_match_the_cpu,
         )
+        .gpu(
+            "sharp_other_surfaces_owner_and_index_match_the_cpu",
+            other_surfaces_owner_and_index_match_the_cpu,
+        )
         .gpu("sharp_refract_matches_the_cpu", refract_matches_the_cpu)
+        .gpu(
+            "sharp_other_next_surface_and_cross_match_the_cpu",
+            other_next_surface_and_cross_match_the_cpu,
+        )
         .gpu(
             "sharp_next_surface_and_cross_match_the_cpu",
             next_surface_and_cross_match_the_cpu,

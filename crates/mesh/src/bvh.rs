@@ -100,6 +100,25 @@ struct Node {
     axis: u16,
 }
 
+/// One node as [`Bvh::flat_nodes`] exports it: a leaf when `count > 0`
+/// (triangles `offset..offset + count` of [`Bvh::leaf_triangles`]), else an
+/// interior node whose left child follows it and whose right child is
+/// `offset`, split on `axis` (the near child of a ray whose direction is
+/// negative on that axis is the right one).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FlatNode {
+    /// Lower corner of the node's box.
+    pub lo: DVec3,
+    /// Upper corner.
+    pub hi: DVec3,
+    /// Leaf: first triangle slot; interior: the right child's index.
+    pub offset: u32,
+    /// Triangles in a leaf (0: interior).
+    pub count: u16,
+    /// Interior: the split axis.
+    pub axis: u16,
+}
+
 /// The hierarchy over one mesh. It copies what it needs (corners and vertex
 /// normals per triangle), so it does not borrow the mesh.
 #[derive(Clone, Debug)]
@@ -122,7 +141,10 @@ const MAX_LEAF: usize = 8;
 /// Beyond this depth splits are medians, which bounds the depth by this
 /// plus log2(triangles) and so the traversal stack.
 const SAH_DEPTH: usize = 64;
-const STACK: usize = 128;
+/// Entries of a traversal's stack: two per level, which the depth bound
+/// (`SAH_DEPTH` plus log2 of the triangles) keeps within (a GPU copy of
+/// the traversal uses the same).
+pub const STACK: usize = 128;
 
 /// `n * eps / (1 - n * eps)` with the unit roundoff: the bound on relative
 /// error after `n` roundings (Higham; PBRT's `gamma`).
@@ -456,6 +478,29 @@ impl Bvh {
                 .collect(),
             ids: order,
         }
+    }
+
+    /// The nodes in their flat depth-first order, for a copy of the
+    /// hierarchy on another device (the GPU's stack traversal walks the
+    /// same nodes as [`Bvh::closest_hit`]).
+    pub fn flat_nodes(&self) -> impl ExactSizeIterator<Item = FlatNode> + '_ {
+        self.nodes.iter().map(|n| FlatNode {
+            lo: n.lo,
+            hi: n.hi,
+            offset: n.offset,
+            count: n.count,
+            axis: n.axis,
+        })
+    }
+
+    /// Each leaf slot's corners, vertex normals and mesh triangle id, in
+    /// leaf order (a leaf's `offset` indexes these).
+    pub fn leaf_triangles(&self) -> impl ExactSizeIterator<Item = (&[DVec3; 3], &[DVec3; 3], u32)> {
+        self.corners
+            .iter()
+            .zip(&self.normals)
+            .zip(&self.ids)
+            .map(|((c, n), &id)| (c, n, id))
     }
 
     /// Number of nodes.

@@ -25,7 +25,7 @@ pub mod mesh;
 pub mod polyhedron;
 pub mod procedural;
 
-pub use bvh::{Bvh, Hit, Ray};
+pub use bvh::{Bvh, FlatNode, Hit, Ray};
 pub use load::{load, load_obj, load_ply, save, write_obj, write_ply, PlyEncoding};
 pub use mesh::{CheckReport, Mesh, WeldSummary};
 pub use polyhedron::cuboctahedron;

@@ -1,7 +1,7 @@
 //! The GPU view renderer with sharp interfaces (`[grid] interfaces =
 //! "sharp"`, `GpuRenderer::with_scene`) against the CPU's
-//! (`Renderer::sharp`), image against image, and its refusal of the shapes
-//! it has no closed form for. These tests need a Vulkan, Metal or DX12
+//! (`Renderer::sharp`), image against image, for every shape but the VDB
+//! grid, and its refusal of that one. These tests need a Vulkan, Metal or DX12
 //! adapter: without one they are reported as ignored; under `CI` a missing
 //! adapter fails them.
 //!
@@ -254,9 +254,175 @@ colors = [[1, 1, 1], [0.1, 0.1, 0.1]]
     );
 }
 
-/// A shape without a closed form on the GPU is refused, naming the object.
-fn sharp_unsupported_shapes_are_refused(gpu: &Gpu) {
+/// A rotated rounded glass cube, a torus of water through it (higher
+/// priority: false crossings inside) and a pinched superquadric star, over
+/// a receiver lit through a light volume: the rounded box's closed form,
+/// the marched torus and superquadric.
+fn sharp_rounded_box_torus_and_superquadric_match_the_cpu(gpu: &Gpu) {
     let text = r#"
+[grid]
+resolution = 40
+min = [-1, -1, -1]
+max = [1, 1, 1]
+interfaces = "sharp"
+
+[[object]]
+name = "cube"
+shape = { type = "rounded_box", center = [-0.25, 0.05, 0], size = [0.8, 0.8, 0.8], radius = 0.15, rotation = [0, 35, 10] }
+index = 1.5
+extinction = [0.1, 0.05, 0.05]
+
+[[object]]
+name = "ring"
+shape = { type = "torus", center = [0.0, 0.1, 0.1], major_radius = 0.5, minor_radius = 0.12, rotation = [70, 0, 20] }
+index = 1.33
+extinction = [0.2, 0.1, 0.02]
+priority = 1
+
+[[object]]
+name = "star"
+shape = { type = "superquadric", center = [0.55, -0.45, -0.2], radii = [0.35, 0.3, 0.35], exponents = [2.5, 2.5], rotation = [10, 20, 0] }
+index = 1.6
+
+[[light]]
+type = "directional"
+direction = [0.2, -1.0, 0.1]
+power = [1, 1, 1]
+
+[receiver]
+point = [0, -0.85, 0]
+normal = [0, 1, 0]
+albedo = [0.8, 0.8, 0.8]
+
+[camera]
+position = [0.5, 0.7, 2.9]
+target = [0.0, -0.2, 0]
+fov = 45
+resolution = [80, 60]
+
+[background]
+type = "sky"
+"#;
+    check(
+        gpu,
+        "sharp rounded box, torus and superquadric",
+        text,
+        40.0,
+        MAX_COUNT_DIFFERENCE,
+    );
+}
+
+// Not registered in `main` either: its kernel (the profile loops of two
+// solids of revolution at every call site) timed out in wgpu's 60 s wait
+// on lavapipe under load.
+#[allow(dead_code)]
+/// The wine glass of `configs/wine-glass.toml` (two solids of revolution:
+/// glass, and wine meeting it by priority; dispersion), small, on a
+/// receiver lit through a light volume.
+fn sharp_wine_glass_matches_the_cpu(gpu: &Gpu) {
+    let text = r#"
+[grid]
+resolution = 40
+min = [-0.75, -0.75, -0.4]
+max = [0.4, 0.65, 0.75]
+dispersion = true
+interfaces = "sharp"
+
+[[object]]
+name = "glass"
+shape = { type = "revolution", base = [0.0, -0.7, 0.0], profile = [
+  [0.0, 0.0], [0.3, 0.0], [0.3, 0.025], [0.06, 0.05], [0.04, 0.1], [0.04, 0.5],
+  [0.12, 0.56], [0.25, 0.7], [0.29, 0.9], [0.27, 1.3], [0.245, 1.3], [0.264, 0.9],
+  [0.224, 0.714], [0.11, 0.59], [0.0, 0.575],
+] }
+index = [1.512, 1.517, 1.527]
+extinction = [0.02, 0.02, 0.02]
+priority = 2
+
+[[object]]
+name = "red wine"
+shape = { type = "revolution", base = [0.0, -0.7, 0.0], profile = [
+  [0.0, 0.57], [0.12, 0.57], [0.25, 0.7], [0.29, 0.9], [0.29, 0.95], [0.0, 0.95],
+] }
+index = [1.339, 1.343, 1.350]
+extinction = [3.0, 16.0, 18.0]
+albedo = [0.05, 0.05, 0.05]
+priority = 1
+
+[[light]]
+type = "directional"
+direction = [-0.35, -1.0, 0.35]
+power = [1.0, 1.0, 1.0]
+
+[receiver]
+point = [0.0, -0.7, 0.0]
+normal = [0.0, 1.0, 0.0]
+albedo = [0.8, 0.76, 0.68]
+
+[camera]
+position = [0.75, 0.5, 2.4]
+target = [-0.12, -0.15, 0.1]
+fov = 42
+resolution = [64, 48]
+
+[background]
+type = "sky"
+"#;
+    check(gpu, "sharp wine glass", text, 40.0, MAX_COUNT_DIFFERENCE);
+}
+
+// Not registered in `main`: the kernel with the mesh's BVH traversals at
+// every call site of the region functions does not compile and run within
+// wgpu's 60 s wait on lavapipe yet (the function-level parity of the mesh
+// code is in `eikon-grid` `tests/wgsl_sharp.rs`).
+#[allow(dead_code)]
+/// Two meshes in front of a checkerboard: a smooth bumpy sphere (vertex
+/// normals) and a flat-shaded cuboctahedron of diamond-like index (total
+/// internal reflection inside): the BVH on the GPU.
+fn sharp_meshes_match_the_cpu(gpu: &Gpu) {
+    let text = r#"
+[grid]
+resolution = 32
+min = [-1, -1, -1]
+max = [1, 1, 1]
+interfaces = "sharp"
+
+[[object]]
+name = "bumpy"
+shape = { type = "bumpy_sphere", center = [-0.4, 0.0, 0.0], radius = 0.45, amplitude = 0.06, bumps = 6, frequency = 10 }
+index = 1.5
+extinction = [0.1, 0.2, 0.3]
+
+[[object]]
+name = "gem"
+shape = { type = "cuboctahedron", center = [0.45, 0.05, 0.1], edge = 0.45, rotation = [20, 35, 0] }
+index = 2.4
+
+[camera]
+position = [0.2, 0.3, 3.2]
+target = [0, 0, 0]
+fov = 40
+resolution = [64, 48]
+
+[background]
+type = "checker"
+point = [0, 0, -1.5]
+normal = [0, 0, 1]
+square = 0.2
+colors = [[0.9, 0.55, 0.12], [0.1, 0.18, 0.45]]
+"#;
+    check(gpu, "sharp meshes", text, 40.0, MAX_COUNT_DIFFERENCE);
+}
+
+/// A VDB grid, the one shape without a GPU form, is refused, naming the
+/// object.
+fn sharp_unsupported_shapes_are_refused(gpu: &Gpu) {
+    let vdb = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../volumes/glass-sphere-64.vdb"
+    );
+    let text = format!(
+        r#"
 [grid]
 resolution = 16
 min = [-1, -1, -1]
@@ -265,15 +431,16 @@ interfaces = "sharp"
 
 [[object]]
 name = "ball"
-shape = { type = "sphere", center = [0, 0, 0], radius = 0.3 }
+shape = {{ type = "sphere", center = [0, 0, 0], radius = 0.3 }}
 index = 1.5
 
 [[object]]
-name = "ring"
-shape = { type = "torus", center = [0, 0, 0], major_radius = 0.5, minor_radius = 0.1 }
+name = "cloud"
+shape = {{ type = "vdb", file = "{vdb}", grid = "n", threshold = 1.25 }}
 index = 1.5
-"#;
-    let (scene, medium, volumes) = lit(text);
+"#
+    );
+    let (scene, medium, volumes) = lit(&text);
     let env = load_environment(&scene.background).unwrap();
     let s = Surroundings::new(&scene, env, &volumes, &medium.geometry);
     let cam = eikon_optics::Camera::new(
@@ -289,12 +456,12 @@ index = 1.5
     let e =
         match GpuRenderer::with_scene(gpu, &scene, &medium, &volumes, &s, &cam, Options::default())
         {
-            Ok(_) => panic!("a torus rendered with sharp interfaces on the GPU"),
+            Ok(_) => panic!("a VDB grid rendered with sharp interfaces on the GPU"),
             Err(e) => e.to_string(),
         };
     println!("{e}");
-    assert!(e.contains("\"ring\"") && e.contains("torus"), "{e}");
-    assert!(e.contains("sphere, box, cylinder and half-space"), "{e}");
+    assert!(e.contains("\"cloud\"") && e.contains("VDB grid"), "{e}");
+    assert!(e.contains("every shape but VDB grids"), "{e}");
 }
 
 fn main() {
@@ -314,6 +481,10 @@ fn main() {
         .gpu(
             "sharp_dispersive_cylinder_matches_the_cpu",
             sharp_dispersive_cylinder_matches_the_cpu,
+        )
+        .gpu(
+            "sharp_rounded_box_torus_and_superquadric_match_the_cpu",
+            sharp_rounded_box_torus_and_superquadric_match_the_cpu,
         )
         .gpu(
             "sharp_unsupported_shapes_are_refused",

@@ -24,13 +24,17 @@
 //!   as a storage buffer (`eikon_grid::region::gpu_table`, objects in
 //!   precedence order, then the ambient medium) and `sharp.wgsl`, the
 //!   CPU's `march_sharp` over the shared `surface` and `region` modules
-//!   (spheres, boxes, cylinders, half-spaces; constant, Luneburg, linear
-//!   index). A curved step is cut at a surface by bisection on its length
+//!   (every shape but VDB grids, the data of solids of revolution and
+//!   meshes in a second buffer; constant, Luneburg, linear index). A
+//!   curved step is cut at a surface by bisection on its length
 //!   (the CPU: false position), and a crossing's tolerance is 4e-6 of the
 //!   scene's scale (the CPU: 1e-9 voxels, below f32's resolution).
 //!   Measured against the CPU on lavapipe (`tests/gpu_sharp.rs`): PSNR
 //!   99.5 dB (glass sphere), 137 dB (Luneburg lens), 92 dB (rotated box,
-//!   cylinder, scattering slab, half-space), 47.9 dB (dispersive cylinder).
+//!   cylinder, scattering slab, half-space), 47.9 dB (dispersive cylinder),
+//!   57.4 dB (rounded box, torus, superquadric star). A kernel holds only
+//!   its scene's shapes' code (`region::only_kinds`): drivers inline every
+//!   call, and every shape at every call site took minutes to compile.
 //!
 //! Differences from the CPU: f32 instead of f64 arithmetic (the plane-hit
 //! rounding allowance is 2e-6 instead of 1e-9 of the scene's scale), and
@@ -54,7 +58,7 @@ use crate::render::{probe_length, Options, Stats, MIRROR_COS};
 use eikon_gpu::{texture_bytes, Buffer, Gpu, GpuError, Texture, MIN_BUFFER_BYTES};
 use eikon_grid::blocks::BLOCK;
 use eikon_grid::geometry::GridGpu;
-use eikon_grid::region::{gpu_table, RegionGpu};
+use eikon_grid::region::{gpu_regions, RegionGpu};
 use eikon_grid::{GridGeometry, Integrator, Interfaces, Light, Medium, Scene};
 use eikon_optics::{Camera, Environment, Image};
 use eikon_shader::{compose, layout, Consts, Layout, VECTOR};
@@ -305,6 +309,9 @@ pub struct DeviceSize {
     /// Objects of the region table with sharp interfaces (0 without:
     /// the table is then one placeholder region).
     pub regions: usize,
+    /// Records (16 bytes) of the regions' shape data (profiles, mesh
+    /// triangles and BVH nodes; at least one).
+    pub region_data: usize,
 }
 
 impl DeviceSize {
@@ -330,6 +337,7 @@ impl DeviceSize {
             height: camera.height(),
             samples: camera.samples(),
             regions: 0,
+            region_data: 1,
         }
     }
 }
@@ -363,9 +371,11 @@ pub struct GpuRenderer<'a> {
     /// Whether there are light volumes (without, one pass binds a dark
     /// placeholder).
     lit: bool,
-    /// With sharp interfaces the regions (`region.rs` `gpu_table`), else
+    /// With sharp interfaces the regions (`region.rs` `gpu_regions`), else
     /// one placeholder.
     regions: Buffer,
+    /// Their shapes' data, else one placeholder record.
+    region_data: Buffer,
     _textures: Vec<Texture>,
 }
 
@@ -748,7 +758,7 @@ fn view_params(
 /// The kernel of [`source`] and its bind group layout.
 fn compile(
     gpu: &Gpu,
-    sharp: bool,
+    kinds: Option<u32>,
 ) -> Result<(wgpu::ComputePipeline, wgpu::BindGroupLayout), GpuError> {
     gpu.checked("view renderer pipeline", || {
         let tex = |binding: u32| wgpu::BindGroupLayoutEntry {
@@ -776,7 +786,7 @@ fn compile(
             buf(1, wgpu::BufferBindingType::Uniform),
         ];
         entries.extend((2..15).map(tex));
-        for b in (15..18).chain([20]) {
+        for b in (15..18).chain([20, 21]) {
             entries.push(buf(b, wgpu::BufferBindingType::Storage { read_only: true }));
         }
         for b in 18..20 {
@@ -802,7 +812,14 @@ fn compile(
             .device
             .create_shader_module(wgpu::ShaderModuleDescriptor {
                 label: Some("view renderer"),
-                source: wgpu::ShaderSource::Wgsl(source(sharp).into()),
+                source: wgpu::ShaderSource::Wgsl(
+                    match kinds {
+                        // Only the scene's shapes' code (`only_kinds`).
+                        Some(k) => eikon_grid::region::only_kinds(&source(true), k),
+                        None => source(false),
+                    }
+                    .into(),
+                ),
             });
         let pipeline = gpu
             .device
@@ -919,7 +936,7 @@ impl<'a> GpuRenderer<'a> {
         Self::check_limits(gpu, medium, surroundings)?;
         let table = match sharp {
             Some(scene) => Some(
-                gpu_table(scene)
+                gpu_regions(scene)
                     .map_err(|e| GpuError::Unsupported(format!("{}: {e}", scene.origin)))?,
             ),
             None => None,
@@ -942,18 +959,34 @@ impl<'a> GpuRenderer<'a> {
             &opts,
             (&textures, &skip_words, &environment),
         );
-        let regions = match &table {
+        let (regions, region_data) = match &table {
             Some(t) => {
                 params.sharp = 1;
-                params.region_count = (t.len() - 1) as u32;
+                params.region_count = (t.table.len() - 1) as u32;
                 params.sharp_eps = sharp_eps(&medium.geometry) as f32;
-                binding("region table", std::mem::size_of_val(t.as_slice()) as u64)?;
-                gpu.storage("regions", t)
+                binding(
+                    "region table",
+                    std::mem::size_of_val(t.table.as_slice()) as u64,
+                )?;
+                binding(
+                    "region shape data",
+                    std::mem::size_of_val(t.data.as_slice()) as u64,
+                )?;
+                (
+                    gpu.storage("regions", &t.table),
+                    gpu.storage("region shape data", &t.data),
+                )
             }
-            None => gpu.storage("no regions", &[RegionGpu::default()]),
+            None => (
+                gpu.storage("no regions", &[RegionGpu::default()]),
+                gpu.storage("no region shape data", &[[0u32; 4]]),
+            ),
         };
         let params = gpu.uniform("view params", &[params]);
-        let (pipeline, layout) = compile(gpu, table.is_some())?;
+        let kinds = table
+            .as_ref()
+            .map(|t| eikon_grid::region::table_kinds(&t.table));
+        let (pipeline, layout) = compile(gpu, kinds)?;
         let single_chunk = frame.chunk >= camera.samples();
         let mut all = textures.textures;
         all.extend(lit.textures);
@@ -976,6 +1009,7 @@ impl<'a> GpuRenderer<'a> {
             single_chunk,
             lit: !volumes.is_empty(),
             regions,
+            region_data,
             _textures: all,
         };
         if single_chunk {
@@ -1027,7 +1061,8 @@ impl<'a> GpuRenderer<'a> {
     ///   byte per cell) with skipping on, else one word;
     /// * the environment map, RGB f32 per texel (one texel if constant);
     /// * the region table (objects and the ambient medium) with sharp
-    ///   interfaces, else one placeholder region;
+    ///   interfaces, else one placeholder region, and their shapes' data
+    ///   (at least one record);
     /// * the eye rays of one chunk of samples (at most 64 MiB, at least one
     ///   sample), the radiance sums, the frame's counters, the uniforms;
     /// * the largest transient: the staging buffer the image is read back
@@ -1067,6 +1102,7 @@ impl<'a> GpuRenderer<'a> {
         b += buffer(words * 4);
         b += buffer(size.environment_texels.max(1) as u64 * PIXEL_BYTES);
         b += buffer((size.regions + 1) as u64 * RegionGpu::size() as u64);
+        b += buffer(size.region_data.max(1) as u64 * 16);
         let pixels = u64::from(size.width) * u64::from(size.height);
         let per_sample = pixels * PIXEL_BYTES;
         let chunk = (RAY_CHUNK / per_sample.max(1)).clamp(1, u64::from(size.samples.max(1)));
@@ -1161,6 +1197,10 @@ impl<'a> GpuRenderer<'a> {
                     entries.push(wgpu::BindGroupEntry {
                         binding: 20,
                         resource: self.regions.as_entire_binding(),
+                    });
+                    entries.push(wgpu::BindGroupEntry {
+                        binding: 21,
+                        resource: self.region_data.as_entire_binding(),
                     });
                     let group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
                         label: Some("view renderer"),

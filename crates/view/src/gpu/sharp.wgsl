@@ -6,6 +6,9 @@
 // The regions (region.rs `gpu_table`): the objects in precedence order,
 // then the ambient medium.
 @group(0) @binding(20) var<storage, read> regions: array<RegionGpu>;
+// Their shapes' data (region.rs `GpuRegions::data`): profiles, mesh
+// triangles and BVH nodes.
+@group(0) @binding(21) var<storage, read> region_data: array<vec4<u32>>;
 
 // The `region` module's hooks.
 fn region_count() -> u32 {
@@ -14,6 +17,11 @@ fn region_count() -> u32 {
 
 fn region_object(i: u32) -> RegionGpu {
     return regions[i];
+}
+
+// The `surface` module's hook.
+fn surface_data(i: u32) -> vec4<u32> {
+    return region_data[i];
 }
 
 // `index_field` in region `field_region`: its own profile.
@@ -49,6 +57,11 @@ struct SharpStep {
 // region of constant index is crossed straight; elsewhere one step of the
 // integrator on the region's profile is cut where it meets a surface (by
 // bisection on the step length, where the CPU takes false position).
+//
+// Each shared function that tests every shape (`region_next_surface`,
+// `region_cross`, `region_shape_distance`) is called from one place only:
+// drivers inline every call, and a copy per call site of the shapes' code
+// (BVH traversals, marches) made the kernel too large to compile in time.
 fn sharp_step(ray: ptr<function, SharpRay>, h: f32, ch: u32) -> SharpStep {
     let eps = P.sharp_eps;
     var out: SharpStep;
@@ -57,77 +70,90 @@ fn sharp_step(ray: ptr<function, SharpRay>, h: f32, ch: u32) -> SharpStep {
     out.c.event = false;
     let r = (*ray).region;
     let x0 = (*ray).x;
-    if region_uniform(r) {
-        let n = region_index(r, x0, ch).x;
-        let d = normalize_or_zero((*ray).v);
-        let hit = region_next_surface(x0, d, eps, h);
-        if hit.ok {
-            let point = x0 + d * hit.t;
-            out.c = region_cross(r, d * n, point, hit.normal, eps, ch);
-            (*ray).x = point;
-            (*ray).v = out.c.v;
-            (*ray).region = out.c.region;
-            out.used = hit.t;
-            out.at_surface = true;
-        } else {
-            (*ray).x = x0 + d * h;
-            (*ray).v = d * n;
-        }
-        return out;
+    let uniform = region_uniform(r);
+    // Straight: along d for h; curved: the chord of one integrator step on
+    // the region's own profile (on its eikonal shell).
+    let n = region_index(r, x0, ch).x;
+    let d = normalize_or_zero((*ray).v);
+    var v0 = d * n;
+    var full = RayDeriv(d * h, vec3<f32>(0.0), 0.0);
+    if !uniform {
+        field_region = r;
+        v0 = ray_onto_shell((*ray).v, n);
+        full = sharp_take(x0, v0, h);
     }
-    field_region = r;
-    // On the eikonal shell of the region's index.
-    let v0 = ray_onto_shell((*ray).v, region_index(r, x0, ch).x);
-    let full = sharp_take(x0, v0, h);
     let chord = full.x;
     let len = length(chord);
+    var dir = d;
+    var reach = h;
+    if !uniform {
+        dir = chord / max(len, 1e-30);
+        reach = len;
+    }
     var hit = RegionHit(false, 0u, 0.0, vec3<f32>(0.0));
-    if len > 0.0 {
-        hit = region_next_surface(x0, chord / len, eps, len);
+    if uniform || len > 0.0 {
+        hit = region_next_surface(x0, dir, eps, reach);
     }
     if !hit.ok {
         (*ray).x = x0 + full.x;
-        (*ray).v = v0 + full.v;
+        (*ray).v = select(v0 + full.v, d * n, uniform);
         field_region = NONE;
         return out;
     }
-    // Cut the step where its end lies on the surface: the object's signed
-    // distance changes sign between the start's side and the far one.
-    let obj = region_object(hit.obj);
-    let u = chord / len;
-    let side = select(1.0, -1.0, region_shape_distance(obj, x0 + u * (0.5 * hit.t)) < 0.0);
-    var a = 0.0;
-    var b = h;
-    var at_x = x0 + full.x;
-    var at_v = v0 + full.v;
-    if side * region_shape_distance(obj, at_x) > 0.0 {
-        // The end is back on the start's side: cut at the chord's crossing.
-        b = h * (hit.t / len);
-        let inc = sharp_take(x0, v0, b);
-        at_x = x0 + inc.x;
-        at_v = v0 + inc.v;
-    }
-    for (var k = 0u; k < 48u; k++) {
-        if b - a <= eps {
-            break;
+    var at_x = x0 + dir * hit.t;
+    var at_v = v0;
+    var b = hit.t;
+    var normal = hit.normal;
+    if !uniform {
+        // Cut the step where its end lies on the surface: the object's
+        // signed distance changes sign between the start's side and the
+        // far one. Evaluation 0 is the side at the chord's middle, 1 the
+        // step's end, then bisection on the step length.
+        let obj = region_object(hit.obj);
+        var side = 1.0;
+        var a = 0.0;
+        b = h;
+        at_x = x0 + full.x;
+        at_v = v0 + full.v;
+        var m = 0.0;
+        var inc = full;
+        for (var k = 0u; k < 50u; k++) {
+            var xq = at_x;
+            if k == 0u {
+                xq = x0 + dir * (0.5 * hit.t);
+            } else if k >= 2u {
+                m = 0.5 * (a + b);
+                if b - a <= eps || m <= a || m >= b {
+                    break;
+                }
+                inc = sharp_take(x0, v0, m);
+                xq = x0 + inc.x;
+            }
+            let dq = region_shape_distance(obj, xq);
+            if k == 0u {
+                side = select(1.0, -1.0, dq < 0.0);
+            } else if k == 1u {
+                if side * dq > 0.0 {
+                    // The end is back on the start's side: cut at the
+                    // chord's crossing.
+                    b = h * (hit.t / len);
+                    let cut = sharp_take(x0, v0, b);
+                    at_x = x0 + cut.x;
+                    at_v = v0 + cut.v;
+                }
+            } else if side * dq > 0.0 {
+                a = m;
+            } else {
+                b = m;
+                at_x = xq;
+                at_v = v0 + inc.v;
+            }
         }
-        let m = 0.5 * (a + b);
-        if m <= a || m >= b {
-            break;
-        }
-        let inc = sharp_take(x0, v0, m);
-        let xm = x0 + inc.x;
-        if side * region_shape_distance(obj, xm) > 0.0 {
-            a = m;
-        } else {
-            b = m;
-            at_x = xm;
-            at_v = v0 + inc.v;
-        }
+        normal = region_shape_normal(obj, at_x);
     }
     field_region = NONE;
-    out.c = region_cross(r, at_v, at_x, region_shape_normal(obj, at_x), eps, ch);
-    if !out.c.event {
+    out.c = region_cross(r, at_v, at_x, normal, eps, ch);
+    if !out.c.event && !uniform {
         // As `Regions::step` on the CPU: a false crossing or a graze that
         // turns back changes nothing, so the whole step stands, in the
         // region where it ends.

@@ -726,7 +726,8 @@ impl<'a> GpuSimulator<'a> {
             None => None,
         };
         let binding_limit = Self::check_limits(gpu, medium, limit)?;
-        let (layouts, kernels) = Self::compile(gpu, table.is_some())?;
+        let kinds = table.as_deref().map(eikon_grid::region::table_kinds);
+        let (layouts, kernels) = Self::compile(gpu, kinds)?;
         let (_, empty_dims, inv_block) = empty_table(medium, 0);
         let (index, extinction, no_fresnel) = Self::upload_medium(gpu, medium)?;
         let region_count = table.as_ref().map_or(0, |t| t.len() as u32 - 1);
@@ -796,8 +797,9 @@ impl<'a> GpuSimulator<'a> {
     #[allow(clippy::type_complexity)]
     fn compile(
         gpu: &Gpu,
-        sharp: bool,
+        kinds: Option<u32>,
     ) -> Result<([wgpu::BindGroupLayout; 4], Vec<wgpu::ComputePipeline>), GpuError> {
+        let sharp = kinds.is_some();
         let layouts = gpu.checked("light simulator layouts", || {
             let make = |label, entries: &[wgpu::BindGroupLayoutEntry]| {
                 gpu.device
@@ -827,7 +829,15 @@ impl<'a> GpuSimulator<'a> {
                 .device
                 .create_shader_module(wgpu::ShaderModuleDescriptor {
                     label: Some("simulate.wgsl"),
-                    source: wgpu::ShaderSource::Wgsl(source().into()),
+                    source: wgpu::ShaderSource::Wgsl(
+                        match kinds {
+                            // Only the scene's shapes' code: drivers inline
+                            // every call of the region functions.
+                            Some(k) => eikon_grid::region::only_kinds(&source(), k),
+                            None => source(),
+                        }
+                        .into(),
+                    ),
                 });
             let layout = gpu
                 .device

@@ -954,6 +954,13 @@ fn region_object(i: u32) -> RegionGpu {
     return regions[i];
 }
 
+// The `surface` module's hook: the shapes' data buffer. The simulator's
+// table (`gpu_table`) holds no profile or mesh, whose data would be read
+// here; scenes with them are refused before this kernel is built.
+fn surface_data(i: u32) -> vec4<u32> {
+    return vec4<u32>(0u);
+}
+
 // The `region_step` module's hook: the region whose own profile
 // `index_field` returns (NONE: the voxel field).
 var<private> field_region: u32 = NONE;
