@@ -31,6 +31,11 @@ pub struct Args {
     /// Only these entries (by name; repeat or separate by commas).
     #[arg(long, value_delimiter = ',')]
     only: Vec<String>,
+    /// Render and record the check images only, leaving the pictures as
+    /// they are (after `eikon gallery` made them and was stopped before it
+    /// recorded, or where a change cannot alter what a picture shows).
+    #[arg(long, conflicts_with = "check")]
+    record_checks: bool,
 }
 
 #[derive(Deserialize)]
@@ -189,7 +194,14 @@ pub fn run(args: Args) -> Result<()> {
     let result = if args.check {
         check(&root, &entries, &record_path, &check_dir, &tmp)
     } else {
-        make(&root, &dir, &entries, &record_path, &check_dir, &tmp)
+        make(
+            &root,
+            (!args.record_checks).then_some(dir.as_path()),
+            &entries,
+            &record_path,
+            &check_dir,
+            &tmp,
+        )
     };
     let _ = std::fs::remove_dir_all(&tmp);
     result
@@ -205,10 +217,11 @@ fn read_record(path: &Path) -> Result<Record> {
     }
 }
 
-/// Make every picture of `entries`, then its check image and record.
+/// Make every picture of `entries` (into `dir`; none without), then its
+/// check image and record.
 fn make(
     root: &Path,
-    dir: &Path,
+    dir: Option<&Path>,
     entries: &[&Entry],
     record_path: &Path,
     check_dir: &Path,
@@ -218,21 +231,26 @@ fn make(
     std::fs::create_dir_all(check_dir)
         .with_context(|| format!("{}: cannot create", check_dir.display()))?;
     for e in entries {
-        eprintln!("gallery: {} (eikon {})", e.name, e.command.join(" "));
-        let out = tmp.join(&e.name);
-        let seconds = eikon(root, &e.command, &out, true)?;
-        let picture = dir.join(format!("{}.png", e.name));
-        crate::output::copy_atomic(&out.join(&e.image), &picture)?;
+        if let Some(dir) = dir {
+            eprintln!("gallery: {} (eikon {})", e.name, e.command.join(" "));
+            let out = tmp.join(&e.name);
+            let seconds = eikon(root, &e.command, &out, true)?;
+            let picture = dir.join(format!("{}.png", e.name));
+            crate::output::copy_atomic(&out.join(&e.image), &picture)?;
+            println!("{}: {seconds:.1} s", picture.display());
+        }
         let (path, rec) = check_image(root, e, tmp)?;
         crate::output::copy_atomic(&path, &check_dir.join(format!("{}.png", e.name)))?;
-        println!(
-            "{}: {seconds:.1} s; check image {}",
-            picture.display(),
-            rec.fnv1a64
-        );
+        println!("{}: check image {}", e.name, rec.fnv1a64);
         record.insert(e.name.clone(), rec);
+        // Recorded as each entry is done: a run stopped later keeps it.
+        write_record(record_path, &record)?;
     }
-    let json = serde_json::to_string_pretty(&record)? + "\n";
+    Ok(())
+}
+
+fn write_record(record_path: &Path, record: &Record) -> Result<()> {
+    let json = serde_json::to_string_pretty(record)? + "\n";
     crate::output::write_atomic(record_path, |w| {
         w.write_all(json.as_bytes())
             .with_context(|| format!("{}: write failed", record_path.display()))
