@@ -997,6 +997,15 @@ impl<'a> GpuSimulator<'a> {
             })
     }
 
+    /// The bind groups of the two lists, each read while the other is
+    /// written: index `cur` reads `sets[cur]`.
+    fn patch_groups(&self, sets: &[PatchSet; 2]) -> Vec<wgpu::BindGroup> {
+        vec![
+            self.bind_patches(&sets[0], &sets[1]),
+            self.bind_patches(&sets[1], &sets[0]),
+        ]
+    }
+
     fn bind_patches(&self, src: &PatchSet, dst: &PatchSet) -> wgpu::BindGroup {
         self.bind(
             1,
@@ -1364,10 +1373,7 @@ impl<'a> GpuSimulator<'a> {
             gpu.storage_empty("deposits", db),
         );
         let medium_group = self.bind_medium(run, g, fresnel, [&pyramid, &fates, &deps]);
-        let patch_groups = vec![
-            self.bind_patches(&sets[0], &sets[1]),
-            self.bind_patches(&sets[1], &sets[0]),
-        ];
+        let patch_groups = self.patch_groups(&sets);
         Lists {
             sets,
             cur: 0,
@@ -1656,10 +1662,7 @@ impl<'a> GpuSimulator<'a> {
             enc.copy_buffer_to_buffer(&old.aux, 0, &set.aux, 0, n * AUX_BYTES);
             gpu.submit([enc.finish()]);
             lists.sets[cur] = set;
-            lists.patch_groups = vec![
-                self.bind_patches(&lists.sets[0], &lists.sets[1]),
-                self.bind_patches(&lists.sets[1], &lists.sets[0]),
-            ];
+            lists.patch_groups = self.patch_groups(&lists.sets);
         }
         if len > lists.scratch_cap {
             let cap = len.max(2 * lists.scratch_cap).min(lists.most);
@@ -1709,10 +1712,7 @@ impl<'a> GpuSimulator<'a> {
             lists.patch_groups.clear();
             lists.sets[dst] = PatchSet::new(gpu, 0);
             lists.sets[dst] = PatchSet::new(gpu, cap);
-            lists.patch_groups = vec![
-                self.bind_patches(&lists.sets[0], &lists.sets[1]),
-                self.bind_patches(&lists.sets[1], &lists.sets[0]),
-            ];
+            lists.patch_groups = self.patch_groups(&lists.sets);
         }
         if total > lists.scratch_cap {
             let cap = total.max(2 * lists.scratch_cap).min(lists.most);
