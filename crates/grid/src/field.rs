@@ -320,6 +320,10 @@ pub struct EmptySpace {
     blocks: BlockGrid,
     /// The block's uniform index, or NaN where the block is not empty.
     n: Vec<f32>,
+    /// Per empty block, the largest `c` such that every block within
+    /// Chebyshev distance `c` of it (a cube of `2c + 1` blocks a side) is
+    /// empty or outside the grid ([`Self::reach`]); 0 elsewhere.
+    clear: Vec<u8>,
 }
 
 impl EmptySpace {
@@ -343,7 +347,40 @@ impl EmptySpace {
                 *out = n0;
             }
         });
-        Self { blocks, n }
+        let clear = clearance(&blocks, &n);
+        Self { blocks, n, clear }
+    }
+
+    /// How far a straight line from `p` may run in any direction and stay
+    /// within empty blocks or outside the grid (all of one index:
+    /// neighbouring empty blocks share their margins, and outside the grid
+    /// the index is the nearest edge cell's, which the cube holds), world
+    /// units; 0 where `p` is not in an empty block. The distance from `p`
+    /// to the faces of the cube of empty blocks around its own.
+    #[inline]
+    pub fn reach(&self, p: DVec3) -> f64 {
+        let Some((b, u)) = self.blocks.locate(p) else {
+            return 0.0;
+        };
+        let flat = self.blocks.flat(b);
+        if self.n[flat].is_nan() {
+            return 0.0;
+        }
+        let c = self.clear[flat] as f64;
+        let edge = 1.0 / self.blocks.inv_edge();
+        (0..3)
+            .map(|a| {
+                let lo = u[a] - (b[a] as f64 - c);
+                let hi = (b[a] as f64 + c + 1.0) - u[a];
+                lo.min(hi) * edge[a]
+            })
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// [`Self::reach`]'s table: per block, the cube of empty blocks around
+    /// it as its half-width `c` (0 where not empty).
+    pub fn clearance(&self) -> &[u8] {
+        &self.clear
     }
 
     /// Its blocks.
@@ -364,6 +401,59 @@ impl EmptySpace {
     pub fn empty_fraction(&self) -> f64 {
         self.n.iter().filter(|x| !x.is_nan()).count() as f64 / self.n.len() as f64
     }
+}
+
+/// Per block, the largest `c` such that every block within Chebyshev
+/// distance `c` is empty (`n` not NaN) or outside the grid (where light
+/// goes straight, in the index of the grid's edge); 0 for a block that is
+/// not empty. One less than the chessboard distance to the nearest block
+/// that is not empty, which two raster passes of the
+/// 26-neighbour chamfer give exactly (Rosenfeld and Pfaltz, "Sequential
+/// operations in digital picture processing", 1966,
+/// doi:10.1145/321356.321357).
+fn clearance(blocks: &BlockGrid, n: &[f32]) -> Vec<u8> {
+    let [bx, by, bz] = blocks.dims.map(|d| d as i64);
+    // Chessboard distance to the nearest block that is not empty.
+    let mut d: Vec<u16> = n
+        .iter()
+        .map(|x| if x.is_nan() { 0 } else { u16::MAX })
+        .collect();
+    let at = |i: i64, j: i64, k: i64| ((i * by + j) * bz + k) as usize;
+    let pass = |d: &mut Vec<u16>, forward: bool| {
+        let order: Box<dyn Iterator<Item = usize>> = if forward {
+            Box::new(0..d.len())
+        } else {
+            Box::new((0..d.len()).rev())
+        };
+        for flat in order {
+            if d[flat] == 0 {
+                continue;
+            }
+            let [i, j, k] = blocks.coords(flat).map(|x| x as i64);
+            let mut best = d[flat];
+            for di in -1..=1i64 {
+                for dj in -1..=1i64 {
+                    for dk in -1..=1i64 {
+                        // The half of the neighbourhood already visited.
+                        let before = (di, dj, dk) < (0, 0, 0);
+                        if (di, dj, dk) == (0, 0, 0) || before != forward {
+                            continue;
+                        }
+                        let (a, b, c) = (i + di, j + dj, k + dk);
+                        if a >= 0 && b >= 0 && c >= 0 && a < bx && b < by && c < bz {
+                            best = best.min(d[at(a, b, c)].saturating_add(1));
+                        }
+                    }
+                }
+            }
+            d[flat] = best;
+        }
+    };
+    pass(&mut d, true);
+    pass(&mut d, false);
+    d.iter()
+        .map(|&x| x.saturating_sub(1).min(u8::MAX as u16) as u8)
+        .collect()
 }
 
 /// Trilinear sampling of one voxelized index channel and its stored gradient.
@@ -594,6 +684,87 @@ priority = 1
             }
         }
         assert!(e.empty_fraction() > 0.5, "{}", e.empty_fraction());
+    }
+
+    #[test]
+    fn clearance_is_the_chessboard_distance_less_one() {
+        // Random blocked blocks on an uneven block grid, against the
+        // definition by brute force: the largest cube around each of
+        // blocks empty or outside the grid.
+        let grid = GridGeometry::new([64, 48, 70], DVec3::ZERO, DVec3::new(6.4, 4.8, 7.0));
+        let blocks = BlockGrid::new(&grid);
+        let [bx, by, bz] = blocks.dims.map(|d| d as i64);
+        let mut state = 12345u64;
+        let n: Vec<f32> = (0..blocks.len())
+            .map(|_| {
+                state = state
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                if (state >> 33).is_multiple_of(97) {
+                    f32::NAN
+                } else {
+                    1.0
+                }
+            })
+            .collect();
+        let clear = clearance(&blocks, &n);
+        let empty = |i: i64, j: i64, k: i64| {
+            let inside = i >= 0 && j >= 0 && k >= 0 && i < bx && j < by && k < bz;
+            !inside || !n[blocks.flat([i as usize, j as usize, k as usize])].is_nan()
+        };
+        let mut largest = 0;
+        for (flat, &got) in clear.iter().enumerate() {
+            let [i, j, k] = blocks.coords(flat).map(|x| x as i64);
+            let want = if !empty(i, j, k) {
+                0
+            } else {
+                let cube_empty = |c: i64| {
+                    (-c..=c).all(|a| (-c..=c).all(|b| (-c..=c).all(|d| empty(i + a, j + b, k + d))))
+                };
+                let mut c = 0;
+                while c < 255 && cube_empty(c + 1) {
+                    c += 1;
+                }
+                c
+            };
+            assert_eq!(got as i64, want, "block {i} {j} {k}");
+            largest = largest.max(want);
+        }
+        assert!(largest >= 2, "the test should reach past neighbours");
+    }
+
+    #[test]
+    fn a_straight_run_within_reach_stays_in_empty_space() {
+        let m = medium(
+            "[grid]\nresolution = 48\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n[[object]]\nshape = { type = \"box\", center = [0.2, -0.1, 0], size = [0.3, 0.5, 0.4], rotation = [10, 20, 30] }\nindex = 1.5\n",
+        );
+        let e = EmptySpace::new(&m, 0);
+        let mut some = 0;
+        for i in 0..3000u32 {
+            let t = |k: u32| ((i * 7919 + k * 104_729) % 1000) as f64 / 500.0 - 1.0;
+            let p = DVec3::new(t(1), t(2), t(3));
+            let d = DVec3::new(t(4), t(5), t(6)).normalize_or_zero();
+            let r = e.reach(p);
+            if e.index_at(p).is_none() {
+                assert_eq!(r, 0.0);
+                continue;
+            }
+            if r > 4.0 * m.geometry.voxel_size() {
+                some += 1;
+            }
+            for s in 0..=64 {
+                let q = p + d * (r * s as f64 / 64.0 * (1.0 - 1e-12));
+                if m.geometry.contains(q) {
+                    assert_eq!(e.index_at(q), Some(1.0), "{p} + {d} * {r}: {q}");
+                } else {
+                    // Outside, a sample clamps to the nearest edge cell.
+                    let g = &m.geometry;
+                    let edge = q.clamp(g.min, g.max - (g.max - g.min) * 1e-12);
+                    assert_eq!(e.index_at(edge), Some(1.0), "{q} beyond {edge}");
+                }
+            }
+        }
+        assert!(some > 100, "{some} long runs");
     }
 
     #[test]

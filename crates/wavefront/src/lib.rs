@@ -257,7 +257,8 @@ impl Options {
 /// What happened to one light's wavefront(s).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Summary {
-    /// Steps taken (the longest wavefront's, with dispersion).
+    /// Steps of time the wavefront came (the longest wavefront's, with
+    /// dispersion): its farthest patch's optical path over the step.
     pub steps: usize,
     /// Most patches alive at once.
     pub peak_patches: usize,
@@ -514,6 +515,19 @@ impl Plan {
                 .max_steps
                 .unwrap_or((16.0 * grid.diagonal() * n_max / dt).ceil() as usize),
         }
+    }
+}
+
+/// The straight runs through empty space under `opts` ([`propagate::Run`]):
+/// none with the paper's deposit, which samples the patches after every
+/// step.
+pub(crate) fn plan_run(rules: &refine::Rules, opts: &Options) -> propagate::Run {
+    if opts.deposit == DepositRule::Paper {
+        return propagate::Run::NONE;
+    }
+    propagate::Run {
+        max_steps: propagate::MAX_RUN,
+        split_span: rules.split_span * (1.0 + refine::SPLIT_SLACK),
     }
 }
 
@@ -790,11 +804,16 @@ pub fn simulate_light_in(
             tally: tally.as_ref(),
             group,
             sharp: sharp.as_ref(),
+            run: plan_run(&rules, opts),
         };
-        let mut step = 0;
+        let (mut step, mut reached) = (0, 0);
         while !p.is_empty() && step < max_steps {
             step += 1;
             propagate::propagate(&mut p, &step_of, &mut losses);
+            // Patches that ran through empty space are ahead of the
+            // common time: the wavefront has come as far as the farthest.
+            let ahead = p.corner[0].iter().map(|c| c.opl).fold(0.0, f64::max);
+            reached = reached.max(step).max((ahead / dt).round() as usize);
             for l in &losses {
                 add(&mut summary.absorbed_power, &l.absorbed);
                 add(&mut summary.reflected_power, &l.reflected);
@@ -819,9 +838,9 @@ pub fn simulate_light_in(
                 v.deposit(&p, medium, &empty, group);
             }
             summary.peak_patches = summary.peak_patches.max(p.len());
-            progress(step, p.len());
+            progress(reached, p.len());
         }
-        summary.steps = summary.steps.max(step);
+        summary.steps = summary.steps.max(reached);
         summary.step_limit += p.len();
         for f in &p.flux {
             add(&mut summary.trapped_power, f);

@@ -19,6 +19,7 @@
 
 use crate::deposit::{self, Counters};
 use crate::patch::{area, span, Patches, Split};
+use crate::refine;
 use eikon_grid::interface::Interfaces;
 use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
 use eikon_grid::region::{Region, Regions, SharpRay};
@@ -125,6 +126,129 @@ pub struct Step<'a> {
     pub group: Option<usize>,
     /// Sharp interfaces ([`Sharp`]); `None`: the smoothed index.
     pub sharp: Option<&'a Sharp<'a>>,
+    /// Straight runs of several steps through empty space ([`Run`]).
+    pub run: Run,
+}
+
+/// Straight runs through empty space (beyond the paper): where a patch's
+/// corners lie in empty blocks ([`EmptySpace::reach`]) it may take up to
+/// `max_steps` equal-time steps at once, straight, depositing its tube step
+/// by step as the steps would, without the index sampling, the
+/// tessellation analysis and the list rebuilding in between. A run stops
+/// short of any surface and keeps the patch within the split span, so the
+/// tessellation analysis after it decides as it would have after each of
+/// its steps (edge lengths are convex along straight corner paths, and
+/// nothing attenuates). Patches
+/// ahead of the others in time meet nothing that depends on the common
+/// time.
+#[derive(Clone, Copy, Debug)]
+pub struct Run {
+    /// Most steps in one run; 1 runs none (the paper's deposit, which
+    /// samples patches after every step).
+    pub max_steps: usize,
+    /// The tessellation's split span, world units (with its slack).
+    pub split_span: f64,
+}
+
+impl Run {
+    /// One step at a time.
+    pub const NONE: Run = Run {
+        max_steps: 1,
+        split_span: 0.0,
+    };
+}
+
+/// Most steps one run through empty space takes ([`Run`]). The GPU's too.
+pub const MAX_RUN: usize = 32;
+
+/// Empty space: with every corner and the midpoint of the patch `x` in
+/// empty blocks of one index the step (or a [`Run`] of steps) is a straight
+/// line in a constant index without loss, taken without sampling, and its
+/// tube deposited. `false` (nothing changed) where the patch is not in
+/// empty space, or where a surface lies within the step's reach (sharp
+/// interfaces: the exact step then crosses it).
+fn empty_run(
+    step: &Step,
+    sharp: Option<&Sharp>,
+    corners: &mut [RayState; 4],
+    flux: &[f64; 3],
+) -> bool {
+    let Step {
+        empty,
+        dt,
+        tally,
+        group,
+        run,
+        ..
+    } = *step;
+    let x0 = corners.map(|c| c.x);
+    let m0 = (x0[0] + x0[1] + x0[2] + x0[3]) * 0.25;
+    let Some(n) = empty.index_at(m0) else {
+        return false;
+    };
+    if !x0.iter().all(|&x| empty.index_at(x) == Some(n)) {
+        return false;
+    }
+    // Each step advances dt / n in space [Ihrke07 eqs 14-15].
+    let unit = dt / n;
+    let dirs = corners.map(|c| c.v.normalize_or_zero());
+    let mut k = 1;
+    if run.max_steps > 1 {
+        let reach = x0
+            .iter()
+            .map(|&x| empty.reach(x))
+            .fold(f64::INFINITY, f64::min);
+        k = ((reach / unit).floor() as usize).clamp(1, run.max_steps);
+        if span(&x0) > run.split_span {
+            k = 1;
+        }
+        while k > 1 {
+            let x1: [DVec3; 4] = std::array::from_fn(|c| x0[c] + dirs[c] * (k as f64 * unit));
+            if span(&x1) <= run.split_span {
+                break;
+            }
+            k /= 2;
+        }
+        if let (Some(sharp), true) = (sharp, k > 1) {
+            // Empty blocks hold no surface; the exact test makes sure.
+            for c in 0..4 {
+                if let Some((_, hit)) = sharp.regions.next_surface(x0[c], dirs[c], k as f64 * unit)
+                {
+                    if hit.t < unit {
+                        return false;
+                    }
+                    k = k.min((hit.t / unit) as usize).max(1);
+                }
+            }
+        }
+    }
+    for (s, d) in corners.iter_mut().zip(dirs) {
+        s.v = d * n;
+    }
+    // The tube step by step: a footprint is cut into parts at the cell
+    // faces where its step is halfway, and each part is deposited along a
+    // line, which a long chord would alias against the cells.
+    // A run ends where the patch has left the grid, as the tessellation
+    // analysis would end it after that step.
+    let v = corners.map(|c| c.v * (dt / (n * n)));
+    let mut from = x0;
+    let mut taken = 0;
+    while taken < k {
+        let to: [DVec3; 4] = std::array::from_fn(|c| from[c] + v[c]);
+        if let Some(t) = tally {
+            deposit::tube(t, &from, &to, flux, DVec3::ZERO, group);
+        }
+        from = to;
+        taken += 1;
+        if (0..4).all(|c| refine::gone(&step.medium.geometry, from[c], dirs[c])) {
+            break;
+        }
+    }
+    for (s, x) in corners.iter_mut().zip(from) {
+        s.x = x;
+        s.opl += taken as f64 * dt;
+    }
+    true
 }
 
 /// Sharp interfaces in the light simulation (`[grid] interfaces =
@@ -197,6 +321,7 @@ pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
         tally,
         group,
         sharp: _,
+        run: _,
     } = step;
     losses.clear();
     losses.resize(patches.len(), Loss::default());
@@ -211,25 +336,13 @@ pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
     )
         .into_par_iter()
         .for_each(|(a, b, c, d, flux, lost)| {
+            let mut corners = [*a, *b, *c, *d];
+            if empty_run(step, None, &mut corners, flux) {
+                [*a, *b, *c, *d] = corners;
+                return;
+            }
             let x0 = [a.x, b.x, c.x, d.x];
             let m0 = (x0[0] + x0[1] + x0[2] + x0[3]) * 0.25;
-            // Skip empty space: with every corner and the midpoint in an
-            // empty block the step (under a cell long) is a straight line
-            // in a constant index without loss, taken without sampling.
-            if let Some(n) = empty.index_at(m0) {
-                if x0.iter().all(|&x| empty.index_at(x) == Some(n)) {
-                    for s in [&mut *a, &mut *b, &mut *c, &mut *d] {
-                        s.v = s.v.normalize_or_zero() * n;
-                        s.x += s.v * (dt / (n * n));
-                        s.opl += dt;
-                    }
-                    if let Some(t) = tally {
-                        let x1 = [a.x, b.x, c.x, d.x];
-                        deposit::tube(t, &x0, &x1, flux, DVec3::ZERO, group);
-                    }
-                    return;
-                }
-            }
             let before = extinction_per_index(medium, field, empty, m0);
             for s in [&mut *a, &mut *b, &mut *c, &mut *d] {
                 // On the shell |v| = n, so each corner advances exactly dt
@@ -420,7 +533,6 @@ fn sharp_patch(
 ) -> Option<[RayState; 4]> {
     let Step {
         medium,
-        empty,
         integrator,
         dt,
         channel,
@@ -432,19 +544,8 @@ fn sharp_patch(
     let x0 = corners.map(|c| c.x);
     let m0 = (x0[0] + x0[1] + x0[2] + x0[3]) * 0.25;
     let mut moved = *corners;
-    if let Some(n) = empty.index_at(m0) {
-        if x0.iter().all(|&x| empty.index_at(x) == Some(n)) {
-            // Empty space holds no surface (see `propagate`).
-            for s in moved.iter_mut() {
-                s.v = s.v.normalize_or_zero() * n;
-                s.x += s.v * (dt / (n * n));
-                s.opl += dt;
-            }
-            if let Some(t) = tally {
-                deposit::tube(t, &x0, &moved.map(|c| c.x), flux, DVec3::ZERO, group);
-            }
-            return Some(moved);
-        }
+    if empty_run(step, Some(sharp), &mut moved, flux) {
+        return Some(moved);
     }
     // Each corner: the step's whole optical path, surface by surface.
     let mut first: [Option<Crossed>; 4] = [None; 4];

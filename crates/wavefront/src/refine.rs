@@ -57,6 +57,10 @@ pub(crate) enum Fate {
 }
 
 /// Settings of the analysis.
+/// Relative slack of the split span: a patch emitted exactly at the split
+/// size is not split for the rounding of its corners.
+pub(crate) const SPLIT_SLACK: f64 = 1e-9;
+
 #[derive(Clone, Copy, Debug)]
 pub struct Rules {
     /// Tessellate above this span, world units.
@@ -166,13 +170,18 @@ pub struct Scratch {
     pyramid: HistoPyramid,
 }
 
+/// Whether a particle at `x` moving along `d` has left `grid` for good
+/// (outside, and heading away from it).
+#[inline]
+pub(crate) fn gone(grid: &GridGeometry, x: glam::DVec3, d: glam::DVec3) -> bool {
+    !grid.contains(x) && grid.clip_line(x, d).is_none_or(|(_, t1)| t1 <= 0.0)
+}
+
 fn fate(p: &Patches, i: usize, grid: &GridGeometry, rules: &Rules) -> Fate {
     let x = p.positions(i);
     let dir = p.direction(i);
     let mid = p.midpoint(i);
-    let gone = |x: glam::DVec3, d: glam::DVec3| {
-        !grid.contains(x) && grid.clip_line(x, d).is_none_or(|(_, t1)| t1 <= 0.0)
-    };
+    let gone = |x: glam::DVec3, d: glam::DVec3| gone(grid, x, d);
     if rules.cull_caustics {
         // The paper's deposit reads the midpoint only.
         if gone(mid, dir) {
@@ -202,7 +211,7 @@ fn fate(p: &Patches, i: usize, grid: &GridGeometry, rules: &Rules) -> Fate {
     if rules.cull_caustics && normal(&x).dot(dir) <= 0.0 {
         return Fate::Caustic;
     }
-    if span(&x) > rules.split_span * (1.0 + 1e-9) && p.depth[i] < rules.max_depth {
+    if span(&x) > rules.split_span * (1.0 + SPLIT_SLACK) && p.depth[i] < rules.max_depth {
         if rules.dim > 0.0 {
             // A patch spread so thin that its irradiance is a small part of
             // what the light would give there unobstructed adds little to

@@ -7,7 +7,7 @@
 // Hook: `fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>)`,
 // where the pieces go (the light simulator sums them per cell in a small
 // cache before its atomic adds).
-// Needs: the `grid` and `patch` modules; MAX_SUBPATCHES, SUBPATCH_SIZE,
+// Needs: the `grid` and `patch` modules; MAX_SUBPATCHES, SUBPATCH_SIZE, SUBPATCH_SLACK,
 // MAX_PARTS (generated).
 
 // What a chord's pieces are worth: fluence units per watt-unit of length
@@ -130,8 +130,8 @@ fn deposit_edge2(p: array<vec3<f32>, 4>, a: u32, b: u32) -> f32 {
 fn deposit_subpatches(x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, voxel: f32) -> vec2<u32> {
     let ls = sqrt(max(max(deposit_edge2(x0, 1u, 0u), deposit_edge2(x0, 2u, 3u)), max(deposit_edge2(x1, 1u, 0u), deposit_edge2(x1, 2u, 3u))));
     let lt = sqrt(max(max(deposit_edge2(x0, 3u, 0u), deposit_edge2(x0, 2u, 1u)), max(deposit_edge2(x1, 3u, 0u), deposit_edge2(x1, 2u, 1u))));
-    let ks = max(ceil(ls / (SUBPATCH_SIZE * voxel)), 1.0);
-    let kt = max(ceil(lt / (SUBPATCH_SIZE * voxel)), 1.0);
+    let ks = max(ceil(ls / (SUBPATCH_SIZE * voxel) * (1.0 - SUBPATCH_SLACK)), 1.0);
+    let kt = max(ceil(lt / (SUBPATCH_SIZE * voxel) * (1.0 - SUBPATCH_SLACK)), 1.0);
     if !(ks <= f32(MAX_SUBPATCHES) && kt <= f32(MAX_SUBPATCHES)) {
         return vec2<u32>(0u);
     }

@@ -292,6 +292,7 @@ fn deposit_declarations() -> String {
     Consts::new()
         .u32("MAX_SUBPATCHES", MAX_SUBPATCHES as u32)
         .f32("SUBPATCH_SIZE", SUBPATCH_SIZE as f32)
+        .f32("SUBPATCH_SLACK", SUBPATCH_SLACK as f32)
         .u32("MAX_PARTS", MAX_PARTS as u32)
         .wgsl()
         .to_string()
@@ -313,6 +314,12 @@ pub const MAX_SUBPATCHES: usize = 8;
 /// this, each deposited with its own footprint.
 pub const SUBPATCH_SIZE: f64 = 0.5;
 
+/// Relative slack of [`SUBPATCH_SIZE`]: a patch emitted at a whole number
+/// of sub-patches across is cut into that many whatever the rounding of its
+/// corners (without it, a patch one voxel across would be cut in two or in
+/// three from one step to the next, and the two backends would disagree).
+pub const SUBPATCH_SLACK: f64 = 1e-4;
+
 /// Sub-patches along the two sides of a patch whose corners sweep from
 /// `x0` to `x1`: enough that none exceeds [`SUBPATCH_SIZE`] voxels on the
 /// longer of each pair of opposite edges, before or after the step; `None`
@@ -332,7 +339,9 @@ pub fn subpatches(x0: &[DVec3; 4], x1: &[DVec3; 4], voxel: f64) -> Option<(usize
         .max(edge(x1, 2, 1))
         .sqrt();
     let count = |l: f64| {
-        let k = (l / (SUBPATCH_SIZE * voxel)).ceil().max(1.0);
+        let k = (l / (SUBPATCH_SIZE * voxel) * (1.0 - SUBPATCH_SLACK))
+            .ceil()
+            .max(1.0);
         (k <= MAX_SUBPATCHES as f64).then_some(k as usize)
     };
     Some((count(ls)?, count(lt)?))
