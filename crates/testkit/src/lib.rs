@@ -16,9 +16,13 @@
 //! * [`scenes`]: the scenes and options several test files use.
 //! * [`parity`]: what the function-level parity tests of the WGSL modules
 //!   share.
+//! * [`photon_ref`]: an independent photon tracer (sphere, directional,
+//!   beam or point light, track-length fluence), sharing no code with
+//!   `eikon_wavefront`, to check its volumes against (issue 16).
 
 pub mod metrics;
 pub mod parity;
+pub mod photon_ref;
 pub mod scenes;
 
 use eikon_gpu::Gpu;
