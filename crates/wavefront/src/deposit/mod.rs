@@ -247,32 +247,39 @@ impl Counters {
     /// The finished light volume: counters back to watt-units of length,
     /// over the cell volume.
     pub fn into_volume(self) -> LightVolume {
-        let [nx, ny, nz] = self.grid.dims;
-        let s = self.grid.spacing();
+        let Counters {
+            fluence,
+            flux,
+            scale,
+            flux_scale: fs,
+            grid,
+            ..
+        } = self;
+        let [nx, ny, nz] = grid.dims;
+        let s = grid.spacing();
         let volume = s.x * s.y * s.z;
-        let fluence: Vec<f32> = self
-            .fluence
-            .par_iter()
+        // One array at a time, each set of counters dropped as soon as it
+        // is converted: the peak holds one f32 copy, not all of them.
+        let fluence: Vec<f32> = fluence
+            .into_par_iter()
             .enumerate()
             .map(|(i, u)| {
-                let sc = self.scale[i % 3];
+                let sc = scale[i % 3];
                 if sc > 0.0 {
-                    (u.load(Ordering::Relaxed) as f64 / sc / volume) as f32
+                    (u.into_inner() as f64 / sc / volume) as f32
                 } else {
                     0.0
                 }
             })
             .collect();
-        let fs = self.flux_scale;
-        let flux = self
-            .flux
-            .iter()
+        let flux = flux
+            .into_iter()
             .map(|f| {
                 let v: Vec<f32> = f
-                    .par_iter()
+                    .into_par_iter()
                     .map(|u| {
                         if fs > 0.0 {
-                            (u.load(Ordering::Relaxed) as f64 / fs / volume) as f32
+                            (u.into_inner() as f64 / fs / volume) as f32
                         } else {
                             0.0
                         }
