@@ -760,9 +760,35 @@ fn revolution_crossing(
     } else {
         (f64::NEG_INFINITY, f64::INFINITY)
     };
+    // And the distances from the axis it spans (squared): the nearest is
+    // where the line comes closest to the axis within [lo, hi], the
+    // farthest at an end (the squared distance is convex along the line).
+    // An edge whose radii lie wholly inside or outside them cannot be
+    // crossed; the margins keep the test conservative.
+    let rho2 = |t: f64| {
+        let (x, z) = (o.x + d.x * t, o.z + d.z * t);
+        x * x + z * z
+    };
+    let (r2_lo, r2_hi) = if lo.is_finite() && hi.is_finite() {
+        let a2 = d.x * d.x + d.z * d.z;
+        let near = if a2 > 0.0 {
+            (-(o.x * d.x + o.z * d.z) / a2).clamp(lo, hi)
+        } else {
+            lo
+        };
+        let (r_near, r_far) = (rho2(near), rho2(lo).max(rho2(hi)));
+        let margin = 1e-9 * (r_far + rho2(0.0)) + f64::MIN_POSITIVE;
+        (r_near - margin, r_far + margin)
+    } else {
+        (f64::NEG_INFINITY, f64::INFINITY)
+    };
     for i in 0..n {
         let (a, b) = (profile[i], profile[(i + 1) % n]);
         if a.y.max(b.y) < span_lo || a.y.min(b.y) > span_hi {
+            continue;
+        }
+        let (ra, rb) = (a.x.max(0.0), b.x.max(0.0));
+        if ra.max(rb) * ra.max(rb) < r2_lo || ra.min(rb) * ra.min(rb) > r2_hi {
             continue;
         }
         if a.y == b.y {
