@@ -64,6 +64,10 @@ use rayon::prelude::*;
 use std::f64::consts::PI;
 use std::time::Instant;
 
+#[path = "support/equal.rs"]
+mod equal;
+use equal::{equal_error, median, Equal, Reach, Score, GL6};
+
 /// Photon counts of the sweep, as powers of two: a fixed schedule, so that
 /// the errors and the fit do not depend on the machine's load.
 const FIRST_LOG2: u32 = 14;
@@ -74,8 +78,6 @@ const PHOTON_CAP_S: f64 = 120.0;
 /// Photon count (as a power of two, at most the last run's) timed side by
 /// side with the wavefront for the cost per photon.
 const SIDE_LOG2: u32 = 19;
-/// Photon runs fitted when the sweep ends above the target error.
-const FIT_POINTS: usize = 3;
 /// Cells closer to the light than this many voxels are not scored.
 const EXCLUDE_VOXELS: f64 = 3.0;
 
@@ -100,16 +102,6 @@ const CASES: [Case; 2] = [
         light: DVec3::new(-1.45, 0.23, -0.17),
         sigma: 0.5,
     },
-];
-
-/// Six-point Gauss-Legendre nodes and weights on [-1, 1].
-const GL6: [(f64, f64); 6] = [
-    (-0.932_469_514_203_152, 0.171_324_492_379_170),
-    (-0.661_209_386_466_265, 0.360_761_573_048_139),
-    (-0.238_619_186_083_197, 0.467_913_934_572_691),
-    (0.238_619_186_083_197, 0.467_913_934_572_691),
-    (0.661_209_386_466_265, 0.360_761_573_048_139),
-    (0.932_469_514_203_152, 0.171_324_492_379_170),
 ];
 
 /// Exact irradiance at `x` of a 1 W point light at `p` in the volume `g`
@@ -159,37 +151,14 @@ fn truth(g: &GridGeometry, p: DVec3, sigma: f64) -> (Array3<f64>, Array3<f64>) {
     )
 }
 
-/// How an estimate compares with an exact field over the scored cells.
-#[derive(Clone, Copy)]
-struct Score {
-    /// Mean of |estimate / exact - 1| over the cells and channels.
-    error: f64,
-    /// Mean of estimate / exact - 1.
-    signed: f64,
-    /// Cell-channels with an estimate of 0.
-    dark: usize,
-}
-
+/// [`equal::score`] of a volume against an exact field (the same for
+/// every channel).
 fn score(est: &Array4<f32>, exact: &Array3<f64>, scored: &Array3<bool>) -> Score {
-    let (mut sum, mut signed, mut n, mut dark) = (0.0, 0.0, 0usize, 0usize);
-    for ((i, j, k), &t) in exact.indexed_iter() {
-        if !scored[[i, j, k]] {
-            continue;
-        }
-        for c in 0..3 {
-            let e = est[[i, j, k, c]] as f64;
-            dark += usize::from(e == 0.0);
-            let rel = e / t - 1.0;
-            sum += rel.abs();
-            signed += rel;
-            n += 1;
-        }
-    }
-    Score {
-        error: sum / n as f64,
-        signed: signed / n as f64,
-        dark,
-    }
+    equal::score(
+        scored,
+        |[i, j, k, c]| est[[i, j, k, c]] as f64,
+        |[i, j, k, _]| exact[[i, j, k]],
+    )
 }
 
 /// One photon run.
@@ -201,90 +170,6 @@ struct Run {
     average: Score,
     /// Against the centre values.
     centre: Score,
-}
-
-/// Where the photons reach an error.
-enum Reach {
-    /// Between two measured runs: log-log interpolation.
-    Measured { lo: usize, hi: usize },
-    /// Reached by the first run already: at most its count.
-    AtMost,
-    /// Beyond the last run: `a N^b` fitted on the last runs.
-    Fitted { a: f64, b: f64, from: usize },
-    /// The fitted error does not fall.
-    Never { b: f64 },
-}
-
-/// The photon count at which the error reaches a target.
-struct Equal {
-    count: f64,
-    reach: Reach,
-}
-
-/// Photon count at which `err` of the runs reaches `target`.
-fn equal_error(runs: &[Run], target: f64, err: impl Fn(&Run) -> f64) -> Equal {
-    let log2 = |n: usize| n.trailing_zeros() as usize;
-    if let Some(hi) = runs.iter().position(|r| err(r) <= target) {
-        if hi == 0 {
-            return Equal {
-                count: runs[0].count as f64,
-                reach: Reach::AtMost,
-            };
-        }
-        let (a, b) = (&runs[hi - 1], &runs[hi]);
-        let slope = (err(b) / err(a)).ln() / (b.count as f64 / a.count as f64).ln();
-        return Equal {
-            count: a.count as f64 * (target / err(a)).powf(1.0 / slope),
-            reach: Reach::Measured {
-                lo: log2(a.count),
-                hi: log2(b.count),
-            },
-        };
-    }
-    let last = &runs[runs.len().saturating_sub(FIT_POINTS)..];
-    let xs: Vec<f64> = last.iter().map(|r| (r.count as f64).ln()).collect();
-    let ys: Vec<f64> = last.iter().map(|r| err(r).ln()).collect();
-    let n = xs.len() as f64;
-    let (mx, my) = (xs.iter().sum::<f64>() / n, ys.iter().sum::<f64>() / n);
-    let sxy: f64 = xs.iter().zip(&ys).map(|(x, y)| (x - mx) * (y - my)).sum();
-    let sxx: f64 = xs.iter().map(|x| (x - mx) * (x - mx)).sum();
-    let b = if sxx > 0.0 { sxy / sxx } else { 0.0 };
-    if b >= -1e-3 {
-        return Equal {
-            count: f64::INFINITY,
-            reach: Reach::Never { b },
-        };
-    }
-    let a = (my - b * mx).exp();
-    Equal {
-        count: (target / a).powf(1.0 / b),
-        reach: Reach::Fitted {
-            a,
-            b,
-            from: log2(last[0].count),
-        },
-    }
-}
-
-fn describe(e: &Equal, runs: &[Run]) -> String {
-    let last = runs.last().map_or(0, |r| r.count.trailing_zeros());
-    match e.reach {
-        Reach::Measured { lo, hi } => {
-            format!("measured: log-log interpolation between the runs of 2^{lo} and 2^{hi}")
-        }
-        Reach::AtMost => "measured: the first run already reaches it (an upper bound)".into(),
-        Reach::Fitted { a, b, from } => format!(
-            "EXTRAPOLATED beyond the last run (2^{last}): fit error = {a:.3e} * N^({b:.3}) \
-             over 2^{from}..2^{last}"
-        ),
-        Reach::Never { b } => format!("not reached: the fitted slope {b:.3} does not fall"),
-    }
-}
-
-fn median(v: &[f64]) -> f64 {
-    let mut v = v.to_vec();
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 fn secs(t: f64) -> String {
@@ -452,16 +337,21 @@ fn run_case(case: &Case) -> Outcome {
         list(&t_side)
     );
 
-    let eq = equal_error(&runs, target, |r| r.average.error);
+    let points: Vec<(u64, f64)> = runs
+        .iter()
+        .map(|r| (r.count as u64, r.average.error))
+        .collect();
+    let last_log2 = runs.last().map_or(0, |r| r.count.trailing_zeros());
+    let eq = equal_error(&points, target);
     let t_eq = eq.count * cost;
     println!(
         "   photons at the wavefront's error {target:.3e}: N = {:.3e}, N * cost = {} ({})",
         eq.count,
         secs(t_eq),
-        describe(&eq, &runs)
+        equal::describe(&eq, last_log2)
     );
     println!("   RATIO photons / wavefront: {:.1}x", t_eq / t_wf);
-    let alt = equal_error(&runs, wf_average.error, |r| r.average.error);
+    let alt = equal_error(&points, wf_average.error);
     println!(
         "   both against cell averages (target {:.3e}): N = {:.3e}, {}, ratio {:.1}x",
         wf_average.error,

@@ -43,6 +43,10 @@ use ndarray::{Array3, Array4};
 use std::f64::consts::PI;
 use std::time::Instant;
 
+#[path = "support/equal.rs"]
+mod equal;
+use equal::{median, Score, GL6};
+
 const FIRST_LOG2: u32 = 14;
 /// The sweep's last count, 2^22 (`EQ_LAST_LOG2` overrides, for a quick
 /// look).
@@ -63,7 +67,6 @@ fn env_u32(name: &str, default: u32) -> u32 {
 }
 /// No photon run predicted (twice the last) beyond this, s.
 const RUN_CAP_S: f64 = 60.0;
-const FIT_POINTS: usize = 3;
 
 const LIGHT: DVec3 = DVec3::new(0.137, -0.211, 0.073);
 
@@ -86,16 +89,6 @@ const SPHERE: Sphere = Sphere {
     extinction: [0.05, 0.03, 0.03],
 };
 
-/// Six-point Gauss-Legendre nodes and weights on [-1, 1].
-const GL6: [(f64, f64); 6] = [
-    (-0.932_469_514_203_152, 0.171_324_492_379_170),
-    (-0.661_209_386_466_265, 0.360_761_573_048_139),
-    (-0.238_619_186_083_197, 0.467_913_934_572_691),
-    (0.238_619_186_083_197, 0.467_913_934_572_691),
-    (0.661_209_386_466_265, 0.360_761_573_048_139),
-    (0.932_469_514_203_152, 0.171_324_492_379_170),
-];
-
 fn grid() -> Grid {
     Grid {
         min: DVec3::splat(-1.0),
@@ -104,41 +97,9 @@ fn grid() -> Grid {
     }
 }
 
-/// Mean over the cells in `mask` and the channels of `|est / truth - 1|`,
-/// its signed mean, and the cell-channels at 0.
-#[derive(Clone, Copy)]
-struct Score {
-    error: f64,
-    signed: f64,
-    dark: usize,
-}
-
+/// [`equal::score`] of `est` against `truth` over `mask`.
 fn score(est: &Array4<f64>, truth: &Array4<f64>, mask: &Array3<bool>) -> Score {
-    let (mut sum, mut signed, mut n, mut dark) = (0.0, 0.0, 0usize, 0usize);
-    for ((i, j, k), &m) in mask.indexed_iter() {
-        if !m {
-            continue;
-        }
-        for c in 0..3 {
-            let e = est[[i, j, k, c]];
-            dark += usize::from(e == 0.0);
-            let rel = e / truth[[i, j, k, c]] - 1.0;
-            sum += rel.abs();
-            signed += rel;
-            n += 1;
-        }
-    }
-    Score {
-        error: sum / n as f64,
-        signed: signed / n as f64,
-        dark,
-    }
-}
-
-fn median(v: &[f64]) -> f64 {
-    let mut v = v.to_vec();
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+    equal::score(mask, |ix| est[ix], |ix| truth[ix])
 }
 
 /// The wavefront three times: median time and the volume.
@@ -183,48 +144,6 @@ struct Run {
     count: u64,
     time: f64,
     error: f64,
-}
-
-/// Photon count at which the sweep's error reaches `target`, and how.
-fn equal_error(runs: &[Run], target: f64) -> (f64, String) {
-    if let Some(hi) = runs.iter().position(|r| r.error <= target) {
-        if hi == 0 {
-            return (
-                runs[0].count as f64,
-                "measured: at most the first run".into(),
-            );
-        }
-        let (a, b) = (&runs[hi - 1], &runs[hi]);
-        let slope = (b.error / a.error).ln() / (b.count as f64 / a.count as f64).ln();
-        return (
-            a.count as f64 * (target / a.error).powf(1.0 / slope),
-            format!(
-                "measured: log-log interpolation between 2^{} and 2^{}",
-                a.count.trailing_zeros(),
-                b.count.trailing_zeros()
-            ),
-        );
-    }
-    let last = &runs[runs.len().saturating_sub(FIT_POINTS)..];
-    let xs: Vec<f64> = last.iter().map(|r| (r.count as f64).ln()).collect();
-    let ys: Vec<f64> = last.iter().map(|r| r.error.ln()).collect();
-    let n = xs.len() as f64;
-    let (mx, my) = (xs.iter().sum::<f64>() / n, ys.iter().sum::<f64>() / n);
-    let sxy: f64 = xs.iter().zip(&ys).map(|(x, y)| (x - mx) * (y - my)).sum();
-    let sxx: f64 = xs.iter().map(|x| (x - mx) * (x - mx)).sum();
-    let b = if sxx > 0.0 { sxy / sxx } else { 0.0 };
-    if b >= -1e-3 {
-        return (f64::INFINITY, format!("not reached: fitted slope {b:.3}"));
-    }
-    let a = (my - b * mx).exp();
-    (
-        (target / a).powf(1.0 / b),
-        format!(
-            "EXTRAPOLATED: fit error = {a:.3e} N^({b:.3}) over 2^{}..2^{}",
-            last[0].count.trailing_zeros(),
-            runs.last().map_or(0, |r| r.count.trailing_zeros())
-        ),
-    )
 }
 
 /// The photon sweep against `truth` over `mask`, seeds from `seed`.
@@ -272,8 +191,10 @@ struct Outcome {
 }
 
 fn conclude(name: &'static str, error: f64, time: f64, runs: &[Run]) -> Outcome {
-    let (count, how) = equal_error(runs, error);
+    let points: Vec<(u64, f64)> = runs.iter().map(|r| (r.count, r.error)).collect();
     let last = runs.last().expect("at least one photon run");
+    let eq = equal::equal_error(&points, error);
+    let (count, how) = (eq.count, equal::describe(&eq, last.count.trailing_zeros()));
     let cost = last.time / last.count as f64;
     let photon_time = count * cost;
     println!(
