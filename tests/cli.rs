@@ -465,6 +465,78 @@ fn simulate_writes_light_volumes_that_probe_reads() {
     );
 }
 
+/// A plane wave onto a glass slab (n = 1.5) at normal incidence.
+const SLAB: &str = r#"
+[grid]
+resolution = 16
+min = [-1, -1, -1]
+max = [1, 1, 1]
+
+[[object]]
+name = "slab"
+shape = { type = "box", center = [0.0, -1.6, 0.0], size = [4.0, 2.8, 4.0] }
+index = 1.5
+
+[[light]]
+type = "directional"
+direction = [0, -1, 0]
+power = [1, 1, 1]
+"#;
+
+/// With `--reflections` the Fresnel-reflected light is traced on and
+/// recorded so; by default it is dropped and counted as reflected. In
+/// front of the slab the fluence reads `1 + R` (R = 0.04) and 1.
+#[test]
+fn simulate_traces_reflected_light_when_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_scene(dir.path(), "slab.toml", SLAB);
+    for (flag, want) in [(Some("--reflections"), 1.04), (None, 1.0)] {
+        let out = dir.path().join(format!("light{}", flag.is_some()));
+        let mut args = vec![
+            "simulate",
+            scene.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--json",
+        ];
+        args.extend(flag);
+        let run = eikon_ok(&args);
+        let summary: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+        let light = &summary["lights"][0];
+        let traced = light["reflections"].as_u64().unwrap_or(0);
+        let reflected = light["energy_w"]["reflected"][0].as_f64().unwrap();
+        let sidecar: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("light_volumes.json")).unwrap())
+                .unwrap();
+        assert_eq!(
+            sidecar["options"]["reflections"].as_bool(),
+            Some(flag.is_some()),
+            "{sidecar}"
+        );
+        if flag.is_some() {
+            assert!(traced > 0 && reflected < 1e-6, "{light}");
+        } else {
+            assert!(
+                traced == 0 && (reflected / 0.16 - 1.0).abs() < 1e-6,
+                "{light}"
+            );
+        }
+        let probe = eikon_ok(&[
+            "probe",
+            out.to_str().unwrap(),
+            "--at",
+            "0.05,0.5,0.05",
+            "--json",
+        ]);
+        let v: serde_json::Value = serde_json::from_slice(&probe.stdout).unwrap();
+        let e = v["lights"][0]["fluence"][0].as_f64().unwrap();
+        assert!(
+            (e - want).abs() < 2e-3,
+            "{flag:?}: fluence {e}, want {want}"
+        );
+    }
+}
+
 #[test]
 fn simulate_refuses_bad_input_without_writing() {
     let dir = tempfile::tempdir().unwrap();

@@ -26,16 +26,9 @@ fn render(scene: &Scene, sharp: bool) -> Image {
 }
 
 /// Unpolarized Fresnel reflectance from the textbook amplitudes (Born &
-/// Wolf), written out here rather than taken from `eikon-optics`.
+/// Wolf), from the independent photon tracer rather than `eikon-optics`.
 fn fresnel(cos_i: f64, n1: f64, n2: f64) -> f64 {
-    let sin_t = n1 / n2 * (1.0 - cos_i * cos_i).sqrt();
-    if sin_t >= 1.0 {
-        return 1.0;
-    }
-    let cos_t = (1.0 - sin_t * sin_t).sqrt();
-    let rs = (n1 * cos_i - n2 * cos_t) / (n1 * cos_i + n2 * cos_t);
-    let rp = (n2 * cos_i - n1 * cos_t) / (n2 * cos_i + n1 * cos_t);
-    0.5 * (rs * rs + rp * rp)
+    eikon_testkit::photon_ref::fresnel(cos_i, n1, n2).0
 }
 
 /// An opaque glass sphere (n = 1.5, extinction so high that even a grazing

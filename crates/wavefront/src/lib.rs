@@ -9,7 +9,9 @@
 //!    each patch sweeps is deposited into the light volume as track-length fluence and net
 //!    flux ([`deposit`], beyond the paper: every ray family adds, through caustics too);
 //!    flux is attenuated with [Ihrke07 eq 18] and by Fresnel transmission at interfaces
-//!    (beyond the paper);
+//!    (beyond the paper); with sharp interfaces and [`Options::reflections`] the reflected
+//!    part goes on as a patch of its own once a patch has crossed a surface
+//!    ([`propagate::reflection`]);
 //! 2. [`refine`](refine::refine): tessellation analysis (eliminate, retain, tessellate)
 //!    and the new patch list through a [`HistoPyramid`].
 //!
@@ -149,9 +151,16 @@ pub struct Options {
     /// How the wavefront becomes a light volume.
     pub deposit: DepositRule,
     /// Fresnel transmission at interfaces (beyond the paper, whose
-    /// [Ihrke07 eq 18] has none): the reflected part leaves the beam and is
-    /// counted as reflected.
+    /// [Ihrke07 eq 18] has none). The reflected part leaves the beam and is
+    /// counted as reflected, or goes on as patches of its own with sharp
+    /// interfaces and [`Options::reflections`].
     pub fresnel: bool,
+    /// Trace the Fresnel-reflected light as patches of its own (sharp
+    /// interfaces; [`propagate::reflection`]). Off (the default for now:
+    /// it costs 3x on the glass sphere and far more in scenes of many
+    /// surfaces), it leaves the beam and is counted as reflected, as
+    /// smoothed interfaces always do.
+    pub reflections: bool,
 }
 
 impl Default for Options {
@@ -167,6 +176,9 @@ impl Default for Options {
             max_steps: None,
             deposit: DepositRule::Fluence,
             fresnel: true,
+            // Off until its cost comes down (docs/PERFORMANCE.md, "The
+            // Fresnel-reflected light traced").
+            reflections: false,
         }
     }
 }
@@ -286,6 +298,9 @@ pub struct Summary {
     pub exited_power: [f64; 3],
     /// RGB power reflected at interfaces (Fresnel) and not traced, W.
     pub reflected_power: [f64; 3],
+    /// Reflected patches traced on from a surface
+    /// ([`propagate::reflection`]).
+    pub reflections: usize,
     /// RGB power dropped with eliminated patches (transmittance threshold,
     /// caustics), W.
     pub culled_power: [f64; 3],
@@ -752,6 +767,7 @@ pub fn simulate_light_in(
         regions,
         min_span: sharp_min_span(grid, opts),
         fresnel: opts.fresnel,
+        reflections: opts.reflections,
     });
     let straddles = |x: &[glam::DVec3; 4]| {
         regions.is_some_and(|r| {
@@ -819,6 +835,7 @@ pub fn simulate_light_in(
                 add(&mut summary.reflected_power, &l.reflected);
                 add(&mut summary.torn_power, &l.torn);
                 summary.torn += l.torn_pieces;
+                summary.reflections += l.reflections;
             }
             if paper {
                 propagate::irradiance(&mut p);

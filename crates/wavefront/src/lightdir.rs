@@ -130,6 +130,10 @@ pub struct RunOptions {
     pub deposit: String,
     /// Fresnel transmission at interfaces.
     pub fresnel: bool,
+    /// Fresnel-reflected light traced on (absent: it was not, as before
+    /// eikon traced it).
+    #[serde(default)]
+    pub reflections: bool,
     /// Photons per light (`--method photons`).
     pub photons: Option<usize>,
     /// Random seed (`--method photons`).
@@ -231,6 +235,9 @@ pub struct LightSummary {
     pub peak_patches: usize,
     /// Patches emitted.
     pub emitted: usize,
+    /// Reflected patches traced on from a surface (absent: none).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub reflections: usize,
     /// How patches ended.
     pub ended: Ended,
     /// Splits held back by the patch limit.
@@ -297,6 +304,7 @@ impl LightSummary {
             steps: s.steps,
             peak_patches: s.peak_patches,
             emitted: s.emitted,
+            reflections: s.reflections,
             ended: Ended {
                 exited: s.exited,
                 absorbed: s.absorbed,
@@ -992,6 +1000,7 @@ mod tests {
                 threshold: 1e-4,
                 deposit: "fluence".into(),
                 fresnel: true,
+                reflections: true,
                 photons: None,
                 seed: None,
             },

@@ -46,7 +46,9 @@
 //! wavefront chord does, so the two estimate the same
 //! [`LightVolume`]. Fresnel transmission at interfaces is applied per step
 //! as for a patch ([`Interfaces::transmittance`]), the reflected part
-//! counted as reflected.
+//! counted as reflected; with sharp interfaces and [`Options::reflections`]
+//! the reflected part goes on as a branch of the photon, the mirror image of its ray at the surface
+//! (as the wavefront's reflected patches do), traced after it.
 //!
 //! Each step's chord is split exactly among the cells it crosses (a 3D DDA)
 //! and each piece carries the flux integrated over it, with the step's
@@ -183,7 +185,14 @@ pub fn simulate_photons_in(
             group,
             interfaces: interfaces.as_ref(),
             channel: g,
-            sharp: regions.map(|r| (r, opts.fresnel)),
+            sharp: regions.map(|r| {
+                let fresnel = match (opts.fresnel, opts.reflections) {
+                    (false, _) => Fresnel::Off,
+                    (true, false) => Fresnel::Dropped,
+                    (true, true) => Fresnel::Traced,
+                };
+                (r, fresnel)
+            }),
         };
         // Chunks run in batches so that the per-chunk tallies held at once
         // stay bounded whatever the count; they are added in chunk order,
@@ -426,6 +435,10 @@ struct Tally {
     thresholded: usize,
     step_limit: usize,
     steps: usize,
+    /// Reflected photons still to trace (a photon's branches; reused).
+    branches: Vec<(SharpRay, [f64; 3])>,
+    /// Reflected photons traced.
+    reflections: usize,
 }
 
 impl Tally {
@@ -443,6 +456,7 @@ impl Tally {
         s.absorbed += self.thresholded;
         s.step_limit += self.step_limit;
         s.steps = s.steps.max(self.steps);
+        s.reflections += self.reflections;
     }
 }
 
@@ -467,8 +481,19 @@ struct Tracer<'a> {
     interfaces: Option<&'a Interfaces>,
     /// Index channel traced.
     channel: usize,
-    /// Sharp interfaces: the scene's regions, and whether Fresnel applies.
-    sharp: Option<(&'a Regions<'a>, bool)>,
+    /// Sharp interfaces: the scene's regions, and how Fresnel applies.
+    sharp: Option<(&'a Regions<'a>, Fresnel)>,
+}
+
+/// What a sharp interface does with the Fresnel-reflected part.
+#[derive(Clone, Copy, PartialEq)]
+enum Fresnel {
+    /// Nothing is reflected (the paper's [Ihrke07 eq 18]).
+    Off,
+    /// The reflected part leaves the beam, counted as reflected.
+    Dropped,
+    /// The reflected part goes on as a photon of its own (a branch).
+    Traced,
 }
 
 /// Per interpolation cell (the lower corner `i0` that
@@ -519,12 +544,14 @@ impl Tracer<'_> {
     /// One step of `dt` optical path with sharp interfaces: piece by piece,
     /// surface to surface, each piece deposited and attenuated
     /// [Ihrke07 eq 18] (the trapezoid over the piece, in the region's index),
-    /// the flux times `1 - R` at every surface it passes.
+    /// the flux times `1 - R` at every surface it passes; the reflected
+    /// `R` goes on as a branch of its own ([`Fresnel::Traced`]) or is
+    /// counted as reflected.
     fn sharp_step(
         &self,
         regions: &Regions,
-        fresnel: bool,
-        s: &mut RayState,
+        fresnel: Fresnel,
+        ray: &mut SharpRay,
         flux: &mut [f64; 3],
         t: &mut Tally,
     ) {
@@ -538,21 +565,10 @@ impl Tracer<'_> {
             }
             self.medium.sample_rgb(&self.medium.extinction, p) / index.sample(p).0
         };
-        let mut ray = SharpRay {
-            s: *s,
-            region: regions.at(s.x),
-            ahead: None,
-        };
         let mut left = self.dt;
         for _ in 0..16 {
             let x0 = ray.s.x;
-            let st = regions.step(
-                &mut ray,
-                Form::EqualTime,
-                self.integrator,
-                left,
-                self.channel,
-            );
+            let st = regions.step(ray, Form::EqualTime, self.integrator, left, self.channel);
             left -= st.used;
             // The piece ends on the surface, before any refraction.
             let x1 = st.event.map_or(ray.s.x, |e| e.point);
@@ -563,18 +579,34 @@ impl Tracer<'_> {
                 t.absorbed[c] += flux[c] - kept;
                 flux[c] = kept;
             }
-            if let Some(e) = st.event.filter(|e| fresnel && !e.total) {
-                for (f, r) in flux.iter_mut().zip(t.reflected.iter_mut()) {
-                    let kept = *f * (1.0 - e.reflectance);
-                    *r += *f - kept;
-                    *f = kept;
+            if let Some(e) = st.event.filter(|e| fresnel != Fresnel::Off && !e.total) {
+                let reflected = flux.map(|f| f * e.reflectance);
+                for (f, r) in flux.iter_mut().zip(reflected) {
+                    *f -= r;
+                }
+                if fresnel == Fresnel::Traced {
+                    // The mirror image of the incident ray, from the
+                    // surface back into the region it came from, its
+                    // clock where the crossing's is.
+                    let v = (e.incident - e.normal * (2.0 * e.incident.dot(e.normal))) * e.n1;
+                    let back = SharpRay {
+                        s: RayState {
+                            x: e.point,
+                            v,
+                            opl: ray.s.opl,
+                        },
+                        region: e.from,
+                        ahead: None,
+                    };
+                    t.branches.push((back, reflected));
+                } else {
+                    add(&mut t.reflected, &reflected);
                 }
             }
             if !st.at_surface || left <= 0.0 {
                 break;
             }
         }
-        *s = ray.s;
     }
 
     /// Whether a photon at `s` has left for good: outside the bounds, and
@@ -588,17 +620,39 @@ impl Tracer<'_> {
                 .is_none_or(|(_, t1)| t1 <= 0.0)
     }
 
-    /// Trace one photon from `s` with flux `flux0` to its end.
-    fn trace(&self, mut s: RayState, flux0: [f64; 3], t: &mut Tally) {
+    /// Trace one photon from `s` with flux `flux0` to its end, and the
+    /// branches its reflections start.
+    fn trace(&self, s: RayState, flux0: [f64; 3], t: &mut Tally) {
         t.photons += 1;
         add(&mut t.entered, &flux0);
-        let mut flux = flux0;
         // The wavefront analyses its patches once before the first step.
         if self.left(&s) {
             t.exits += 1;
-            add(&mut t.exited, &flux);
+            add(&mut t.exited, &flux0);
             return;
         }
+        let region = self.sharp.and_then(|(r, _)| r.at(s.x));
+        self.follow(
+            SharpRay {
+                s,
+                region,
+                ahead: None,
+            },
+            flux0,
+            flux0,
+            t,
+        );
+        // Depth first, in the order the reflections happened: the same
+        // whatever the threads.
+        while let Some((ray, flux)) = t.branches.pop() {
+            t.reflections += 1;
+            self.follow(ray, flux, flux0, t);
+        }
+    }
+
+    /// Follow one branch of a photon (with `flux0`, what it was emitted
+    /// with) to its end.
+    fn follow(&self, mut ray: SharpRay, mut flux: [f64; 3], flux0: [f64; 3], t: &mut Tally) {
         // sigma_t / n at the photon, kept from the end of the last step.
         let mut before = None;
         let mut steps = 0;
@@ -609,10 +663,11 @@ impl Tracer<'_> {
                 break;
             }
             steps += 1;
-            let x0 = s.x;
+            let x0 = ray.s.x;
             if let Some((regions, fresnel)) = self.sharp {
-                self.sharp_step(regions, fresnel, &mut s, &mut flux, t);
+                self.sharp_step(regions, fresnel, &mut ray, &mut flux, t);
             } else if let Some(n) = self.empty.index_at(x0) {
+                let s = &mut ray.s;
                 // Empty space, as `propagate` skips it: a straight step
                 // (under a cell long) in a constant index, without loss.
                 s.v = s.v.normalize_or_zero() * n;
@@ -621,13 +676,14 @@ impl Tracer<'_> {
                 self.tally.chord(x0, s.x, &flux, DVec3::ZERO, self.group);
                 before = None;
             } else {
+                let s = &mut ray.s;
                 let b = before.unwrap_or_else(|| self.extinction_per_index(x0));
                 // On the eikonal shell |v| = n, like the wavefront's corners.
                 match self.integrator {
                     Integrator::Euler => {
-                        step_euler_on_shell(&self.field, Form::EqualTime, &mut s, self.dt)
+                        step_euler_on_shell(&self.field, Form::EqualTime, s, self.dt)
                     }
-                    _ => step_rk4_on_shell(&self.field, Form::EqualTime, &mut s, self.dt),
+                    _ => step_rk4_on_shell(&self.field, Form::EqualTime, s, self.dt),
                 }
                 let after = self.extinction_per_index(s.x);
                 before = Some(after);
@@ -658,7 +714,7 @@ impl Tracer<'_> {
                     }
                 }
             }
-            if self.left(&s) {
+            if self.left(&ray.s) {
                 t.exits += 1;
                 add(&mut t.exited, &flux);
                 break;

@@ -13,6 +13,10 @@ use eikon_testkit::Tests;
 use eikon_wavefront::gpu::GpuSimulator;
 use eikon_wavefront::{LightVolume, Options, Summary};
 
+#[path = "support/fresnel_slab.rs"]
+mod fresnel_slab;
+use fresnel_slab::Slab;
+
 /// A clear glass ball (n = 1.5, absorbing a little) under a directional
 /// light, in a `res`^3 grid: the ball-lens caustic below it.
 fn ball(res: usize) -> String {
@@ -162,7 +166,10 @@ fn report(what: &str, a: &Agreement, g: &Summary, c: &Summary) {
 fn ball_lens_matches_the_cpu(gpu: &Gpu) {
     let (scene, m) = medium(&ball(24));
     let sim = GpuSimulator::with_regions(gpu, &m, regions(&scene, &m)).unwrap();
-    let opts = opts(160);
+    let opts = Options {
+        reflections: true,
+        ..opts(160)
+    };
     for (l, light) in scene.lights.iter().enumerate() {
         let t = std::time::Instant::now();
         let (gv, gs) = sim.simulate(light, &opts, &|_, _| {}).unwrap();
@@ -172,7 +179,10 @@ fn ball_lens_matches_the_cpu(gpu: &Gpu) {
         report(&format!("ball, light {l}"), &a, &gs, &cs);
         assert_eq!(gs.entered, cs.entered);
         assert!(gs.energy_imbalance() < 1e-6, "{}", gs.energy_imbalance());
-        assert!(gs.reflected_power[0] > 0.0);
+        // The reflected light is traced on (patches of its own) on both.
+        println!("reflected patches {} / {}", gs.reflections, cs.reflections);
+        assert!(cs.reflections > 0);
+        assert!(gs.reflections.abs_diff(cs.reflections) * 20 < cs.reflections);
         let worst = account_difference(&gs, &cs);
         assert!(worst < 1e-3, "light {l}: account {worst}");
         assert!(a.median < 2e-3 && a.flux_median < 2e-3, "light {l}: {a:?}");
@@ -203,10 +213,22 @@ fn ball_lens_matches_the_cpu(gpu: &Gpu) {
 /// rounding of the shares over many more splits, and the guard of
 /// `sharp_trace` for the rare torn patch whose two passes disagree) and
 /// each category agrees within 1e-3 of the entered power.
+///
+/// The Fresnel-reflected light is not traced here (`reflections =
+/// false`, as by default): this test is about tears. With it traced, the reflected
+/// patches (too dim to be split) grow large and tear into a hundred
+/// pieces at the next surface, and on lavapipe the two passes of one such
+/// patch disagree (pass 1 finds fewer pieces than pass 0 counted) and the
+/// account is off by 1e-5 of the entered power (found with per-patch
+/// tallies; cause not found). `reflections_obey_fresnel` and the ball
+/// check the traced reflections.
 fn nested_torn_silhouettes_match_the_cpu(gpu: &Gpu) {
     let (scene, m) = medium(&nested(16));
     let sim = GpuSimulator::with_regions(gpu, &m, regions(&scene, &m)).unwrap();
-    let opts = opts(100);
+    let opts = Options {
+        reflections: false,
+        ..opts(100)
+    };
     let t = std::time::Instant::now();
     let (gv, gs) = sim.simulate(&scene.lights[0], &opts, &|_, _| {}).unwrap();
     println!("GPU: {:.2} s", t.elapsed().as_secs_f64());
@@ -224,14 +246,58 @@ fn nested_torn_silhouettes_match_the_cpu(gpu: &Gpu) {
     assert!(a.lit_differs * 100 < a.lit_cpu, "{a:?}");
 }
 
-/// Two GPU runs of the nested scene (tears, pieces, split grants) give
+/// The Fresnel-reflected light on the GPU (`patch_reflection`): a plane
+/// wave on a glass slab from the air at 60 degrees and from within the
+/// glass at 35 degrees (`support/fresnel_slab.rs`, as `reflection.rs`
+/// checks the CPU). The mean fluence on the incident side is `1 + R`
+/// (incident and reflected wave), on the far side the transmitted
+/// `(1 - R) cos_i / cos_t`, each within 1e-3 (the CPU: 2e-4; f32 corners);
+/// with reflections off, the incident side reads 1. The reflected patches
+/// are as many as the CPU's.
+fn reflections_obey_fresnel(gpu: &Gpu) {
+    for (deg, from_air) in [(60.0, true), (35.0, false)] {
+        let slab = Slab { deg, from_air };
+        let (scene, m) = medium(&slab.scene());
+        let sim = GpuSimulator::with_regions(gpu, &m, regions(&scene, &m)).unwrap();
+        for reflections in [true, false] {
+            let opts = Options {
+                reflections,
+                ..fluence()
+            };
+            let (v, s) = sim.simulate(&scene.lights[0], &opts, &|_, _| {}).unwrap();
+            let (_, c) = run_cpu(&scene, &m, 0, &opts);
+            let ([wn, en], [wf, ef]) = slab.measure(&v, reflections);
+            println!(
+                "{deg} degrees, from the air {from_air}, reflections {reflections}: near {en:.5} \
+                 (want {wn:.5}), far {ef:.5} (want {wf:.5}); reflected patches {} (CPU {}), \
+                 untraced {:.5} W (CPU {:.5}); imbalance {:.1e}",
+                s.reflections,
+                c.reflections,
+                s.reflected_power[0],
+                c.reflected_power[0],
+                s.energy_imbalance()
+            );
+            assert!((en / wn - 1.0).abs() < 1e-3, "near {en}, want {wn}");
+            assert!((ef / wf - 1.0).abs() < 1e-3, "far {ef}, want {wf}");
+            assert_eq!(s.reflections, c.reflections);
+            assert!(s.energy_imbalance() < 1e-6, "{s:?}");
+            assert!(account_difference(&s, &c) < 1e-4, "{s:?} vs {c:?}");
+        }
+    }
+}
+
+/// Two GPU runs of the nested scene (tears, pieces, split grants, traced
+/// reflections) give
 /// the same bits: where each torn patch's pieces go is fixed by a
 /// HistoPyramid of their counts before any is written, and every sum is
 /// fixed point.
 fn sharp_runs_are_bitwise_repeatable(gpu: &Gpu) {
     let (scene, m) = medium(&nested(12));
     let sim = GpuSimulator::with_regions(gpu, &m, regions(&scene, &m)).unwrap();
-    let opts = opts(60);
+    let opts = Options {
+        reflections: true,
+        ..opts(60)
+    };
     let run = || sim.simulate(&scene.lights[0], &opts, &|_, _| {}).unwrap();
     let (a, sa) = run();
     let (b, sb) = run();
@@ -300,5 +366,6 @@ fn main() {
             sharp_runs_are_bitwise_repeatable,
         )
         .gpu("unsupported_shapes_are_named", unsupported_shapes_are_named)
+        .gpu("reflections_obey_fresnel", reflections_obey_fresnel)
         .run()
 }

@@ -211,16 +211,10 @@ fn beer_lambert(b: &Backend) {
     assert!(summary.energy_imbalance() < imbalance, "{summary:?}");
 }
 
-/// Unpolarized Fresnel reflectance, written out here (not the engine's).
+/// Unpolarized Fresnel reflectance, not the engine's: the independent
+/// photon tracer's.
 fn reflectance(cos_i: f64, n1: f64, n2: f64) -> f64 {
-    let sin_t = n1 / n2 * (1.0 - cos_i * cos_i).sqrt();
-    if sin_t >= 1.0 {
-        return 1.0;
-    }
-    let cos_t = (1.0 - sin_t * sin_t).sqrt();
-    let rs = (n1 * cos_i - n2 * cos_t) / (n1 * cos_i + n2 * cos_t);
-    let rp = (n2 * cos_i - n1 * cos_t) / (n2 * cos_i + n1 * cos_t);
-    0.5 * (rs * rs + rp * rp)
+    eikon_testkit::photon_ref::fresnel(cos_i, n1, n2).0
 }
 
 /// A clear glass slab filling the grid's width, a plane wave straight down:

@@ -53,7 +53,13 @@
 //! writes beyond the slots pass 0 counted (a piece without a slot is
 //! dropped and counted as torn; a slot without a piece carries nothing),
 //! so the list and the energy account stay consistent and the result is
-//! still the same from run to run. New corners (splits, pieces) take the own index of the region
+//! still the same from run to run. A patch that has just
+//! crossed a surface and reflects ([`propagate::reflection`], the WGSL
+//! `patch_reflection`) adds one more piece the same way: pass 0 finds that
+//! it reflects (a whole patch marks its fate `FATE_REFLECTS`), pass 1
+//! writes the reflection, found again from the patch as pass 0 stored it,
+//! deposits its tube from the surface and tallies its flux as traced (the
+//! `E_TRACED` energy, taken off `E_REFLECTED`). New corners (splits, pieces) take the own index of the region
 //! where they lie, and a patch whose corners lie in different regions is
 //! not split (`refine::Hold`), as on the CPU. Crossings are found to
 //! `eikon_grid::region::gpu_eps` (a few ulps of the scene's scale; the
@@ -220,8 +226,9 @@ layout! {
         pub pieces_base: u32,
         /// The index channel of the wavefront (its regions' index).
         pub channel: u32,
-        /// Padding.
-        pub pad: u32,
+        /// 1: the Fresnel-reflected light is traced on
+        /// ([`propagate::reflection`]).
+        pub reflections: u32,
     }
 }
 
@@ -240,13 +247,15 @@ layout! {
 
 /// Energy categories of the tallies, each 64-bit fixed point per channel
 /// (two words): words `2 (3 category + channel)`.
-const ENERGY: [&str; 6] = [
+const ENERGY: [&str; 7] = [
     "E_ABSORBED",
     "E_EXITED",
     "E_CULLED",
     "E_REFLECTED",
     "E_TRAPPED",
     "E_TORN",
+    // Reflected light traced on as patches (taken off `E_REFLECTED`).
+    "E_TRACED",
 ];
 /// Stats words after the energies: counts.
 const S_EXITED: usize = 6 * ENERGY.len();
@@ -258,10 +267,15 @@ const S_SPLITS: usize = S_EXITED + 5;
 const S_FAINT: usize = S_EXITED + 6;
 /// Pieces torn at a sharp interface and dropped.
 const S_TORN: usize = S_EXITED + 7;
-/// Patches torn in this step (cleared per step; read back to know whether
-/// `propagate_sharp`'s pass 1 is needed).
+/// Patches torn or reflecting in this step (cleared per step; read back
+/// to know whether `propagate_sharp`'s pass 1 is needed).
 const S_TORN_NOW: usize = S_EXITED + 8;
-const STATS_WORDS: usize = S_EXITED + 9;
+/// Reflected patches traced on ([`Summary::reflections`]).
+const S_REFLECTIONS: usize = S_EXITED + 9;
+const STATS_WORDS: usize = S_EXITED + 10;
+/// `propagate_sharp`'s pass 0 marks a patch that held together and
+/// reflects (its reflection one extra piece) with this bit in its fate.
+const FATE_REFLECTS: u32 = 1 << 31;
 /// What `Incident` is, for `incident_at`.
 const INCIDENT_UNIFORM: u32 = 0;
 const INCIDENT_POINT: u32 = 1;
@@ -285,6 +299,10 @@ fn declarations() -> String {
         .u32("S_FAINT", S_FAINT as u32)
         .u32("S_TORN", S_TORN as u32)
         .u32("S_TORN_NOW", S_TORN_NOW as u32)
+        .u32("S_REFLECTIONS", S_REFLECTIONS as u32)
+        .f32("REACH_SPANS", propagate::REACH_SPANS as f32)
+        .f32("REFLECT_MIN", propagate::REFLECT_MIN as f32)
+        .u32("FATE_REFLECTS", FATE_REFLECTS)
         .u32("STATS_WORDS", STATS_WORDS as u32)
         .u32("MAX_CROSSINGS", propagate::MAX_CROSSINGS as u32)
         .u32("MAX_SPLIT_LEVEL", propagate::MAX_SPLIT_LEVEL)
@@ -1290,6 +1308,7 @@ impl<'a> GpuSimulator<'a> {
             scale: scale as f32,
             fluence: u32::from(tally.is_some()),
             fresnel: u32::from(opts.fresnel),
+            reflections: u32::from(opts.fresnel && opts.reflections),
             sharp: u32::from(self.regions.is_some()),
             region_count: self.region_count,
             sharp_eps: gpu_eps(grid) as f32,
@@ -1760,11 +1779,12 @@ impl<'a> GpuSimulator<'a> {
             summary.absorbed_power[c] += energy(0, c);
             summary.exited_power[c] += energy(1, c);
             summary.culled_power[c] += energy(2, c);
-            summary.reflected_power[c] += energy(3, c);
+            summary.reflected_power[c] += energy(3, c) - energy(6, c);
             summary.trapped_power[c] += energy(4, c);
             summary.torn_power[c] += energy(5, c);
         }
         summary.torn += s[S_TORN] as usize;
+        summary.reflections += s[S_REFLECTIONS] as usize;
         summary.exited += s[S_EXITED] as usize;
         summary.absorbed += s[S_ABSORBED] as usize;
         summary.faint += s[S_FAINT] as usize;

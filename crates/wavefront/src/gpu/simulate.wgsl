@@ -1195,6 +1195,137 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
     return out;
 }
 
+// Where a patch's Fresnel reflection is (`propagate::reflection`).
+struct Reflected {
+    ok: bool,
+    // The reflected corners (in the order 0 3 2 1 of the patch's, which
+    // keeps the orientation), and where each left the surface.
+    q: Quad,
+    hits: array<vec3<f32>, 4>,
+    // The product of the corners' (1 - R)^(1/4).
+    kept: f32,
+}
+
+// `propagate::reflection`: the reflection of the patch m whose corners
+// have all crossed one surface from one region into another. Each corner
+// is followed back along its line to the surface (at most REACH_SPANS
+// spans and a step), its incident gradient found by Snell's law in
+// reverse, and the reflected ray sent from there for the optical path the
+// corner has come since.
+fn patch_reflection(m: Quad) -> Reflected {
+    var out: Reflected;
+    out.ok = false;
+    let eps = P.sharp_eps;
+    let to = region_owner(m.x[0]);
+    let reach = quad_span(m) * REACH_SPANS + P.dt;
+    var surface = NONE;
+    var came = NONE;
+    var kept = 1.0;
+    var r: Quad;
+    var hits: array<vec3<f32>, 4>;
+    for (var k = 0u; k < 4u; k++) {
+        if region_owner(m.x[k]) != to {
+            return out;
+        }
+        let d = normalize_or_zero(m.v[k]);
+        // From just ahead, so that a corner that ended on the surface
+        // finds it.
+        let o = m.x[k] + d * (2.0 * eps);
+        let hit = region_next_surface(o, -d, eps, reach);
+        if !hit.ok || (surface != NONE && surface != hit.obj) {
+            return out;
+        }
+        surface = hit.obj;
+        let p = o - d * hit.t;
+        let along = select(-hit.normal, hit.normal, dot(hit.normal, d) >= 0.0);
+        let behind = region_owner(p - along * eps);
+        if behind == to || (came != NONE && came != behind) {
+            return out;
+        }
+        came = behind;
+        let n1 = region_index(behind, p, P.channel).x;
+        let n2 = region_index(to, p, P.channel).x;
+        let back_in = region_refract(-d * n2, -along, n1);
+        if back_in.w == 0.0 {
+            return out;
+        }
+        let vi = -back_in.xyz;
+        let cos_i = dot(vi / n1, along);
+        kept *= pow(max(1.0 - fresnel_reflectance(cos_i, n1, n2), 0.0), 0.25);
+        let back = 0.5 * (n2 + region_index(to, m.x[k], P.channel).x) * max(hit.t - 2.0 * eps, 0.0);
+        var ray = RegionRay(p, vi - along * (2.0 * dot(vi, along)), m.opl[k] - back, behind);
+        var left = back;
+        for (var s = 0u; s < MAX_CROSSINGS; s++) {
+            if left <= 0.0 {
+                break;
+            }
+            let st = region_step(&ray, FORM_EQUAL_TIME, P.integrator, left, P.channel, eps);
+            left -= st.used;
+            if !st.at_surface {
+                break;
+            }
+        }
+        r.x[k] = ray.x;
+        r.v[k] = ray.v;
+        r.opl[k] = ray.opl;
+        hits[k] = p;
+    }
+    if !(kept > 0.0 && kept < 1.0) {
+        return out;
+    }
+    out.ok = true;
+    out.kept = kept;
+    let order = array<u32, 4>(0u, 3u, 2u, 1u);
+    for (var c = 0u; c < 4u; c++) {
+        out.q.x[c] = r.x[order[c]];
+        out.q.v[c] = r.v[order[c]];
+        out.q.opl[c] = r.opl[order[c]];
+        out.hits[c] = hits[order[c]];
+    }
+    return out;
+}
+
+// The reflected flux of a patch whose transmitted part carries `flux`.
+fn reflected_flux(flux: vec3<f32>, r: Reflected) -> vec3<f32> {
+    return flux * ((1.0 - r.kept) / r.kept);
+}
+
+// The reflection of the patch at `moved` (carrying `flux`, emitted with
+// `flux0`), if it is traced: not below REFLECT_MIN of what the patch was
+// emitted with (`propagate::reflected_piece`).
+fn traced_reflection_of(moved: Quad, flux: vec3<f32>, flux0: vec3<f32>) -> Reflected {
+    var r = patch_reflection(moved);
+    if r.ok && all(reflected_flux(flux, r) < REFLECT_MIN * flux0) {
+        r.ok = false;
+    }
+    return r;
+}
+
+// Whether the patch that went from `start` to `moved` in this step has
+// just finished crossing a surface and reflects (`propagate::
+// reflected_piece`).
+fn reflects(start: Quad, moved: Quad, flux: vec3<f32>, flux0: vec3<f32>) -> bool {
+    if P.reflections == 0u {
+        return false;
+    }
+    let to = region_owner(moved.x[0]);
+    var crossed = false;
+    for (var c = 0u; c < 4u; c++) {
+        crossed = crossed || region_owner(start.x[c]) != to;
+    }
+    return crossed && traced_reflection_of(moved, flux, flux0).ok;
+}
+
+// Pass 1: deposit the reflection's tube from the surface, and take its
+// flux off the reflected light's tally.
+fn traced_reflection(r: Reflected, flux: vec3<f32>) {
+    if P.fluence != 0u {
+        tube(Swept(r.hits, r.q.x, flux, vec3<f32>(0.0)));
+    }
+    add_energy3(E_TRACED, flux);
+    atomicAdd(&wg_stats[S_REFLECTIONS], 1u);
+}
+
 // [Ihrke07 eq 17]'s irradiance of a patch: flux over its area.
 fn quad_irradiance(q: Quad, flux: vec3<f32>) -> vec4<f32> {
     let ar = patch_area(q.x[0], q.x[1], q.x[2], q.x[3]);
@@ -1271,8 +1402,22 @@ fn sharp_trace(i: u32, pass1: bool) {
         if f == 0u {
             return;
         }
-        count = f - 1u;
         base = P.n_old + hp_rank(P.pieces_base, P.n_old, i);
+        if (f & FATE_REFLECTS) != 0u {
+            // The patch held together (pass 0 moved it) and reflects: its
+            // reflection from where it is now, as pass 0 found it.
+            let a = aux[3u * i];
+            let f0 = aux[3u * i + 1u];
+            let r = traced_reflection_of(load_quad(i), a.xyz, f0.xyz);
+            var fl = vec3<f32>(0.0);
+            if r.ok {
+                fl = reflected_flux(a.xyz, r);
+                traced_reflection(r, fl);
+            }
+            write_piece(i, 1u, 2u, base, r.q, fl, f0.xyz, a.w, f0.w);
+            return;
+        }
+        count = f - 1u;
     }
     let q = load_quad(i);
     let a = aux[3u * i];
@@ -1317,8 +1462,14 @@ fn sharp_trace(i: u32, pass1: bool) {
                 store_quad(i, t.q);
                 aux[3u * i] = vec4<f32>(t.flux, a.w);
                 aux[3u * i + 2u] = quad_irradiance(t.q, t.flux);
-                fate[i] = 0u;
-                pyramid[P.pieces_base + i] = 0u;
+                // Its reflection, found from the patch as stored, as pass
+                // 1 will find it.
+                let mirrored = reflects(q, load_quad(i), t.flux, f0.xyz);
+                fate[i] = select(0u, FATE_REFLECTS | 2u, mirrored);
+                pyramid[P.pieces_base + i] = u32(mirrored);
+                if mirrored {
+                    atomicAdd(&wg_stats[S_TORN_NOW], 1u);
+                }
                 return;
             }
             if pass1 && found >= count {
@@ -1379,9 +1530,11 @@ fn sharp_trace(i: u32, pass1: bool) {
         atomicAdd(&wg_stats[S_TORN_NOW], 1u);
         return;
     }
-    if found == 0u {
-        // Every piece was dropped: the patch carries nothing on and ends
-        // at the next refine.
+    if found == 0u || count == 0u {
+        // Every piece was dropped (or pass 0 found none, and pass 1's were
+        // dropped for want of slots): the patch carries nothing on and
+        // ends at the next refine. Its slot must not keep the patch as it
+        // was before the step, whose flux the pieces have taken.
         aux[3u * i] = vec4<f32>(vec3<f32>(0.0), a.w);
         aux[3u * i + 1u] = vec4<f32>(f0.xyz, depth);
         aux[3u * i + 2u] = vec4<f32>(0.0);
