@@ -82,7 +82,16 @@ pub struct Gpu {
     pub info: wgpu::AdapterInfo,
     uncaptured: Arc<Mutex<Vec<String>>>,
     tally: Arc<Tally>,
+    /// The staging buffer of small reads ([`SMALL_READ`] bytes, made on
+    /// the first): a simulation reads a word or two back per step, and a
+    /// buffer made and freed per read costs a device allocation each time.
+    small: Mutex<Option<wgpu::Buffer>>,
 }
+
+/// Reads up to this many bytes go through one staging buffer kept for the
+/// device's life (outside the tally: its bytes are too few to move an
+/// estimate), larger ones through a buffer of their size.
+pub const SMALL_READ: u64 = 256;
 
 /// Bytes of the buffers and textures made by [`Gpu`]'s helpers.
 #[derive(Debug, Default)]
@@ -245,6 +254,7 @@ impl Gpu {
             info,
             uncaptured,
             tally: Arc::default(),
+            small: Mutex::new(None),
         })
     }
 
@@ -514,10 +524,11 @@ impl Gpu {
         }
     }
 
-    /// Copy `len` elements of `buffer` back to the CPU, through a staging
-    /// buffer of their size that is tallied while the read lasts (it is
-    /// dropped before this returns: it counts towards
-    /// [`Self::peak_bytes`], not [`Self::live_bytes`] after).
+    /// Copy `len` elements of `buffer` back to the CPU. Up to
+    /// [`SMALL_READ`] bytes go through the device's small staging buffer;
+    /// more through a staging buffer of their size that is tallied while
+    /// the read lasts (it is dropped before this returns: it counts
+    /// towards [`Self::peak_bytes`], not [`Self::live_bytes`] after).
     pub fn read<T: bytemuck::Pod>(
         &self,
         buffer: &wgpu::Buffer,
@@ -527,17 +538,48 @@ impl Gpu {
         if bytes == 0 {
             return Ok(Vec::new());
         }
+        if bytes <= SMALL_READ {
+            let mut small = self
+                .small
+                .lock()
+                .map_err(|e| GpuError::Readback(e.to_string()))?;
+            let staging = small.get_or_insert_with(|| {
+                self.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("small readback"),
+                    size: SMALL_READ,
+                    usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                })
+            });
+            let out = self.read_through(buffer, staging, bytes);
+            if out.is_err() {
+                // It may be left mapped: the next small read makes another.
+                *small = None;
+            }
+            return out;
+        }
         let staging = self.track(self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("readback"),
             size: bytes,
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         }));
+        self.read_through(buffer, &staging, bytes)
+    }
+
+    /// The first `bytes` of `buffer`, copied into `staging`, waited for
+    /// and mapped.
+    fn read_through<T: bytemuck::Pod>(
+        &self,
+        buffer: &wgpu::Buffer,
+        staging: &wgpu::Buffer,
+        bytes: u64,
+    ) -> Result<Vec<T>, GpuError> {
         let mut enc = self.device.create_command_encoder(&Default::default());
-        enc.copy_buffer_to_buffer(buffer, 0, &staging, 0, bytes);
+        enc.copy_buffer_to_buffer(buffer, 0, staging, 0, bytes);
         self.tally.readbacks.fetch_add(1, Ordering::Relaxed);
         self.submit([enc.finish()]);
-        let slice = staging.slice(..);
+        let slice = staging.slice(..bytes);
         let (tx, rx) = std::sync::mpsc::channel();
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
