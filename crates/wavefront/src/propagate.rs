@@ -583,6 +583,11 @@ pub fn reflection(
     ch: usize,
 ) -> Option<Reflection> {
     let to = regions.at(moved[0].x);
+    // Every corner must have arrived: checked for all four before any is
+    // followed back (the search for the surface is what costs).
+    if moved[1..].iter().any(|s| regions.at(s.x) != to) {
+        return None;
+    }
     let reach = span(&moved.map(|c| c.x)) * REACH_SPANS + dt;
     let eps = regions.eps();
     let mut surface = None;
@@ -592,9 +597,6 @@ pub fn reflection(
     let mut hits = [DVec3::ZERO; 4];
     for k in 0..4 {
         let s = moved[k];
-        if regions.at(s.x) != to {
-            return None;
-        }
         let d = s.v.normalize_or_zero();
         // From just ahead, so that a corner that ended on the surface
         // finds it.

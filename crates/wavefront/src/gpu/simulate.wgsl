@@ -1223,10 +1223,14 @@ fn patch_reflection(m: Quad) -> Reflected {
     var kept = 1.0;
     var r: Quad;
     var hits: array<vec3<f32>, 4>;
-    for (var k = 0u; k < 4u; k++) {
+    // Every corner must have arrived: checked for all four before any is
+    // followed back (the search for the surface is what costs).
+    for (var k = 1u; k < 4u; k++) {
         if region_owner(m.x[k]) != to {
             return out;
         }
+    }
+    for (var k = 0u; k < 4u; k++) {
         let d = normalize_or_zero(m.v[k]);
         // From just ahead, so that a corner that ended on the surface
         // finds it.
