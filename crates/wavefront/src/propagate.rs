@@ -496,6 +496,9 @@ fn reflected_piece(
     (flux, flux0): (&[f64; 3], &[f64; 3]),
     lost: &mut Loss,
 ) -> Option<Piece> {
+    if !sharp.fresnel {
+        return None;
+    }
     let regions = sharp.regions;
     let to = regions.at(moved[0].x);
     // A patch is not split while it straddles a surface (`refine::Hold`),
@@ -503,11 +506,10 @@ fn reflected_piece(
     // this step and the ones before. (A torn patch's pieces inherit factors
     // of their parent's corners instead: they do not reflect, and what
     // they reflect stays counted as reflected.)
-    let crossed = start.iter().any(|&x| regions.at(x) != to);
-    if !sharp.fresnel || !crossed {
+    if start.iter().all(|&x| regions.at(x) == to) {
         return None;
     }
-    let r = reflection(regions, moved, step.dt, step.integrator, step.channel)?;
+    let r = reflection(regions, moved, to, step.dt, step.integrator, step.channel)?;
     // The transmitted patch carries flux * kept: the reflected part is
     // flux * (1 - kept) / kept.
     let f = flux.map(|f| f * (1.0 - r.kept) / r.kept);
@@ -573,16 +575,17 @@ pub struct Reflection {
 /// [`Regions::step`]). A plane wave's reflection is thus exactly the mirror
 /// image of the wavefront that went through. `None` unless every corner
 /// finds the same surface with the same region behind it, a different one
-/// from where it is. The back-trace is straight: exact in a region of
-/// constant index, to the step's curvature elsewhere.
+/// from where it is. `to` is the region corner 0 is in. The back-trace
+/// is straight: exact in a region of constant index, to the step's
+/// curvature elsewhere.
 pub fn reflection(
     regions: &Regions,
     moved: &[RayState; 4],
+    to: Region,
     dt: f64,
     integrator: Integrator,
     ch: usize,
 ) -> Option<Reflection> {
-    let to = regions.at(moved[0].x);
     // Every corner must have arrived: checked for all four before any is
     // followed back (the search for the surface is what costs).
     if moved[1..].iter().any(|s| regions.at(s.x) != to) {

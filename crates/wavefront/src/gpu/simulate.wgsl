@@ -1207,16 +1207,15 @@ struct Reflected {
 }
 
 // `propagate::reflection`: the reflection of the patch m whose corners
-// have all crossed one surface from one region into another. Each corner
-// is followed back along its line to the surface (at most REACH_SPANS
-// spans and a step), its incident gradient found by Snell's law in
-// reverse, and the reflected ray sent from there for the optical path the
-// corner has come since.
-fn patch_reflection(m: Quad) -> Reflected {
+// have all crossed one surface from one region into another, region `to`
+// (corner 0's). Each corner is followed back along its line to the
+// surface (at most REACH_SPANS spans and a step), its incident gradient
+// found by Snell's law in reverse, and the reflected ray sent from there
+// for the optical path the corner has come since.
+fn patch_reflection(m: Quad, to: u32) -> Reflected {
     var out: Reflected;
     out.ok = false;
     let eps = P.sharp_eps;
-    let to = region_owner(m.x[0]);
     let reach = quad_span(m) * REACH_SPANS + P.dt;
     var surface = NONE;
     var came = NONE;
@@ -1297,8 +1296,8 @@ fn reflected_flux(flux: vec3<f32>, r: Reflected) -> vec3<f32> {
 // The reflection of the patch at `moved` (carrying `flux`, emitted with
 // `flux0`), if it is traced: not below REFLECT_MIN of what the patch was
 // emitted with (`propagate::reflected_piece`).
-fn traced_reflection_of(moved: Quad, flux: vec3<f32>, flux0: vec3<f32>) -> Reflected {
-    var r = patch_reflection(moved);
+fn traced_reflection_of(moved: Quad, to: u32, flux: vec3<f32>, flux0: vec3<f32>) -> Reflected {
+    var r = patch_reflection(moved, to);
     if r.ok && all(reflected_flux(flux, r) < REFLECT_MIN * flux0) {
         r.ok = false;
     }
@@ -1317,7 +1316,7 @@ fn reflects(start: Quad, moved: Quad, flux: vec3<f32>, flux0: vec3<f32>) -> bool
     for (var c = 0u; c < 4u; c++) {
         crossed = crossed || region_owner(start.x[c]) != to;
     }
-    return crossed && traced_reflection_of(moved, flux, flux0).ok;
+    return crossed && traced_reflection_of(moved, to, flux, flux0).ok;
 }
 
 // Pass 1: deposit the reflection's tube from the surface, and take its
@@ -1412,7 +1411,8 @@ fn sharp_trace(i: u32, pass1: bool) {
             // reflection from where it is now, as pass 0 found it.
             let a = aux[3u * i];
             let f0 = aux[3u * i + 1u];
-            let r = traced_reflection_of(load_quad(i), a.xyz, f0.xyz);
+            let m = load_quad(i);
+            let r = traced_reflection_of(m, region_owner(m.x[0]), a.xyz, f0.xyz);
             var fl = vec3<f32>(0.0);
             if r.ok {
                 fl = reflected_flux(a.xyz, r);
