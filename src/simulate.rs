@@ -88,8 +88,8 @@ pub struct Args {
     no_fresnel: bool,
     /// Trace the Fresnel-reflected light on (sharp interfaces), as patches
     /// of its own (photons: as branches). Without it the reflected part
-    /// leaves the beam, counted as reflected. It costs: 3x on the glass
-    /// sphere, far more where light bounces between many surfaces.
+    /// leaves the beam, counted as reflected. It takes several times as
+    /// long (docs/PERFORMANCE.md).
     #[arg(long)]
     reflections: bool,
     /// Photons per light (per colour channel with dispersion), with

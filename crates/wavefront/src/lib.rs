@@ -156,10 +156,9 @@ pub struct Options {
     /// interfaces and [`Options::reflections`].
     pub fresnel: bool,
     /// Trace the Fresnel-reflected light as patches of its own (sharp
-    /// interfaces; [`propagate::reflection`]). Off (the default for now:
-    /// it costs 3x on the glass sphere and far more in scenes of many
-    /// surfaces), it leaves the beam and is counted as reflected, as
-    /// smoothed interfaces always do.
+    /// interfaces; [`propagate::reflection`]). Off (the default for now,
+    /// for its cost: docs/PERFORMANCE.md), it leaves the beam and is
+    /// counted as reflected, as smoothed interfaces always do.
     pub reflections: bool,
 }
 
