@@ -16,17 +16,36 @@ pub fn validate(source: &str) -> Result<naga::Module, String> {
     Ok(module)
 }
 
-/// Whether `T`'s WGSL struct in `module` (as naga lays it out) has the
-/// members, in order, at the byte offsets of the Rust struct, and its size.
-pub fn check<T: Layout>(module: &naga::Module) -> Result<(), String> {
+/// The member offsets and the size, bytes, of the WGSL struct `name` in
+/// `module` (for a struct the Rust side addresses by offset only).
+pub fn offsets(module: &naga::Module, name: &str) -> Result<(Vec<u64>, u64), String> {
+    let (members, span) = find_struct(module, name)?;
+    Ok((
+        members.iter().map(|m| m.offset as u64).collect(),
+        span as u64,
+    ))
+}
+
+/// The members and size of the WGSL struct `name`.
+fn find_struct<'a>(
+    module: &'a naga::Module,
+    name: &str,
+) -> Result<(&'a [naga::StructMember], u32), String> {
     let (_, ty) = module
         .types
         .iter()
-        .find(|(_, t)| t.name.as_deref() == Some(T::NAME))
-        .ok_or_else(|| format!("no struct {} in the shader", T::NAME))?;
+        .find(|(_, t)| t.name.as_deref() == Some(name))
+        .ok_or_else(|| format!("no struct {name} in the shader"))?;
     let naga::TypeInner::Struct { members, span } = &ty.inner else {
-        return Err(format!("{} is not a struct", T::NAME));
+        return Err(format!("{name} is not a struct"));
     };
+    Ok((members, *span))
+}
+
+/// Whether `T`'s WGSL struct in `module` (as naga lays it out) has the
+/// members, in order, at the byte offsets of the Rust struct, and its size.
+pub fn check<T: Layout>(module: &naga::Module) -> Result<(), String> {
+    let (members, span) = find_struct(module, T::NAME)?;
     let rust = T::members();
     if members.len() != rust.len() {
         return Err(format!(
@@ -48,7 +67,7 @@ pub fn check<T: Layout>(module: &naga::Module) -> Result<(), String> {
             ));
         }
     }
-    if *span as usize != T::size() {
+    if span as usize != T::size() {
         return Err(format!(
             "{}: {span} bytes in WGSL, {} in Rust",
             T::NAME,

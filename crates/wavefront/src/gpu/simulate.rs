@@ -24,8 +24,22 @@
 //! pass; both pyramids live in one buffer and are built by the shared
 //! `histopyramid` module), and, with the paper's deposit, the highest-energy rule (atomics
 //! on packed keys, ties to the lowest patch index as the CPU's in-order
-//! apply) and the irradiance of [Ihrke07 eq 17]. The only read-back per step is the
-//! new list's length.
+//! apply) and the irradiance of [Ihrke07 eq 17].
+//!
+//! # Steps without read-backs
+//! The device schedules its own steps (issue 16): before each, a
+//! one-thread kernel (`plan_step`) reads the new list's length off the
+//! counts' pyramid, checks it against the lists' room and the step limit,
+//! and writes the step's uniform block (copied into place by the command
+//! buffer) and how many workgroups each kernel of the step runs, which
+//! they are dispatched with indirectly. One submission holds many steps
+//! (up to `MOST_STEPS_PER_SUBMISSION`, doubling from
+//! `FIRST_STEPS_PER_SUBMISSION` while none halts) and ends with one
+//! read-back of the plan's state. Where the plan halts (no patch left,
+//! the step limit, a list to grow) the later steps of the submission run
+//! no workgroup, and the host grows the list or ends the wavefront and
+//! goes on. The kernels run in the order and on the data of one step per
+//! submission, so the result is the same bit for bit.
 //!
 //! # Sharp interfaces
 //! With [`GpuSimulator::with_regions`] (`[grid] interfaces = "sharp"`)
@@ -43,7 +57,8 @@
 //! that holds together and only counts a torn one's pieces (tracing them
 //! without depositing); a HistoPyramid of the extra pieces (all but the
 //! first) gives each torn patch its slots after the list in patch order;
-//! the torn patches' count and the pieces' total are read back, and pass
+//! the plan (`plan_pieces`) reads the torn patches' count and the
+//! pieces' total off the device, and pass
 //! 1 (the same entry point, so the same code) traces the torn patches
 //! again, depositing, and writes the first piece in the patch's slot and
 //! the others in its slots. A torn patch is thus traced twice; tears are
@@ -267,8 +282,8 @@ const S_SPLITS: usize = S_EXITED + 5;
 const S_FAINT: usize = S_EXITED + 6;
 /// Pieces torn at a sharp interface and dropped.
 const S_TORN: usize = S_EXITED + 7;
-/// Patches torn or reflecting in this step (cleared per step; read back
-/// to know whether `propagate_sharp`'s pass 1 is needed).
+/// Patches torn or reflecting in this step (cleared per step; read by
+/// the plan to know whether `propagate_sharp`'s pass 1 is needed).
 const S_TORN_NOW: usize = S_EXITED + 8;
 /// Reflected patches traced on ([`Summary::reflections`]).
 const S_REFLECTIONS: usize = S_EXITED + 9;
@@ -276,6 +291,52 @@ const STATS_WORDS: usize = S_EXITED + 10;
 /// `propagate_sharp`'s pass 0 marks a patch that held together and
 /// reflects (its reflection one extra piece) with this bit in its fate.
 const FATE_REFLECTS: u32 = 1 << 31;
+/// The plan's state (`Plan::state` in `simulate.wgsl`, words): why it
+/// halted (`HALT_*`), the steps begun, the step limit, the longest list,
+/// the live list (0 or 1), the two lists' and the scratch's capacities
+/// (patches), whether the next step rebuilds the list (every step but a
+/// wavefront's first), the paper deposit's next phase id, the length the
+/// last walk wrote or would write, and the list's length with the torn
+/// patches' pieces.
+const PL_HALT: usize = 0;
+const PL_STEPS: usize = 1;
+const PL_MAX_STEPS: usize = 2;
+const PL_PEAK: usize = 3;
+const PL_CUR: usize = 4;
+const PL_CAP: usize = 5;
+const PL_SCRATCH: usize = 7;
+const PL_REBUILD: usize = 8;
+const PL_STAMP: usize = 9;
+const PL_TOTAL: usize = 10;
+const PL_LEN: usize = 11;
+const PLAN_STATE: usize = 16;
+/// Why the plan halted: not at all (the submission's steps all ran), no
+/// patch left, the step limit reached, no room for the next list, no
+/// room for the torn patches' pieces.
+const HALT_NONE: u32 = 0;
+const HALT_DONE: u32 = 1;
+const HALT_LIMIT: u32 = 2;
+const HALT_ROOM: u32 = 3;
+const HALT_PIECES: u32 = 4;
+/// The plan's dispatch slots (three words each): the walk, the kernels
+/// over the step's list, the reductions of the pieces' pyramid over it
+/// (levels 1 to `MAX_LEVELS - 1`), pass 1, the kernels over the list with
+/// the pieces, and the reductions over that.
+const A_REBUILD: usize = 0;
+const A_N: usize = 1;
+const A_LEVELS_N: usize = 2;
+const A_PASS1: usize = A_LEVELS_N + MAX_LEVELS - 1;
+const A_LEN: usize = A_PASS1 + 1;
+const A_LEVELS_LEN: usize = A_LEN + 1;
+const PLAN_SLOTS: usize = A_LEVELS_LEN + MAX_LEVELS - 1;
+/// Byte offsets of `Plan::params` and `Plan::args`, and its size.
+const PLAN_PARAMS_AT: u64 = PLAN_STATE as u64 * 4;
+const PLAN_ARGS_AT: u64 = PLAN_PARAMS_AT + std::mem::size_of::<SimParams>() as u64;
+const PLAN_BYTES: u64 = (PLAN_ARGS_AT + PLAN_SLOTS as u64 * 12).next_multiple_of(16);
+/// Steps the first submission of a wavefront holds; each that runs all
+/// its steps doubles the next, up to `MOST_STEPS_PER_SUBMISSION`.
+const FIRST_STEPS_PER_SUBMISSION: usize = 8;
+const MOST_STEPS_PER_SUBMISSION: usize = 64;
 /// What `Incident` is, for `incident_at`.
 const INCIDENT_UNIFORM: u32 = 0;
 const INCIDENT_POINT: u32 = 1;
@@ -316,6 +377,32 @@ fn declarations() -> String {
         .u32("INCIDENT_POINT", INCIDENT_POINT)
         .u32("INCIDENT_SPOT", INCIDENT_SPOT)
         .u32("NONE", u32::MAX)
+        .u32("PL_HALT", PL_HALT as u32)
+        .u32("PL_STEPS", PL_STEPS as u32)
+        .u32("PL_MAX_STEPS", PL_MAX_STEPS as u32)
+        .u32("PL_PEAK", PL_PEAK as u32)
+        .u32("PL_CUR", PL_CUR as u32)
+        .u32("PL_CAP", PL_CAP as u32)
+        .u32("PL_SCRATCH", PL_SCRATCH as u32)
+        .u32("PL_REBUILD", PL_REBUILD as u32)
+        .u32("PL_STAMP", PL_STAMP as u32)
+        .u32("PL_TOTAL", PL_TOTAL as u32)
+        .u32("PL_LEN", PL_LEN as u32)
+        .u32("PLAN_STATE", PLAN_STATE as u32)
+        .u32("HALT_NONE", HALT_NONE)
+        .u32("HALT_DONE", HALT_DONE)
+        .u32("HALT_LIMIT", HALT_LIMIT)
+        .u32("HALT_ROOM", HALT_ROOM)
+        .u32("HALT_PIECES", HALT_PIECES)
+        .u32("A_REBUILD", A_REBUILD as u32)
+        .u32("A_N", A_N as u32)
+        .u32("A_LEVELS_N", A_LEVELS_N as u32)
+        .u32("A_PASS1", A_PASS1 as u32)
+        .u32("A_LEN", A_LEN as u32)
+        .u32("A_LEVELS_LEN", A_LEVELS_LEN as u32)
+        .u32("PLAN_SLOTS", PLAN_SLOTS as u32)
+        .u32("PLAN_ARGS", 3 * PLAN_SLOTS as u32)
+        .u32("MAX_LEVELS", MAX_LEVELS as u32)
         .u32("LOCAL_CELLS", LOCAL_CELLS);
     format!(
         "{}{}{}",
@@ -412,6 +499,9 @@ const KERNELS: [&str; 14] = [
     "propagate_sharp",
 ];
 
+/// The plan's kernels: before a step, and after pass 0 of a sharp one.
+const PLANS: [&str; 2] = ["plan_step", "plan_pieces"];
+
 /// The paper's deposit's six kernels, in order.
 const PAPER_DEPOSIT: [Kernel; 6] = [
     Kernel::MidMax,
@@ -462,8 +552,10 @@ pub fn simulate_light_in<'a>(
 pub struct GpuSimulator<'a> {
     gpu: &'a Gpu,
     medium: &'a Medium,
-    layouts: [wgpu::BindGroupLayout; 4],
+    layouts: [wgpu::BindGroupLayout; 5],
     kernels: Vec<wgpu::ComputePipeline>,
+    /// `plan_step` and `plan_pieces` (their group 3 is the plan).
+    plans: [wgpu::ComputePipeline; 2],
     /// Per index channel: its texture and empty-space table.
     index: Vec<(Texture, Buffer)>,
     extinction: Texture,
@@ -627,14 +719,16 @@ fn dispatch(pass: &mut wgpu::ComputePass, k: &wgpu::ComputePipeline, items: usiz
 }
 
 /// What one light's simulation holds on the device beside the patch lists:
-/// its light volume, tallies, uniforms and the word the list's length is
-/// read back through.
+/// its light volume, tallies, uniforms and the plan of its steps.
 struct Run {
     volume: Vec<Buffer>,
     volume_group: wgpu::BindGroup,
     stats: Buffer,
     params: Buffer,
-    top: Buffer,
+    /// `Plan` in `simulate.wgsl`: the state the host reads back, the next
+    /// uniform block and the indirect dispatches' sizes.
+    plan: Buffer,
+    plan_group: wgpu::BindGroup,
     /// Per pyramid (counts, then splits) and level, the uniform and its
     /// bind group (the uniforms live as long as their bind groups, so the
     /// tally of live bytes is what the device holds).
@@ -745,7 +839,7 @@ impl<'a> GpuSimulator<'a> {
         };
         let binding_limit = Self::check_limits(gpu, medium, limit)?;
         let kinds = table.as_deref().map(eikon_grid::region::table_kinds);
-        let (layouts, kernels) = Self::compile(gpu, kinds)?;
+        let (layouts, kernels, plans) = Self::compile(gpu, kinds)?;
         let (_, empty_dims, inv_block) = empty_table(medium, 0);
         let (index, extinction, no_fresnel) = Self::upload_medium(gpu, medium)?;
         let region_count = table.as_ref().map_or(0, |t| t.len() as u32 - 1);
@@ -758,6 +852,7 @@ impl<'a> GpuSimulator<'a> {
             medium,
             layouts,
             kernels,
+            plans,
             index,
             extinction,
             fresnel: OnceLock::new(),
@@ -809,14 +904,22 @@ impl<'a> GpuSimulator<'a> {
     }
 
     /// The bind group layouts (medium and scratch, patch lists, light
-    /// volume, pyramid level) and one pipeline per kernel of [`source`]
-    /// (`propagate_sharp`, the last, only with `sharp` interfaces: it is
-    /// the largest kernel to compile).
+    /// volume, pyramid level, and the plan in the level's place), one
+    /// pipeline per kernel of [`source`] (`propagate_sharp`, the last,
+    /// only with `sharp` interfaces: it is the largest kernel to compile)
+    /// and the plan's two.
     #[allow(clippy::type_complexity)]
     fn compile(
         gpu: &Gpu,
         kinds: Option<u32>,
-    ) -> Result<([wgpu::BindGroupLayout; 4], Vec<wgpu::ComputePipeline>), GpuError> {
+    ) -> Result<
+        (
+            [wgpu::BindGroupLayout; 5],
+            Vec<wgpu::ComputePipeline>,
+            [wgpu::ComputePipeline; 2],
+        ),
+        GpuError,
+    > {
         let sharp = kinds.is_some();
         let layouts = gpu.checked("light simulator layouts", || {
             let make = |label, entries: &[wgpu::BindGroupLayoutEntry]| {
@@ -840,6 +943,7 @@ impl<'a> GpuSimulator<'a> {
                 make("simulator patches", &g1),
                 make("simulator volume", &g2),
                 make("simulator level", &[uniform_entry(0)]),
+                make("simulator plan", &[storage_entry(1, false)]),
             ]
         })?;
         let kernels = gpu.checked("light simulator kernels", || {
@@ -864,27 +968,38 @@ impl<'a> GpuSimulator<'a> {
                     bind_group_layouts: &[&layouts[0], &layouts[1], &layouts[2], &layouts[3]],
                     push_constant_ranges: &[],
                 });
+            let planned = gpu
+                .device
+                .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                    label: Some("simulator plan"),
+                    bind_group_layouts: &[&layouts[0], &layouts[1], &layouts[2], &layouts[4]],
+                    push_constant_ranges: &[],
+                });
+            let pipeline = |entry: &str, layout: &wgpu::PipelineLayout| {
+                gpu.device
+                    .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                        label: Some(entry),
+                        layout: Some(layout),
+                        module: &module,
+                        entry_point: Some(entry),
+                        compilation_options: Default::default(),
+                        cache: None,
+                    })
+            };
             let kernels = if sharp {
                 &KERNELS[..]
             } else {
                 &KERNELS[..KERNELS.len() - 1]
             };
-            kernels
+            let kernels = kernels
                 .iter()
-                .map(|entry| {
-                    gpu.device
-                        .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                            label: Some(entry),
-                            layout: Some(&layout),
-                            module: &module,
-                            entry_point: Some(entry),
-                            compilation_options: Default::default(),
-                            cache: None,
-                        })
-                })
-                .collect::<Vec<_>>()
+                .map(|entry| pipeline(entry, &layout))
+                .collect::<Vec<_>>();
+            let plans = PLANS.map(|entry| pipeline(entry, &planned));
+            (kernels, plans)
         })?;
-        Ok((layouts, kernels))
+        let (kernels, plans) = kernels;
+        Ok((layouts, kernels, plans))
     }
 
     /// The medium as textures: per index channel its field and empty-space
@@ -939,7 +1054,7 @@ impl<'a> GpuSimulator<'a> {
     /// * the light volume: one u32 per cell for each of its 12 arrays
     ///   (fluence deposit) or 9 (paper's, 3 unused placeholders);
     /// * the uniforms (parameters, one per pyramid and level), the stats,
-    ///   the words the list's length is read from and the placeholder
+    ///   the plan of the steps and the placeholder
     ///   region table;
     /// * the two patch lists at `opts.max_patches` (the grants never let a
     ///   list grow past it; the device may lower it to
@@ -985,7 +1100,7 @@ impl<'a> GpuSimulator<'a> {
             + 3 * MAX_LEVELS as u64 * PyramidLevel::size() as u64
             + buffer(RegionGpu::size() as u64)
             + buffer(STATS_WORDS as u64 * 4)
-            + MIN_BUFFER_BYTES;
+            + PLAN_BYTES;
         let cap = opts.max_patches;
         let lists = 2 * PatchSet::bytes(cap);
         let dep_bytes = if fluence { 0 } else { DEPOSIT_BYTES };
@@ -1195,7 +1310,7 @@ impl<'a> GpuSimulator<'a> {
     }
 
     /// The light volume's buffers (see `simulate.wgsl`, group 2), the
-    /// tallies, the uniforms and the read-back word of one light.
+    /// tallies, the uniforms and the plan of one light.
     fn open_run(&self, fluence: bool) -> Run {
         let gpu = self.gpu;
         let cells = self.medium.geometry.voxel_count() as u64;
@@ -1249,12 +1364,22 @@ impl<'a> GpuSimulator<'a> {
                 })
                 .collect()
         });
+        let plan = gpu.storage_indirect("plan", PLAN_BYTES);
+        let plan_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("plan"),
+            layout: &self.layouts[4],
+            entries: &[wgpu::BindGroupEntry {
+                binding: 1,
+                resource: plan.as_entire_binding(),
+            }],
+        });
         Run {
             volume,
             volume_group,
             stats: gpu.storage_empty("stats", STATS_WORDS as u64 * 4),
             params: gpu.uniform("params", &[SimParams::default()]),
-            top: gpu.storage_empty("pyramid top", 8),
+            plan,
+            plan_group,
             levels,
         }
     }
@@ -1461,12 +1586,15 @@ impl<'a> GpuSimulator<'a> {
         gpu.submit([enc.finish()]);
     }
 
-    /// The steps of one wavefront, one submission and one read-back (the
-    /// new list's length) each, until no patch is left or the step limit.
-    /// With sharp interfaces a step is two: the first ends after
-    /// `propagate_sharp`'s pass 0 with the read-back of the torn patches
-    /// and their extra pieces; the second writes the pieces (when any
-    /// patch tore) and refines the longer list.
+    /// The steps of one wavefront, scheduled by the device itself (the
+    /// plan, see `simulate.wgsl`): a submission holds up to
+    /// `MOST_STEPS_PER_SUBMISSION` steps and ends with one read-back of
+    /// the plan's state. Where the plan halted the host makes room for the
+    /// list (or the torn patches' pieces, then goes on after pass 0 of that
+    /// step), or ends the wavefront: nothing left, or the step limit, where
+    /// the patches left are tallied as trapped. The kernels run in the same
+    /// order on the same data as one submission per step would, so the
+    /// result is the same bit for bit.
     fn trace(
         &self,
         run: &Run,
@@ -1477,180 +1605,258 @@ impl<'a> GpuSimulator<'a> {
         progress: Progress,
     ) -> Result<Traced, Error> {
         let gpu = self.gpu;
-        let sharp = self.regions.is_some();
-        let fluence = params.fluence != 0;
-        let mut out = Traced::default();
-        let mut n = n0;
-        let mut n_old = 0usize;
-        let mut rebuild = false;
+        params.n = n0 as u32;
+        params.n_old = 0;
+        params.stamp = *stamp;
+        params.splits_base = lists.splits_base();
+        params.pieces_base = lists.pieces_base();
+        params.sharp_pass = 0;
+        gpu.queue
+            .write_buffer(&run.params, 0, bytemuck::bytes_of(params));
+        let mut state = [0u32; PLAN_STATE];
+        state[PL_MAX_STEPS] = max_steps.min(u32::MAX as usize) as u32;
+        state[PL_CUR] = lists.cur as u32;
+        state[PL_STAMP] = *stamp;
+        let mut steps = FIRST_STEPS_PER_SUBMISSION;
+        let mut after_pass0 = false;
         loop {
-            let stepping = n > 0 && out.steps < max_steps;
-            params.n = n as u32;
-            params.n_old = n_old as u32;
-            params.stamp = *stamp;
-            params.splits_base = lists.splits_base();
-            params.pieces_base = lists.pieces_base();
-            params.sharp_pass = 0;
-            *stamp += 2;
+            state[PL_HALT] = HALT_NONE;
+            state[PL_CAP] = lists.sets[0].cap as u32;
+            state[PL_CAP + 1] = lists.sets[1].cap as u32;
+            state[PL_SCRATCH] = lists.scratch_cap as u32;
             gpu.queue
-                .write_buffer(&run.params, 0, bytemuck::bytes_of(params));
-            // The list refined: the live one, with the pieces of the
-            // patches torn in this step after it.
-            let mut len = n;
-            let mut torn = false;
-            if sharp && stepping {
-                gpu.checked("light simulation step", || {
-                    let mut enc = gpu.device.create_command_encoder(&Default::default());
-                    self.encode_front(&mut enc, run, lists, n, rebuild, fluence, true);
-                    gpu.submit([enc.finish()]);
-                })?;
-                let words = gpu.read::<u32>(&run.top, 2)?;
-                if words[1] > 0 {
-                    torn = true;
-                    len = n + words[0] as usize;
-                    self.fit_pieces(run, lists, n, len)?;
-                    params.n = len as u32;
-                    params.n_old = n as u32;
-                    params.splits_base = lists.splits_base();
-                    params.pieces_base = lists.pieces_base();
-                    params.sharp_pass = 1;
-                    gpu.queue
-                        .write_buffer(&run.params, 0, bytemuck::bytes_of(params));
-                }
-            }
-            gpu.checked("light simulation step", || {
+                .write_buffer(&run.plan, 0, bytemuck::cast_slice(&state));
+            let s0 = state[PL_STEPS];
+            // No more steps than the limit leaves: a step the plan halts
+            // costs little on a GPU but its dispatches' setup on lavapipe.
+            let batch = steps.min(max_steps.saturating_sub(s0 as usize)).max(1);
+            gpu.checked("light simulation steps", || {
                 let mut enc = gpu.device.create_command_encoder(&Default::default());
-                if !(sharp && stepping) {
-                    self.encode_front(&mut enc, run, lists, n, rebuild, fluence, stepping);
+                let mut cur = lists.cur;
+                let mut rebuild = state[PL_REBUILD] != 0;
+                if after_pass0 {
+                    self.encode_back(&mut enc, run, lists, cur);
                 }
-                self.encode_back(&mut enc, run, lists, (n, len), torn, stepping);
+                for _ in 0..batch {
+                    if rebuild {
+                        cur = 1 - cur;
+                    }
+                    self.encode_front(&mut enc, run, lists, cur, rebuild);
+                    self.encode_back(&mut enc, run, lists, cur);
+                    rebuild = true;
+                }
                 gpu.submit([enc.finish()]);
             })?;
-            if !stepping {
-                out.left = n;
-                return Ok(out);
-            }
-            out.steps += 1;
-            let total = gpu.read::<u32>(&run.top, 1)?[0] as usize;
-            out.peak = out.peak.max(total);
-            progress(out.steps, total);
-            self.fit(run, lists, total)?;
-            n_old = len;
-            n = total;
-            rebuild = true;
-            lists.cur = 1 - lists.cur;
-            if n == 0 {
-                return Ok(out);
-            }
-        }
-    }
-
-    /// The first part of a step, in the CPU loop's order: the walk that
-    /// rebuilds the list the last step's grants asked for, the paper's
-    /// deposit, and step 1 (propagate, with the fluence deposit) when
-    /// `stepping`. With sharp interfaces step 1 is `propagate_sharp`'s
-    /// pass 0, followed by the pyramid of the torn patches' extra pieces,
-    /// whose top and the count of torn patches are copied out.
-    #[allow(clippy::too_many_arguments)]
-    fn encode_front(
-        &self,
-        enc: &mut wgpu::CommandEncoder,
-        run: &Run,
-        lists: &Lists,
-        n: usize,
-        rebuild: bool,
-        fluence: bool,
-        stepping: bool,
-    ) {
-        let sharp = self.regions.is_some();
-        enc.clear_buffer(&run.stats, S_KEPT as u64 * 4, Some(8));
-        enc.clear_buffer(&run.stats, S_TORN_NOW as u64 * 4, Some(4));
-        {
-            let mut pass = enc.begin_compute_pass(&Default::default());
-            pass.set_bind_group(0, &lists.medium_group, &[]);
-            pass.set_bind_group(2, &run.volume_group, &[]);
-            pass.set_bind_group(3, &run.levels[0][0].1, &[]);
-            let cur = lists.cur;
-            if rebuild {
-                // The walk writes the live list from the previous one.
-                pass.set_bind_group(1, &lists.patch_groups[1 - cur], &[]);
-                dispatch(&mut pass, self.kernel(Kernel::Rebuild), n);
-            }
-            pass.set_bind_group(1, &lists.patch_groups[cur], &[]);
-            if !fluence {
-                for k in PAPER_DEPOSIT {
-                    dispatch(&mut pass, self.kernel(k), n);
-                }
-            }
-            if stepping {
-                let step = if sharp {
-                    Kernel::PropagateSharp
-                } else if fluence {
-                    Kernel::PropagateTube
-                } else {
-                    Kernel::Propagate
-                };
-                dispatch(&mut pass, self.kernel(step), n);
-                if sharp {
-                    for (l, &(_, len)) in pyramid_levels(n).iter().enumerate().skip(1) {
-                        pass.set_bind_group(3, &run.levels[2][l].1, &[]);
-                        dispatch(&mut pass, self.kernel(Kernel::Reduce), len);
+            let words = gpu.read::<u32>(&run.plan, PLAN_STATE)?;
+            state.copy_from_slice(&words);
+            lists.cur = state[PL_CUR] as usize;
+            after_pass0 = false;
+            let traced = Traced {
+                steps: state[PL_STEPS] as usize,
+                peak: state[PL_PEAK] as usize,
+                left: 0,
+            };
+            progress(traced.steps, state[PL_TOTAL] as usize);
+            match state[PL_HALT] {
+                HALT_NONE => {
+                    steps = (2 * batch).min(MOST_STEPS_PER_SUBMISSION);
+                    // After a halt for room the lists may differ: the one
+                    // the next walk writes (free now) is made as large as
+                    // the live one, so that the next step does not halt.
+                    let cur = lists.cur;
+                    if lists.sets[1 - cur].cap < lists.sets[cur].cap {
+                        self.fit(run, lists, lists.sets[cur].cap)?;
                     }
                 }
+                HALT_ROOM => {
+                    self.fit(run, lists, state[PL_TOTAL] as usize)?;
+                    // The lists take turns: where the other is still the
+                    // smaller, it is grown after one step, when it is no
+                    // longer read; else as many steps as ran may run
+                    // before they must grow again.
+                    let cur = lists.cur;
+                    steps = if lists.sets[cur].cap < lists.sets[1 - cur].cap {
+                        1
+                    } else {
+                        (traced.steps - s0 as usize).max(1)
+                    };
+                }
+                HALT_PIECES => {
+                    let (n, len) = (state[PL_TOTAL] as usize, state[PL_LEN] as usize);
+                    self.fit_pieces(run, lists, n, len)?;
+                    after_pass0 = true;
+                    steps = (traced.steps - s0 as usize).max(1);
+                }
+                HALT_DONE => {
+                    *stamp = state[PL_STAMP];
+                    return Ok(traced);
+                }
+                _ => {
+                    self.trap_rest(run, lists, params, &mut state)?;
+                    *stamp = state[PL_STAMP];
+                    let left = state[PL_TOTAL] as usize;
+                    return Ok(Traced { left, ..traced });
+                }
             }
-        }
-        if sharp && stepping {
-            let (off, _) = *pyramid_levels(n).last().expect("a level");
-            let top = (lists.pieces_base() as usize + off) as u64 * 4;
-            enc.copy_buffer_to_buffer(&lists.pyramid, top, &run.top, 0, 4);
-            enc.copy_buffer_to_buffer(&run.stats, S_TORN_NOW as u64 * 4, &run.top, 4, 4);
         }
     }
 
-    /// The rest of a step over the `len` patches the list holds now (`n`
-    /// before the torn patches' pieces): with `pieces`, `propagate_sharp`'s
-    /// pass 1 writes them; then `refine`: its tallies (`analyse`), the split
-    /// grants (the split flags' pyramid, `grant`) and the counts' pyramid
-    /// the next walk reads, whose top is copied out. At the step limit
-    /// (not `stepping`), the patches left are tallied as trapped instead.
-    fn encode_back(
+    /// At the step limit: the list the last step's grants asked for is
+    /// written (and, with the paper's deposit, deposited, as the CPU does
+    /// before it checks the limit), and its patches are tallied as trapped.
+    fn trap_rest(
         &self,
-        enc: &mut wgpu::CommandEncoder,
         run: &Run,
-        lists: &Lists,
-        (n, len): (usize, usize),
-        pieces: bool,
-        stepping: bool,
-    ) {
-        let levels = pyramid_levels(len);
+        lists: &mut Lists,
+        params: &mut SimParams,
+        state: &mut [u32; PLAN_STATE],
+    ) -> Result<(), Error> {
+        let gpu = self.gpu;
+        let rebuild = state[PL_REBUILD] != 0;
+        let n = state[PL_TOTAL] as usize;
+        params.n = n as u32;
+        if rebuild {
+            params.n_old = state[PL_LEN];
+            lists.cur = 1 - lists.cur;
+        }
+        params.stamp = state[PL_STAMP];
+        state[PL_STAMP] += 2;
+        params.splits_base = lists.splits_base();
+        params.pieces_base = lists.pieces_base();
+        params.sharp_pass = 0;
+        gpu.queue
+            .write_buffer(&run.params, 0, bytemuck::bytes_of(params));
+        gpu.checked("light simulation step", || {
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            {
+                let mut pass = enc.begin_compute_pass(&Default::default());
+                pass.set_bind_group(0, &lists.medium_group, &[]);
+                pass.set_bind_group(2, &run.volume_group, &[]);
+                pass.set_bind_group(3, &run.levels[0][0].1, &[]);
+                let cur = lists.cur;
+                if rebuild {
+                    pass.set_bind_group(1, &lists.patch_groups[1 - cur], &[]);
+                    dispatch(&mut pass, self.kernel(Kernel::Rebuild), n);
+                }
+                pass.set_bind_group(1, &lists.patch_groups[cur], &[]);
+                if params.fluence == 0 {
+                    for k in PAPER_DEPOSIT {
+                        dispatch(&mut pass, self.kernel(k), n);
+                    }
+                }
+                dispatch(&mut pass, self.kernel(Kernel::CullRest), n);
+            }
+            gpu.submit([enc.finish()]);
+        })?;
+        Ok(())
+    }
+
+    /// One run of a plan kernel, then its uniform block copied into `P`.
+    fn encode_plan(&self, enc: &mut wgpu::CommandEncoder, run: &Run, lists: &Lists, which: usize) {
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
             pass.set_bind_group(0, &lists.medium_group, &[]);
             pass.set_bind_group(1, &lists.patch_groups[lists.cur], &[]);
             pass.set_bind_group(2, &run.volume_group, &[]);
-            pass.set_bind_group(3, &run.levels[0][0].1, &[]);
-            if stepping {
-                if pieces {
-                    dispatch(&mut pass, self.kernel(Kernel::PropagateSharp), n);
-                }
-                dispatch(&mut pass, self.kernel(Kernel::Analyse), len);
-                for (splits, pyramid) in run.levels[..2].iter().enumerate().rev() {
-                    if splits == 0 {
-                        dispatch(&mut pass, self.kernel(Kernel::Grant), len);
-                    }
-                    for (l, &(_, size)) in levels.iter().enumerate().skip(1) {
-                        pass.set_bind_group(3, &pyramid[l].1, &[]);
-                        dispatch(&mut pass, self.kernel(Kernel::Reduce), size);
-                    }
-                }
-            } else {
-                dispatch(&mut pass, self.kernel(Kernel::CullRest), len);
+            pass.set_bind_group(3, &run.plan_group, &[]);
+            pass.set_pipeline(&self.plans[which]);
+            pass.dispatch_workgroups(1, 1, 1);
+        }
+        let size = std::mem::size_of::<SimParams>() as u64;
+        enc.copy_buffer_to_buffer(&run.plan, PLAN_PARAMS_AT, &run.params, 0, size);
+    }
+
+    /// Dispatch `kernel` over the threads the plan put in `slot`.
+    fn planned(&self, pass: &mut wgpu::ComputePass, run: &Run, k: Kernel, slot: usize) {
+        pass.set_pipeline(self.kernel(k));
+        pass.dispatch_workgroups_indirect(&run.plan, PLAN_ARGS_AT + slot as u64 * 12);
+    }
+
+    /// The reductions of `pyramid` (0 the counts', 1 the split flags', 2
+    /// the pieces') whose sizes the plan put in the slots from `first`: as
+    /// many levels as a pyramid over the scratch can have.
+    fn planned_levels(
+        &self,
+        pass: &mut wgpu::ComputePass,
+        run: &Run,
+        lists: &Lists,
+        pyramid: usize,
+        first: usize,
+    ) {
+        let depth = pyramid_levels(lists.scratch_cap).len().min(MAX_LEVELS);
+        for l in 1..depth {
+            pass.set_bind_group(3, &run.levels[pyramid][l].1, &[]);
+            self.planned(pass, run, Kernel::Reduce, first + l - 1);
+        }
+    }
+
+    /// The first part of a step, in the CPU loop's order, after the plan:
+    /// the walk that rebuilds the list the last step's grants asked for
+    /// (into list `cur`, unless this is the wavefront's first step), the
+    /// paper's deposit, and step 1 (propagate, with the fluence deposit).
+    /// With sharp interfaces step 1 is `propagate_sharp`'s pass 0, followed
+    /// by the pyramid of the torn patches' extra pieces.
+    fn encode_front(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        run: &Run,
+        lists: &Lists,
+        cur: usize,
+        rebuild: bool,
+    ) {
+        self.encode_plan(enc, run, lists, 0);
+        let sharp = self.regions.is_some();
+        let fluence = lists.dep_bytes == 0;
+        let mut pass = enc.begin_compute_pass(&Default::default());
+        pass.set_bind_group(0, &lists.medium_group, &[]);
+        pass.set_bind_group(2, &run.volume_group, &[]);
+        pass.set_bind_group(3, &run.levels[0][0].1, &[]);
+        if rebuild {
+            // The walk writes the live list from the previous one.
+            pass.set_bind_group(1, &lists.patch_groups[1 - cur], &[]);
+            self.planned(&mut pass, run, Kernel::Rebuild, A_REBUILD);
+        }
+        pass.set_bind_group(1, &lists.patch_groups[cur], &[]);
+        if !fluence {
+            for k in PAPER_DEPOSIT {
+                self.planned(&mut pass, run, k, A_N);
             }
         }
-        if stepping {
-            let (off, _) = *levels.last().expect("a level");
-            enc.copy_buffer_to_buffer(&lists.pyramid, off as u64 * 4, &run.top, 0, 4);
+        let step = if sharp {
+            Kernel::PropagateSharp
+        } else if fluence {
+            Kernel::PropagateTube
+        } else {
+            Kernel::Propagate
+        };
+        self.planned(&mut pass, run, step, A_N);
+        if sharp {
+            self.planned_levels(&mut pass, run, lists, 2, A_LEVELS_N);
         }
+    }
+
+    /// The rest of a step over list `cur`: with sharp interfaces, the plan
+    /// of the torn patches' pieces and `propagate_sharp`'s pass 1, which
+    /// writes them; then `refine`: its tallies (`analyse`), the split
+    /// grants (the split flags' pyramid, `grant`) and the counts' pyramid
+    /// the next walk reads.
+    fn encode_back(&self, enc: &mut wgpu::CommandEncoder, run: &Run, lists: &Lists, cur: usize) {
+        let sharp = self.regions.is_some();
+        if sharp {
+            self.encode_plan(enc, run, lists, 1);
+        }
+        let mut pass = enc.begin_compute_pass(&Default::default());
+        pass.set_bind_group(0, &lists.medium_group, &[]);
+        pass.set_bind_group(1, &lists.patch_groups[cur], &[]);
+        pass.set_bind_group(2, &run.volume_group, &[]);
+        pass.set_bind_group(3, &run.levels[0][0].1, &[]);
+        if sharp {
+            self.planned(&mut pass, run, Kernel::PropagateSharp, A_PASS1);
+        }
+        self.planned(&mut pass, run, Kernel::Analyse, A_LEN);
+        self.planned_levels(&mut pass, run, lists, 1, A_LEVELS_LEN);
+        self.planned(&mut pass, run, Kernel::Grant, A_LEN);
+        self.planned_levels(&mut pass, run, lists, 0, A_LEVELS_LEN);
     }
 
     /// Make room in the live list for the `len` patches it holds once the
@@ -1658,6 +1864,42 @@ impl<'a> GpuSimulator<'a> {
     /// its patches copied, and the scratch with the fates and the pieces'
     /// pyramid, which `propagate_sharp`'s pass 1 reads.
     fn fit_pieces(&self, run: &Run, lists: &mut Lists, n: usize, len: usize) -> Result<(), Error> {
+        self.grow_live(lists, n, len)?;
+        let gpu = self.gpu;
+        if len > lists.scratch_cap {
+            let cap = len.max(2 * lists.scratch_cap).min(lists.most);
+            let [pb, fb, db] = scratch_bytes(cap, lists.dep_bytes, lists.pyramids);
+            let pyramid = gpu.storage_empty("pyramids", pb);
+            let fates = gpu.storage_empty("fates", fb);
+            let old_base = lists.pieces_base() as u64 * 4;
+            lists.scratch_cap = cap;
+            let new_base = lists.pieces_base() as u64 * 4;
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            let words = pyramid_size(n) as u64 * 4;
+            enc.copy_buffer_to_buffer(&lists.pyramid, old_base, &pyramid, new_base, words);
+            enc.copy_buffer_to_buffer(&lists.fates, 0, &fates, 0, n as u64 * 4);
+            gpu.submit([enc.finish()]);
+            lists.pyramid = pyramid;
+            lists.fates = fates;
+            lists.deps = gpu.storage_empty("deposits", db);
+            self.rebind_scratch(run, lists);
+        }
+        Ok(())
+    }
+
+    /// Group 0 again, over the scratch `lists` holds now.
+    fn rebind_scratch(&self, run: &Run, lists: &mut Lists) {
+        lists.medium_group = self.bind_medium(
+            run,
+            lists.channel,
+            lists.fresnel,
+            [&lists.pyramid, &lists.fates, &lists.deps],
+        );
+    }
+
+    /// Make room in the live list, which holds `n` patches, for `len`
+    /// (its patches copied into the larger list).
+    fn grow_live(&self, lists: &mut Lists, n: usize, len: usize) -> Result<(), Error> {
         let gpu = self.gpu;
         let cur = lists.cur;
         if len > lists.sets[cur].cap {
@@ -1682,29 +1924,6 @@ impl<'a> GpuSimulator<'a> {
             gpu.submit([enc.finish()]);
             lists.sets[cur] = set;
             lists.patch_groups = self.patch_groups(&lists.sets);
-        }
-        if len > lists.scratch_cap {
-            let cap = len.max(2 * lists.scratch_cap).min(lists.most);
-            let [pb, fb, db] = scratch_bytes(cap, lists.dep_bytes, lists.pyramids);
-            let pyramid = gpu.storage_empty("pyramids", pb);
-            let fates = gpu.storage_empty("fates", fb);
-            let old_base = lists.pieces_base() as u64 * 4;
-            lists.scratch_cap = cap;
-            let new_base = lists.pieces_base() as u64 * 4;
-            let mut enc = gpu.device.create_command_encoder(&Default::default());
-            let words = pyramid_size(n) as u64 * 4;
-            enc.copy_buffer_to_buffer(&lists.pyramid, old_base, &pyramid, new_base, words);
-            enc.copy_buffer_to_buffer(&lists.fates, 0, &fates, 0, n as u64 * 4);
-            gpu.submit([enc.finish()]);
-            lists.pyramid = pyramid;
-            lists.fates = fates;
-            lists.deps = gpu.storage_empty("deposits", db);
-            lists.medium_group = self.bind_medium(
-                run,
-                lists.channel,
-                lists.fresnel,
-                [&lists.pyramid, &lists.fates, &lists.deps],
-            );
         }
         Ok(())
     }
@@ -1745,12 +1964,7 @@ impl<'a> GpuSimulator<'a> {
             lists.fates = gpu.storage_empty("fates", fb);
             lists.deps = gpu.storage_empty("deposits", db);
             lists.scratch_cap = cap;
-            lists.medium_group = self.bind_medium(
-                run,
-                lists.channel,
-                lists.fresnel,
-                [&lists.pyramid, &lists.fates, &lists.deps],
-            );
+            self.rebind_scratch(run, lists);
         }
         Ok(())
     }
@@ -1859,6 +2073,10 @@ mod tests {
         eikon_gpu::layout::check::<SimParams>(&module).unwrap();
         eikon_gpu::layout::check::<PyramidLevel>(&module).unwrap();
         eikon_gpu::layout::check::<GridGpu>(&module).unwrap();
+        // The plan's members where the host copies and dispatches from.
+        let (offsets, span) = eikon_gpu::layout::offsets(&module, "Plan").unwrap();
+        assert_eq!(offsets, [0, PLAN_PARAMS_AT, PLAN_ARGS_AT]);
+        assert_eq!(span, PLAN_BYTES);
         for k in KERNELS {
             assert!(
                 module.entry_points.iter().any(|e| e.name == k),

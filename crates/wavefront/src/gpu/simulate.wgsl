@@ -1661,3 +1661,145 @@ fn cull_rest(@builtin(global_invocation_id) id: vec3<u32>,
     }
     wg_end(li);
 }
+
+// ---------------------------------------------------------------------
+// The plan: the device schedules its own steps, so that one submission
+// holds many and nothing is read back between them (`simulate.rs`,
+// `GpuSimulator::trace`). Before a step `plan_step` reads the new list's
+// length off the counts' pyramid, checks that it fits and that the step
+// limit is not reached, and writes the step's uniform block and how many
+// workgroups each of its kernels runs (indirect dispatch); with sharp
+// interfaces `plan_pieces` does the same after pass 0 for the torn
+// patches' pieces. The host copies `plan.params` into `P` after each.
+// Where a step cannot go on (the list is empty, the step limit, a list
+// or the scratch too small) the plan halts: every later dispatch of the
+// submission runs no workgroup and `P` stays as it was, and the host
+// reads `plan.state`, makes room or ends, and goes on from there.
+// Generated ahead of this source: PL_* (the state's words), HALT_*,
+// A_* (the dispatch slots), PLAN_STATE, PLAN_SLOTS and MAX_LEVELS.
+
+struct Plan {
+    state: array<u32, PLAN_STATE>,
+    params: SimParams,
+    args: array<u32, PLAN_ARGS>,
+}
+
+// Bound only to the plan kernels (a buffer that a dispatch reads its
+// size from cannot be bound for writing in the same dispatch).
+@group(3) @binding(1) var<storage, read_write> plan: Plan;
+
+// Slot `slot` runs `items` threads: `eikon_gpu::groups`, with no
+// workgroup for no item.
+fn plan_args(slot: u32, items: u32) {
+    let g = (items + WORKGROUP - 1u) / WORKGROUP;
+    let x = min(g, 65535u);
+    var y = 0u;
+    if x > 0u {
+        y = (g + x - 1u) / x;
+    }
+    plan.args[3u * slot] = x;
+    plan.args[3u * slot + 1u] = y;
+    plan.args[3u * slot + 2u] = min(g, 1u);
+}
+
+// The reductions of a pyramid over n entries from slot `first`: level l
+// (>= 1) at `first + l - 1`, none above its top.
+fn plan_levels(first: u32, n: u32) {
+    let depth = hp_depth(n);
+    for (var l = 1u; l < MAX_LEVELS; l++) {
+        plan_args(first + l - 1u, select(0u, hp_len(l, n), l < depth));
+    }
+}
+
+fn plan_halt(why: u32) {
+    plan.state[PL_HALT] = why;
+    for (var s = 0u; s < PLAN_SLOTS; s++) {
+        plan_args(s, 0u);
+    }
+}
+
+// Words of a pyramid over `cap` entries: where the split flags' pyramid
+// starts (`splits_base`; the pieces' starts at twice that).
+fn pyramid_words(cap: u32) -> u32 {
+    return hp_offset(hp_depth(cap), cap);
+}
+
+// Before a step: the walk's length (the top of the counts' pyramid the
+// last step built; the uploaded list's own at the first step), the step's
+// uniforms and every slot for a step without torn patches.
+@compute @workgroup_size(1)
+fn plan_step() {
+    plan.params = P;
+    if plan.state[PL_HALT] != HALT_NONE {
+        return;
+    }
+    let rebuild = plan.state[PL_REBUILD] != 0u;
+    var total = P.n;
+    if rebuild {
+        total = hp_total(0u, P.n);
+        plan.state[PL_PEAK] = max(plan.state[PL_PEAK], total);
+    }
+    plan.state[PL_TOTAL] = total;
+    let cur = plan.state[PL_CUR];
+    let dst = select(cur, 1u - cur, rebuild);
+    if total == 0u {
+        plan_halt(HALT_DONE);
+        return;
+    }
+    if total > plan.state[PL_CAP + dst] || total > plan.state[PL_SCRATCH] {
+        plan_halt(HALT_ROOM);
+        return;
+    }
+    if plan.state[PL_STEPS] >= plan.state[PL_MAX_STEPS] {
+        plan_halt(HALT_LIMIT);
+        return;
+    }
+    plan.state[PL_STEPS] += 1u;
+    plan.state[PL_CUR] = dst;
+    plan.state[PL_REBUILD] = 1u;
+    plan.state[PL_LEN] = total;
+    let words = pyramid_words(plan.state[PL_SCRATCH]);
+    plan.params.n = total;
+    plan.params.n_old = select(P.n_old, P.n, rebuild);
+    plan.params.stamp = plan.state[PL_STAMP];
+    plan.state[PL_STAMP] += 2u;
+    plan.params.splits_base = words;
+    plan.params.pieces_base = 2u * words;
+    plan.params.sharp_pass = 0u;
+    atomicStore(&stats[S_KEPT], 0u);
+    atomicStore(&stats[S_KEPT + 1u], 0u);
+    atomicStore(&stats[S_TORN_NOW], 0u);
+    plan_args(A_REBUILD, select(0u, total, rebuild));
+    plan_args(A_N, total);
+    plan_levels(A_LEVELS_N, total);
+    plan_args(A_PASS1, 0u);
+    plan_args(A_LEN, total);
+    plan_levels(A_LEVELS_LEN, total);
+}
+
+// After `propagate_sharp`'s pass 0: with torn patches, the list with
+// their pieces after it, pass 1's uniforms and the rest of the step's
+// slots over it.
+@compute @workgroup_size(1)
+fn plan_pieces() {
+    plan.params = P;
+    if plan.state[PL_HALT] != HALT_NONE || atomicLoad(&stats[S_TORN_NOW]) == 0u {
+        return;
+    }
+    let n = P.n;
+    let words = pyramid_words(plan.state[PL_SCRATCH]);
+    let len = n + hp_total(2u * words, n);
+    plan.state[PL_LEN] = len;
+    if len > plan.state[PL_CAP + plan.state[PL_CUR]] || len > plan.state[PL_SCRATCH] {
+        plan_halt(HALT_PIECES);
+        return;
+    }
+    plan.params.n = len;
+    plan.params.n_old = n;
+    plan.params.sharp_pass = 1u;
+    plan.params.splits_base = words;
+    plan.params.pieces_base = 2u * words;
+    plan_args(A_PASS1, n);
+    plan_args(A_LEN, len);
+    plan_levels(A_LEVELS_LEN, len);
+}
