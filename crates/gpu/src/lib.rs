@@ -194,6 +194,12 @@ impl Gpu {
     /// Open the best Vulkan, Metal or DX12 adapter (never OpenGL), as
     /// narrowed by `WGPU_BACKEND`.
     pub fn new() -> Result<Gpu, GpuError> {
+        // One device opens at a time in a process: NVIDIA's Linux driver
+        // races when instances are created on several threads at once
+        // (wgpu issue #5930; the optics crate's WGSL tests, two devices
+        // opening at once, hung on an H100 in two runs of three).
+        static OPENING: Mutex<()> = Mutex::new(());
+        let _one = OPENING.lock().unwrap_or_else(|e| e.into_inner());
         let allowed = wgpu::Backends::VULKAN | wgpu::Backends::METAL | wgpu::Backends::DX12;
         let backends = wgpu::Backends::from_env().map_or(allowed, |b| b & allowed);
         // wgpu checks every indirect dispatch's sizes with a dispatch of

@@ -60,7 +60,9 @@ fn grid_cell_of(g: GridGpu, p: vec3<f32>) -> Cell {
     if !all(u >= vec3<f32>(0.0)) {
         return Cell(false, 0u);
     }
-    let c = vec3<u32>(u);
+    // Bounded before the conversion, whose result is undefined out of
+    // range (SPIR-V's OpConvertFToU; a point at infinity).
+    let c = vec3<u32>(min(u, vec3<f32>(g.dims)));
     if any(c >= g.dims) {
         return Cell(false, 0u);
     }

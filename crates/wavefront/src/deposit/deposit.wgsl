@@ -73,8 +73,10 @@ fn deposit_chord(g: GridGpu, sc: ChordScales, a: vec3<f32>, b: vec3<f32>, flux: 
     let gc = (a - g.min) * g.inv_spacing;
     let dg = d * g.inv_spacing;
     let top = vec3<i32>(g.dims) - 1;
-    let first = clamp(vec3<i32>(gc + dg * t0), vec3<i32>(0), top);
-    let last = clamp(vec3<i32>(gc + dg * t1), vec3<i32>(0), top);
+    // Clamped before the conversion (see `grid_cell_of`).
+    let topf = vec3<f32>(top);
+    let first = vec3<i32>(clamp(gc + dg * t0, vec3<f32>(0.0), topf));
+    let last = vec3<i32>(clamp(gc + dg * t1, vec3<f32>(0.0), topf));
     if all(first == last) {
         deposit_piece(g, first, t0, t1, w, wf, u, depth);
         return;

@@ -58,17 +58,21 @@
 //! without depositing); a HistoPyramid of the extra pieces (all but the
 //! first) gives each torn patch its slots after the list in patch order;
 //! the plan (`plan_pieces`) reads the torn patches' count and the
-//! pieces' total off the device, and pass
-//! 1 (the same entry point, so the same code) traces the torn patches
-//! again, depositing, and writes the first piece in the patch's slot and
-//! the others in its slots. A torn patch is thus traced twice; tears are
-//! rare. The two passes run the same code on the same input and should
-//! find the same pieces; on lavapipe they disagree for a few torn patches
-//! in a thousand in nested scenes (cause not found): pass 1 then never
-//! writes beyond the slots pass 0 counted (a piece without a slot is
-//! dropped and counted as torn; a slot without a piece carries nothing),
-//! so the list and the energy account stay consistent and the result is
-//! still the same from run to run. A patch that has just
+//! pieces' total off the device; pass 1 (the same entry point, so the
+//! same code) walks each torn patch's tree again exactly as pass 0 did,
+//! keeps the patch in the other list and names each piece's node in its
+//! slot; and pass 2 (`sharp_pieces`, one thread per slot) traces each
+//! piece from the kept patch, depositing and tallying, and writes it, the
+//! first in the patch's slot. One trace per thread in pass 2 keeps each
+//! invocation's loops short, which lavapipe needs: llvmpipe ends every
+//! loop of an invocation once all of them together have run 65535
+//! iterations (`LP_MAX_TGSI_LOOP_ITERATIONS`, counted per group of SIMD
+//! lanes), and a heavily torn patch walked with its deposits ran past
+//! that and lost the rest of its pieces. Pass 1 never writes beyond the
+//! slots pass 0 counted (a piece without a slot is dropped and counted as
+//! torn; a slot without a piece carries nothing), so the list and the
+//! energy account stay consistent whatever a device does, and the result
+//! is still the same from run to run. A patch that has just
 //! crossed a surface and reflects ([`propagate::reflection`], the WGSL
 //! `patch_reflection`) adds one more piece the same way: pass 0 finds that
 //! it reflects (a whole patch marks its fate `FATE_REFLECTS`), pass 1
@@ -291,6 +295,9 @@ const STATS_WORDS: usize = S_EXITED + 10;
 /// `propagate_sharp`'s pass 0 marks a patch that held together and
 /// reflects (its reflection one extra piece) with this bit in its fate.
 const FATE_REFLECTS: u32 = 1 << 31;
+/// `propagate_sharp`'s pass 1 marks the slot of a torn patch's piece with
+/// this bit and the piece's node (level << 16 | path) for pass 2.
+const PIECE_TAG: u32 = 1 << 30;
 /// The plan's state (`Plan::state` in `simulate.wgsl`, words): why it
 /// halted (`HALT_*`), the steps begun, the step limit, the longest list,
 /// the live list (0 or 1), the two lists' and the scratch's capacities
@@ -320,13 +327,14 @@ const HALT_ROOM: u32 = 3;
 const HALT_PIECES: u32 = 4;
 /// The plan's dispatch slots (three words each): the walk, the kernels
 /// over the step's list, the reductions of the pieces' pyramid over it
-/// (levels 1 to `MAX_LEVELS - 1`), pass 1, the kernels over the list with
-/// the pieces, and the reductions over that.
+/// (levels 1 to `MAX_LEVELS - 1`), pass 1, pass 2 (`sharp_pieces`), the
+/// kernels over the list with the pieces, and the reductions over that.
 const A_REBUILD: usize = 0;
 const A_N: usize = 1;
 const A_LEVELS_N: usize = 2;
 const A_PASS1: usize = A_LEVELS_N + MAX_LEVELS - 1;
-const A_LEN: usize = A_PASS1 + 1;
+const A_PIECES: usize = A_PASS1 + 1;
+const A_LEN: usize = A_PIECES + 1;
 const A_LEVELS_LEN: usize = A_LEN + 1;
 const PLAN_SLOTS: usize = A_LEVELS_LEN + MAX_LEVELS - 1;
 /// Byte offsets of `Plan::params` and `Plan::args`, and its size.
@@ -364,6 +372,7 @@ fn declarations() -> String {
         .f32("REACH_SPANS", propagate::REACH_SPANS as f32)
         .f32("REFLECT_MIN", propagate::REFLECT_MIN as f32)
         .u32("FATE_REFLECTS", FATE_REFLECTS)
+        .u32("PIECE_TAG", PIECE_TAG)
         .u32("STATS_WORDS", STATS_WORDS as u32)
         .u32("MAX_CROSSINGS", propagate::MAX_CROSSINGS as u32)
         .u32("MAX_SPLIT_LEVEL", propagate::MAX_SPLIT_LEVEL)
@@ -398,6 +407,7 @@ fn declarations() -> String {
         .u32("A_N", A_N as u32)
         .u32("A_LEVELS_N", A_LEVELS_N as u32)
         .u32("A_PASS1", A_PASS1 as u32)
+        .u32("A_PIECES", A_PIECES as u32)
         .u32("A_LEN", A_LEN as u32)
         .u32("A_LEVELS_LEN", A_LEVELS_LEN as u32)
         .u32("PLAN_SLOTS", PLAN_SLOTS as u32)
@@ -478,11 +488,13 @@ enum Kernel {
     Grant,
     /// The patches left at the step limit.
     CullRest,
-    /// Step 1 with sharp interfaces (both passes).
+    /// Step 1 with sharp interfaces (passes 0 and 1).
     PropagateSharp,
+    /// Its pass 2: the torn patches' pieces.
+    SharpPieces,
 }
 
-const KERNELS: [&str; 14] = [
+const KERNELS: [&str; 15] = [
     "rebuild",
     "mid_max",
     "mid_owner",
@@ -497,6 +509,7 @@ const KERNELS: [&str; 14] = [
     "grant",
     "cull_rest",
     "propagate_sharp",
+    "sharp_pieces",
 ];
 
 /// The plan's kernels: before a step, and after pass 0 of a sharp one.
@@ -989,7 +1002,7 @@ impl<'a> GpuSimulator<'a> {
             let kernels = if sharp {
                 &KERNELS[..]
             } else {
-                &KERNELS[..KERNELS.len() - 1]
+                &KERNELS[..KERNELS.len() - 2]
             };
             let kernels = kernels
                 .iter()
@@ -1684,6 +1697,7 @@ impl<'a> GpuSimulator<'a> {
                 HALT_PIECES => {
                     let (n, len) = (state[PL_TOTAL] as usize, state[PL_LEN] as usize);
                     self.fit_pieces(run, lists, n, len)?;
+                    self.fit_saved(lists, n)?;
                     after_pass0 = true;
                     steps = (traced.steps - s0 as usize).max(1);
                 }
@@ -1852,6 +1866,7 @@ impl<'a> GpuSimulator<'a> {
         pass.set_bind_group(3, &run.levels[0][0].1, &[]);
         if sharp {
             self.planned(&mut pass, run, Kernel::PropagateSharp, A_PASS1);
+            self.planned(&mut pass, run, Kernel::SharpPieces, A_PIECES);
         }
         self.planned(&mut pass, run, Kernel::Analyse, A_LEN);
         self.planned_levels(&mut pass, run, lists, 1, A_LEVELS_LEN);
@@ -1895,6 +1910,21 @@ impl<'a> GpuSimulator<'a> {
             lists.fresnel,
             [&lists.pyramid, &lists.fates, &lists.deps],
         );
+    }
+
+    /// Make room in the other list for the `n` torn patches' copies that
+    /// `propagate_sharp`'s pass 1 keeps there (nothing else is in it
+    /// during the step: it is made again, larger).
+    fn fit_saved(&self, lists: &mut Lists, n: usize) -> Result<(), Error> {
+        let other = 1 - lists.cur;
+        if n > lists.sets[other].cap {
+            let cap = n.max(2 * lists.sets[other].cap).min(lists.most);
+            lists.patch_groups.clear();
+            lists.sets[other] = PatchSet::new(self.gpu, 0);
+            lists.sets[other] = PatchSet::new(self.gpu, cap);
+            lists.patch_groups = self.patch_groups(&lists.sets);
+        }
+        Ok(())
     }
 
     /// Make room in the live list, which holds `n` patches, for `len`

@@ -189,7 +189,8 @@ fn empty_at(p: vec3<f32>) -> f32 {
     if !all(u >= vec3<f32>(0.0)) {
         return -1.0;
     }
-    let c = vec3<u32>(u);
+    // Bounded before the conversion (see `grid_cell_of`).
+    let c = vec3<u32>(min(u, vec3<f32>(P.empty_dims)));
     if any(c >= P.empty_dims) {
         return -1.0;
     }
@@ -1380,6 +1381,45 @@ fn quarter(q: Quad, part: u32) -> Quarter {
     return Quarter(quad_child(q, part), share);
 }
 
+// A node of a torn patch's tree of quarters: its corners and flux, derived
+// from the patch's quarter by quarter down its path (two bits per level,
+// the first quarter in the highest bits), exactly as the recursion of
+// `split_and_trace` derives them.
+struct Node {
+    q: Quad,
+    flux: vec4<f32>,
+    flux0: vec3<f32>,
+}
+
+fn node_of(q: Quad, a: vec4<f32>, f0: vec3<f32>, level: u32, path: u32) -> Node {
+    var n = Node(q, a, f0);
+    for (var l = 1u; l <= level; l++) {
+        let part = (path >> (2u * (level - l))) & 3u;
+        let c = quarter(n.q, part);
+        n.q = c.q;
+        n.flux *= c.share;
+        n.flux0 *= c.share;
+    }
+    return n;
+}
+
+// Patch i as pass 1 kept it in the other list (the patch before the step,
+// bit for bit as `load_quad` reads it).
+fn load_saved_quad(i: u32) -> Quad {
+    var q: Quad;
+    let x0 = dpos[4u * i].xyz;
+    for (var c = 0u; c < 4u; c++) {
+        var r = vec3<f32>(0.0);
+        if c != 0u {
+            r = dpos[4u * i + c].xyz;
+        }
+        q.x[c] = x0 + r;
+        q.v[c] = dvel[4u * i + c].xyz;
+        q.opl[c] = dpos[4u * i + c].w;
+    }
+    return q;
+}
+
 // One step of patch i with sharp interfaces (`propagate::propagate_sharp`).
 // Pass 0: `sharp_patch`; a patch that held together is written; a torn one
 // is split (`propagate::split_and_trace`: in four where the step began,
@@ -1422,6 +1462,16 @@ fn sharp_trace(i: u32, pass1: bool) {
             return;
         }
         count = f - 1u;
+        // Pass 2 traces the pieces from the patch as it is now, before
+        // the step: kept in the other list, which nothing reads until the
+        // next step's walk writes it.
+        for (var c = 0u; c < 4u; c++) {
+            dpos[4u * i + c] = pos[4u * i + c];
+            dvel[4u * i + c] = vel[4u * i + c];
+        }
+        for (var c = 0u; c < 3u; c++) {
+            daux[3u * i + c] = aux[3u * i + c];
+        }
     }
     let q = load_quad(i);
     let a = aux[3u * i];
@@ -1433,9 +1483,7 @@ fn sharp_trace(i: u32, pass1: bool) {
     var level = select(0u, 1u, pass1);
     var path = 0u;
     var found = 0u;
-    var first = q;
-    var first_flux = vec4<f32>(0.0);
-    var first_flux0 = vec3<f32>(0.0);
+    var first_id = 0u;
     if pass1 && quad_span(q) <= P.min_span {
         add_energy3(E_TORN, a.xyz);
         atomicAdd(&wg_stats[S_TORN], 1u);
@@ -1447,18 +1495,12 @@ fn sharp_trace(i: u32, pass1: bool) {
         }
         // The node: its corners and flux from the patch's, quarter by
         // quarter down its path.
-        var node = q;
-        var flux = a;
-        var flux0 = f0.xyz;
-        for (var l = 1u; l <= level; l++) {
-            let part = (path >> (2u * (level - l))) & 3u;
-            let c = quarter(node, part);
-            node = c.q;
-            flux *= c.share;
-            flux0 *= c.share;
-        }
-        let write = pass1 || level == 0u;
-        let t = sharp_patch(node, flux.xyz, write);
+        let nd = node_of(q, a, f0.xyz, level, path);
+        let node = nd.q;
+        let flux = nd.flux;
+        // Only the whole patch deposits here: pass 1 walks exactly as pass
+        // 0 did, and pass 2 deposits each piece.
+        let t = sharp_patch(node, flux.xyz, level == 0u);
         var descend = false;
         if t.ok {
             if level == 0u {
@@ -1477,20 +1519,19 @@ fn sharp_trace(i: u32, pass1: bool) {
                 return;
             }
             if pass1 && found >= count {
-                // More pieces than pass 0 counted (see `write_piece`): no
-                // slot is left for this one, so it is dropped, counted as
-                // torn, and the energy account still balances.
-                add_energy3(E_TORN, t.flux);
+                // More pieces than pass 0 counted (see below): no slot is
+                // left for this one, so it is dropped, untraced, counted
+                // as torn, and the energy account still balances.
+                add_energy3(E_TORN, flux.xyz);
                 atomicAdd(&wg_stats[S_TORN], 1u);
             } else if pass1 {
+                // Its slot names the node for pass 2 (the first piece's
+                // slot, the patch's own, once the walk is done).
+                let id = PIECE_TAG | (level << 16u) | path;
                 if found == 0u {
-                    // The first piece takes the patch's slot once the
-                    // patch is traced (it is read at every node).
-                    first = t.q;
-                    first_flux = vec4<f32>(t.flux, flux.w);
-                    first_flux0 = flux0;
+                    first_id = id;
                 } else {
-                    write_piece(i, found, count, base, t.q, t.flux, flux0, flux.w, depth);
+                    fate[base + found - 1u] = id;
                 }
             }
             found += 1u;
@@ -1542,21 +1583,57 @@ fn sharp_trace(i: u32, pass1: bool) {
         aux[3u * i] = vec4<f32>(vec3<f32>(0.0), a.w);
         aux[3u * i + 1u] = vec4<f32>(f0.xyz, depth);
         aux[3u * i + 2u] = vec4<f32>(0.0);
+        fate[i] = 0u;
     } else {
-        write_piece(i, 0u, count, base, first, first_flux.xyz, first_flux0, first_flux.w, depth);
+        fate[i] = first_id;
     }
     // Slots pass 0 counted and this pass did not fill carry nothing rather
-    // than stale data. (Pass 1 traces a torn patch with the same code and
-    // input as pass 0, so the two should find the same pieces; on lavapipe
-    // they disagree for a few torn patches in a thousand in nested scenes:
-    // hence these guards, which keep the list and the energy account
-    // consistent. There the walk itself comes out short: one patch's walk
-    // in pass 1 descended 23 times but reached 65 leaves, not 4 + 3 * 23,
-    // whatever its loop's form. Not seen on an NVIDIA H100, where the
-    // nested scene with reflections balanced to 3e-9; cause not found.)
+    // than stale data. Pass 1 walks with the same code and input as pass
+    // 0, so the two find the same pieces, unless a loop was cut short in
+    // one: lavapipe (llvmpipe) ends every loop of an invocation once all
+    // its loops together have run 65535 iterations
+    // (LP_MAX_TGSI_LOOP_ITERATIONS, counted per SIMD group). That is why
+    // the deposits are pass 2's, one piece per thread: walked with them,
+    // a heavily torn patch ran out of iterations in mid-walk and its
+    // remaining pieces were lost. These guards keep the list and the
+    // energy account consistent whatever happens.
     for (var k = max(found, 1u); k < count; k++) {
         write_piece(i, k, count, base, q, vec3<f32>(0.0), vec3<f32>(0.0), 0.0, depth);
+        fate[base + k - 1u] = 0u;
     }
+}
+
+// Pass 2 of a sharp step, one thread per slot s of the list with the
+// pieces (P.n; P.n_old patches before them): a piece of a torn patch
+// (`fate[s]` names its node, pass 1) is traced again from the patch as it
+// was before the step, depositing and tallying, and written in its slot.
+// The patch of an extra piece is found from the pieces' pyramid.
+fn sharp_piece(s: u32) {
+    let f = fate[s];
+    if (f & PIECE_TAG) == 0u || (f & FATE_REFLECTS) != 0u {
+        return;
+    }
+    var i = s;
+    if s >= P.n_old {
+        i = hp_locate(P.pieces_base, P.n_old, s - P.n_old).x;
+    }
+    let a = daux[3u * i];
+    let f0 = daux[3u * i + 1u];
+    let depth = f0.w + 1.0;
+    let nd = node_of(load_saved_quad(i), a, f0.xyz, (f >> 16u) & 0xfu, f & 0xffffu);
+    let t = sharp_patch(nd.q, nd.flux.xyz, true);
+    var flux = t.flux;
+    if !t.ok {
+        // Pass 1 found it whole and this trace does not (it cannot, with
+        // the same code and input): dropped, counted as torn.
+        add_energy3(E_TORN, nd.flux.xyz);
+        atomicAdd(&wg_stats[S_TORN], 1u);
+        flux = vec3<f32>(0.0);
+    }
+    store_quad(s, t.q);
+    aux[3u * s] = vec4<f32>(flux, nd.flux.w);
+    aux[3u * s + 1u] = vec4<f32>(nd.flux0, depth);
+    aux[3u * s + 2u] = quad_irradiance(t.q, flux);
 }
 
 // ---------------------------------------------------------------------
@@ -1610,6 +1687,19 @@ fn propagate_sharp(@builtin(global_invocation_id) id: vec3<u32>,
     let pass1 = P.sharp_pass != 0u;
     if i < select(P.n, P.n_old, pass1) {
         sharp_trace(i, pass1);
+    }
+    wg_end(li);
+}
+
+// Pass 2 of a sharp step: the torn patches' pieces.
+@compute @workgroup_size(WORKGROUP)
+fn sharp_pieces(@builtin(global_invocation_id) id: vec3<u32>,
+                @builtin(num_workgroups) groups: vec3<u32>,
+                @builtin(local_invocation_index) li: u32) {
+    wg_begin(li);
+    let s = item(id, groups);
+    if s < P.n {
+        sharp_piece(s);
     }
     wg_end(li);
 }
@@ -1773,6 +1863,7 @@ fn plan_step() {
     plan_args(A_N, total);
     plan_levels(A_LEVELS_N, total);
     plan_args(A_PASS1, 0u);
+    plan_args(A_PIECES, 0u);
     plan_args(A_LEN, total);
     plan_levels(A_LEVELS_LEN, total);
 }
@@ -1790,7 +1881,9 @@ fn plan_pieces() {
     let words = pyramid_words(plan.state[PL_SCRATCH]);
     let len = n + hp_total(2u * words, n);
     plan.state[PL_LEN] = len;
-    if len > plan.state[PL_CAP + plan.state[PL_CUR]] || len > plan.state[PL_SCRATCH] {
+    // Pass 1 keeps the torn patches in the other list (for pass 2).
+    let cur = plan.state[PL_CUR];
+    if len > plan.state[PL_CAP + cur] || len > plan.state[PL_SCRATCH] || n > plan.state[PL_CAP + 1u - cur] {
         plan_halt(HALT_PIECES);
         return;
     }
@@ -1800,6 +1893,7 @@ fn plan_pieces() {
     plan.params.splits_base = words;
     plan.params.pieces_base = 2u * words;
     plan_args(A_PASS1, n);
+    plan_args(A_PIECES, len);
     plan_args(A_LEN, len);
     plan_levels(A_LEVELS_LEN, len);
 }
