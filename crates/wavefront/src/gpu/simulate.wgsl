@@ -1459,6 +1459,9 @@ fn sharp_trace(i: u32, pass1: bool) {
                 traced_reflection(r, fl);
             }
             write_piece(i, 1u, 2u, base, r.q, fl, f0.xyz, a.w, f0.w);
+            // Its slot is no piece for pass 2 (whatever an earlier step
+            // left there).
+            fate[base] = 0u;
             return;
         }
         count = f - 1u;
