@@ -415,25 +415,24 @@ impl Gpu {
 
     /// An empty storage buffer of `bytes` (at least [`MIN_BUFFER_BYTES`]).
     pub fn storage_empty(&self, label: &str, bytes: u64) -> Buffer {
-        self.track(self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(label),
-            size: bytes.max(MIN_BUFFER_BYTES),
-            usage: wgpu::BufferUsages::STORAGE
-                | wgpu::BufferUsages::COPY_SRC
-                | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        }))
+        self.empty(label, bytes, wgpu::BufferUsages::empty())
     }
 
     /// An empty storage buffer of `bytes` that also holds the arguments of
     /// indirect dispatches: kernels write how many workgroups later
     /// kernels of the same submission run (a copy source and target too).
     pub fn storage_indirect(&self, label: &str, bytes: u64) -> Buffer {
+        self.empty(label, bytes, wgpu::BufferUsages::INDIRECT)
+    }
+
+    /// An empty storage buffer (a copy source and target) with `usage`
+    /// besides, tallied.
+    fn empty(&self, label: &str, bytes: u64, usage: wgpu::BufferUsages) -> Buffer {
         self.track(self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some(label),
             size: bytes.max(MIN_BUFFER_BYTES),
-            usage: wgpu::BufferUsages::STORAGE
-                | wgpu::BufferUsages::INDIRECT
+            usage: usage
+                | wgpu::BufferUsages::STORAGE
                 | wgpu::BufferUsages::COPY_SRC
                 | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,

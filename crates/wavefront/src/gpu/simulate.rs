@@ -705,6 +705,18 @@ fn pyramid_size(n: usize) -> usize {
     pyramid_levels(n).iter().map(|&(_, len)| len).sum()
 }
 
+/// Levels of a pyramid over `n` entries (`hp_depth`), without building
+/// their list: counted each time a step is encoded.
+fn pyramid_depth(n: usize) -> usize {
+    let mut len = n.max(1);
+    let mut depth = 1;
+    while len > 1 {
+        len = len.div_ceil(4);
+        depth += 1;
+    }
+    depth
+}
+
 /// `(offset, length)` of each level of a pyramid over `n` entries (the
 /// `histopyramid` module's `hp_offset`, `hp_len`).
 fn pyramid_levels(n: usize) -> Vec<(usize, usize)> {
@@ -974,20 +986,22 @@ impl<'a> GpuSimulator<'a> {
                         .into(),
                     ),
                 });
-            let layout = gpu
-                .device
-                .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                    label: Some("simulator"),
-                    bind_group_layouts: &[&layouts[0], &layouts[1], &layouts[2], &layouts[3]],
-                    push_constant_ranges: &[],
-                });
-            let planned = gpu
-                .device
-                .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                    label: Some("simulator plan"),
-                    bind_group_layouts: &[&layouts[0], &layouts[1], &layouts[2], &layouts[4]],
-                    push_constant_ranges: &[],
-                });
+            // Groups 0 to 2, then the pyramid level's or the plan's.
+            let with = |label, group3: usize| {
+                gpu.device
+                    .create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                        label: Some(label),
+                        bind_group_layouts: &[
+                            &layouts[0],
+                            &layouts[1],
+                            &layouts[2],
+                            &layouts[group3],
+                        ],
+                        push_constant_ranges: &[],
+                    })
+            };
+            let layout = with("simulator", 3);
+            let planned = with("simulator plan", 4);
             let pipeline = |entry: &str, layout: &wgpu::PipelineLayout| {
                 gpu.device
                     .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
@@ -1697,7 +1711,7 @@ impl<'a> GpuSimulator<'a> {
                 HALT_PIECES => {
                     let (n, len) = (state[PL_TOTAL] as usize, state[PL_LEN] as usize);
                     self.fit_pieces(run, lists, n, len)?;
-                    self.fit_saved(lists, n)?;
+                    self.fit_saved(lists, n);
                     after_pass0 = true;
                     steps = (traced.steps - s0 as usize).max(1);
                 }
@@ -1797,7 +1811,7 @@ impl<'a> GpuSimulator<'a> {
         pyramid: usize,
         first: usize,
     ) {
-        let depth = pyramid_levels(lists.scratch_cap).len().min(MAX_LEVELS);
+        let depth = pyramid_depth(lists.scratch_cap).min(MAX_LEVELS);
         for l in 1..depth {
             pass.set_bind_group(3, &run.levels[pyramid][l].1, &[]);
             self.planned(pass, run, Kernel::Reduce, first + l - 1);
@@ -1915,16 +1929,21 @@ impl<'a> GpuSimulator<'a> {
     /// Make room in the other list for the `n` torn patches' copies that
     /// `propagate_sharp`'s pass 1 keeps there (nothing else is in it
     /// during the step: it is made again, larger).
-    fn fit_saved(&self, lists: &mut Lists, n: usize) -> Result<(), Error> {
+    fn fit_saved(&self, lists: &mut Lists, n: usize) {
         let other = 1 - lists.cur;
         if n > lists.sets[other].cap {
             let cap = n.max(2 * lists.sets[other].cap).min(lists.most);
-            lists.patch_groups.clear();
-            lists.sets[other] = PatchSet::new(self.gpu, 0);
-            lists.sets[other] = PatchSet::new(self.gpu, cap);
-            lists.patch_groups = self.patch_groups(&lists.sets);
+            self.remake_list(lists, other, cap);
         }
-        Ok(())
+    }
+
+    /// List `which`, whose patches nothing reads any more, made again to
+    /// hold `cap` (freed first, with the bind groups that hold it).
+    fn remake_list(&self, lists: &mut Lists, which: usize, cap: usize) {
+        lists.patch_groups.clear();
+        lists.sets[which] = PatchSet::new(self.gpu, 0);
+        lists.sets[which] = PatchSet::new(self.gpu, cap);
+        lists.patch_groups = self.patch_groups(&lists.sets);
     }
 
     /// Make room in the live list, which holds `n` patches, for `len`
@@ -1975,12 +1994,8 @@ impl<'a> GpuSimulator<'a> {
                 )
                 .into());
             }
-            // The walk overwrites the other list: free it, with the bind
-            // groups that hold it, before making the larger.
-            lists.patch_groups.clear();
-            lists.sets[dst] = PatchSet::new(gpu, 0);
-            lists.sets[dst] = PatchSet::new(gpu, cap);
-            lists.patch_groups = self.patch_groups(&lists.sets);
+            // The walk overwrites the other list.
+            self.remake_list(lists, dst, cap);
         }
         if total > lists.scratch_cap {
             let cap = total.max(2 * lists.scratch_cap).min(lists.most);
@@ -2121,5 +2136,8 @@ mod tests {
         assert_eq!(l, vec![(0, 17), (17, 5), (22, 2), (24, 1)]);
         assert_eq!(pyramid_size(17), 25);
         assert_eq!(pyramid_levels(0), vec![(0, 1)]);
+        for n in [0, 1, 4, 5, 17, 4096, 4097] {
+            assert_eq!(pyramid_depth(n), pyramid_levels(n).len(), "{n}");
+        }
     }
 }
