@@ -86,6 +86,11 @@ pub struct Args {
     /// No Fresnel transmission at interfaces ([Ihrke07 eq 18] has none).
     #[arg(long)]
     no_fresnel: bool,
+    /// CPU: no straight runs of several steps through empty space; every
+    /// patch steps one step at a time, as on the GPU (to compare the
+    /// backends' volumes).
+    #[arg(long)]
+    no_runs: bool,
     /// Trace the Fresnel-reflected light on (sharp interfaces), as patches
     /// of its own (photons: as branches). Without it the reflected part
     /// leaves the beam, counted as reflected. It takes several times as
@@ -244,6 +249,7 @@ impl Args {
             fresnel: !self.no_fresnel,
             reflections: self.reflections,
             max_depth: None,
+            runs: !self.no_runs,
         };
         if let Err(e) = opts.check() {
             bail!("--{e}");
@@ -575,6 +581,11 @@ pub fn simulate(
             reflections: opts.fresnel
                 && opts.reflections
                 && scene.grid.interfaces == eikon_grid::Interfaces::Sharp,
+            // The CPU's wavefront with the fluence deposit takes them.
+            runs: opts.runs
+                && args.method == SimMethod::Wavefront
+                && opts.deposit == DepositRule::Fluence
+                && matches!(on, Backend::Cpu),
             photons: (args.method == SimMethod::Photons).then_some(args.count),
             seed: (args.method == SimMethod::Photons).then_some(args.seed),
         },

@@ -160,6 +160,12 @@ pub struct Options {
     /// for its cost: docs/PERFORMANCE.md), it leaves the beam and is
     /// counted as reflected, as smoothed interfaces always do.
     pub reflections: bool,
+    /// On the CPU, let a patch in empty space take up to
+    /// [`propagate::MAX_RUN`] steps at once ([`propagate::Run`]), its tube
+    /// deposited in one pass (the default). Off, every patch steps one step
+    /// at a time, as on the GPU: the two backends then deposit the same
+    /// tubes, to compare them.
+    pub runs: bool,
 }
 
 impl Default for Options {
@@ -178,6 +184,7 @@ impl Default for Options {
             // Off until its cost comes down (docs/PERFORMANCE.md, "The
             // Fresnel-reflected light traced").
             reflections: false,
+            runs: true,
         }
     }
 }
@@ -534,14 +541,14 @@ impl Plan {
 
 /// The straight runs through empty space under `opts` ([`propagate::Run`]):
 /// none with the paper's deposit, which samples the patches after every
-/// step.
+/// step, or without [`Options::runs`].
 pub(crate) fn plan_run(rules: &refine::Rules, opts: &Options) -> propagate::Run {
-    if opts.deposit == DepositRule::Paper {
+    if opts.deposit == DepositRule::Paper || !opts.runs {
         return propagate::Run::NONE;
     }
     propagate::Run {
         max_steps: propagate::MAX_RUN,
-        split_span: rules.split_span * (1.0 + refine::SPLIT_SLACK),
+        rules: Some(*rules),
     }
 }
 

@@ -134,6 +134,11 @@ pub struct RunOptions {
     /// eikon traced it).
     #[serde(default)]
     pub reflections: bool,
+    /// Straight runs of several steps through empty space taken on the CPU
+    /// (`Options::runs`; absent: runs as each step's own tube, before they
+    /// were deposited in one pass).
+    #[serde(default)]
+    pub runs: bool,
     /// Photons per light (`--method photons`).
     pub photons: Option<usize>,
     /// Random seed (`--method photons`).
@@ -1001,6 +1006,7 @@ mod tests {
                 deposit: "fluence".into(),
                 fresnel: true,
                 reflections: true,
+                runs: true,
                 photons: None,
                 seed: None,
             },

@@ -133,34 +133,41 @@ pub struct Step<'a> {
 
 /// Straight runs through empty space (beyond the paper): where a patch's
 /// corners lie in empty blocks ([`EmptySpace::reach`]) it may take up to
-/// `max_steps` equal-time steps at once, straight, depositing its tube step
-/// by step as the steps would, without the index sampling, the
+/// `max_steps` equal-time steps at once, straight, its tube deposited in one
+/// pass ([`deposit::tube`]), without the index sampling, the
 /// tessellation analysis and the list rebuilding in between. A run stops
-/// short of any surface and keeps the patch within the split span, so the
-/// tessellation analysis after it decides as it would have after each of
-/// its steps (edge lengths are convex along straight corner paths, and
-/// nothing attenuates). Patches
-/// ahead of the others in time meet nothing that depends on the common
-/// time.
+/// short of any surface, and after any step at whose end the tessellation
+/// analysis would do anything but keep the patch as it is (split it, end
+/// it), so that the analysis after the run decides as it would have after
+/// each of its steps. Patches ahead of the others in time meet nothing that
+/// depends on the common time.
 #[derive(Clone, Copy, Debug)]
 pub struct Run {
     /// Most steps in one run; 1 runs none (the paper's deposit, which
     /// samples patches after every step).
     pub max_steps: usize,
-    /// The tessellation's split span, world units (with its slack).
-    pub split_span: f64,
+    /// The tessellation analysis' rules.
+    pub rules: Option<refine::Rules>,
 }
 
 impl Run {
     /// One step at a time.
     pub const NONE: Run = Run {
         max_steps: 1,
-        split_span: 0.0,
+        rules: None,
     };
 }
 
-/// Most steps one run through empty space takes ([`Run`]). The GPU's too.
+/// Most steps one run through empty space takes ([`Run`]).
 pub const MAX_RUN: usize = 32;
+
+/// What a run needs to know of a patch besides its corners and flux: its
+/// flux when emitted and its tessellation depth (for the analysis).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Kin {
+    pub flux0: [f64; 3],
+    pub depth: u8,
+}
 
 /// Empty space: with every corner and the midpoint of the patch `x` in
 /// empty blocks of one index the step (or a [`Run`] of steps) is a straight
@@ -173,6 +180,7 @@ fn empty_run(
     sharp: Option<&Sharp>,
     corners: &mut [RayState; 4],
     flux: &[f64; 3],
+    kin: Kin,
 ) -> bool {
     let Step {
         empty,
@@ -194,22 +202,13 @@ fn empty_run(
     let unit = dt / n;
     let dirs = corners.map(|c| c.v.normalize_or_zero());
     let mut k = 1;
-    if run.max_steps > 1 {
+    let rules = run.rules.filter(|_| run.max_steps > 1);
+    if rules.is_some() {
         let reach = x0
             .iter()
             .map(|&x| empty.reach(x))
             .fold(f64::INFINITY, f64::min);
         k = ((reach / unit).floor() as usize).clamp(1, run.max_steps);
-        if span(&x0) > run.split_span {
-            k = 1;
-        }
-        while k > 1 {
-            let x1: [DVec3; 4] = std::array::from_fn(|c| x0[c] + dirs[c] * (k as f64 * unit));
-            if span(&x1) <= run.split_span {
-                break;
-            }
-            k /= 2;
-        }
         if let (Some(sharp), true) = (sharp, k > 1) {
             // Empty blocks hold no surface; the exact test makes sure.
             for c in 0..4 {
@@ -226,24 +225,36 @@ fn empty_run(
     for (s, d) in corners.iter_mut().zip(dirs) {
         s.v = d * n;
     }
-    // The tube step by step: a footprint is cut into parts at the cell
-    // faces where its step is halfway, and each part is deposited along a
-    // line, which a long chord would alias against the cells.
-    // A run ends where the patch has left the grid, as the tessellation
-    // analysis would end it after that step.
+    // A run ends after the step at whose end the tessellation analysis
+    // would split or end the patch (it then does so as if the patch had
+    // come step by step), and where the patch has left the grid.
     let v = corners.map(|c| c.v * (dt / (n * n)));
+    let grid = &step.medium.geometry;
     let mut from = x0;
     let mut taken = 0;
     while taken < k {
-        let to: [DVec3; 4] = std::array::from_fn(|c| from[c] + v[c]);
-        if let Some(t) = tally {
-            deposit::tube(t, &from, &to, flux, DVec3::ZERO, group);
-        }
-        from = to;
+        from = std::array::from_fn(|c| from[c] + v[c]);
         taken += 1;
-        if (0..4).all(|c| refine::gone(&step.medium.geometry, from[c], dirs[c])) {
+        if taken == k {
             break;
         }
+        let kept = rules.is_some_and(|rules| {
+            let seen = refine::Seen {
+                x: from,
+                v: corners.map(|c| c.v),
+                flux: *flux,
+                flux0: kin.flux0,
+                depth: kin.depth,
+            };
+            seen.fate(grid, &rules) == refine::Fate::Retain
+        });
+        if !kept {
+            break;
+        }
+    }
+    // The run's tube in one pass.
+    if let Some(t) = tally {
+        deposit::tube(t, &x0, &from, flux, DVec3::ZERO, group);
     }
     for (s, x) in corners.iter_mut().zip(from) {
         s.x = x;
@@ -343,12 +354,14 @@ pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
         c2.par_iter_mut(),
         c3.par_iter_mut(),
         patches.flux.par_iter_mut(),
+        patches.flux0.par_iter(),
+        patches.depth.par_iter(),
         losses.par_iter_mut(),
     )
         .into_par_iter()
-        .for_each(|(a, b, c, d, flux, lost)| {
+        .for_each(|(a, b, c, d, flux, &flux0, &depth, lost)| {
             let mut corners = [*a, *b, *c, *d];
-            if empty_run(step, None, &mut corners, flux) {
+            if empty_run(step, None, &mut corners, flux, Kin { flux0, depth }) {
                 [*a, *b, *c, *d] = corners;
                 return;
             }
@@ -420,7 +433,11 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
         .enumerate()
         .filter_map(|(i, (a, b, c, d, flux, flux0, area0, depth, lost))| {
             let corners = [*a, *b, *c, *d];
-            if let Some(moved) = sharp_patch(step, sharp, &corners, flux, lost) {
+            let kin = Kin {
+                flux0: *flux0,
+                depth: *depth,
+            };
+            if let Some(moved) = sharp_patch(step, sharp, &corners, flux, kin, lost) {
                 [*a, *b, *c, *d] = moved;
                 let start = corners.map(|c| c.x);
                 let piece = sharp
@@ -438,12 +455,16 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
             }
             // Torn: split where the step began and trace the pieces.
             let mut pieces = Vec::new();
+            // The pieces' depth is the patch's after the split.
             split_and_trace(
                 step,
                 sharp,
                 &corners,
                 *flux,
-                *flux0,
+                Kin {
+                    flux0: *flux0,
+                    depth: depth.saturating_add(1),
+                },
                 *area0,
                 1,
                 &mut pieces,
@@ -669,12 +690,13 @@ fn split_and_trace(
     sharp: &Sharp,
     corners: &[RayState; 4],
     flux: [f64; 3],
-    flux0: [f64; 3],
+    kin: Kin,
     area0: f64,
     level: u32,
     out: &mut Vec<Piece>,
     lost: &mut Loss,
 ) {
+    let flux0 = kin.flux0;
     let x = corners.map(|c| c.x);
     if span(&x) <= sharp.min_span || level > MAX_SPLIT_LEVEL {
         for (t, f) in lost.torn.iter_mut().zip(flux) {
@@ -698,11 +720,15 @@ fn split_and_trace(
             r.v = r.v.normalize_or_zero() * field.sample(r.x).0;
         }
         let mut f = flux.map(|v| v * share);
-        match sharp_patch(step, sharp, &child, &mut f, lost) {
+        let part = Kin {
+            flux0: flux0.map(|v| v * share),
+            depth: kin.depth,
+        };
+        match sharp_patch(step, sharp, &child, &mut f, part, lost) {
             Some(moved) => out.push(Piece {
                 corners: moved,
                 flux: f,
-                flux0: flux0.map(|v| v * share),
+                flux0: part.flux0,
                 area0: area0 * share,
             }),
             None => split_and_trace(
@@ -710,7 +736,7 @@ fn split_and_trace(
                 sharp,
                 &child,
                 f,
-                flux0.map(|v| v * share),
+                part,
                 area0 * share,
                 level + 1,
                 out,
@@ -728,6 +754,7 @@ fn sharp_patch(
     sharp: &Sharp,
     corners: &[RayState; 4],
     flux: &mut [f64; 3],
+    kin: Kin,
     lost: &mut Loss,
 ) -> Option<[RayState; 4]> {
     let Step {
@@ -743,7 +770,7 @@ fn sharp_patch(
     let x0 = corners.map(|c| c.x);
     let m0 = (x0[0] + x0[1] + x0[2] + x0[3]) * 0.25;
     let mut moved = *corners;
-    if empty_run(step, Some(sharp), &mut moved, flux) {
+    if empty_run(step, Some(sharp), &mut moved, flux, kin) {
         return Some(moved);
     }
     // Each corner: the step's whole optical path, surface by surface.

@@ -178,54 +178,88 @@ pub(crate) fn gone(grid: &GridGeometry, x: glam::DVec3, d: glam::DVec3) -> bool 
 }
 
 fn fate(p: &Patches, i: usize, grid: &GridGeometry, rules: &Rules) -> Fate {
-    let x = p.positions(i);
-    let dir = p.direction(i);
-    let mid = p.midpoint(i);
-    let gone = |x: glam::DVec3, d: glam::DVec3| gone(grid, x, d);
-    if rules.cull_caustics {
-        // The paper's deposit reads the midpoint only.
-        if gone(mid, dir) {
+    let seen = Seen {
+        x: p.positions(i),
+        v: [0, 1, 2, 3].map(|c| p.corner[c][i].v),
+        flux: p.flux[i],
+        flux0: p.flux0[i],
+        depth: p.depth[i],
+    };
+    seen.fate(grid, rules)
+}
+
+/// What the tessellation analysis reads of one patch.
+pub(crate) struct Seen {
+    /// Its corners.
+    pub x: [glam::DVec3; 4],
+    /// Their ray velocities.
+    pub v: [glam::DVec3; 4],
+    /// Its flux.
+    pub flux: [f64; 3],
+    /// Its flux when emitted.
+    pub flux0: [f64; 3],
+    /// How often it has been tessellated since emission.
+    pub depth: u8,
+}
+
+impl Seen {
+    /// The patch's fate under `rules` (before any [`Hold`]).
+    pub(crate) fn fate(&self, grid: &GridGeometry, rules: &Rules) -> Fate {
+        let x = self.x;
+        let mid = (x[0] + x[1] + x[2] + x[3]) * 0.25;
+        let dir = || {
+            self.v
+                .iter()
+                .map(|v| v.normalize_or_zero())
+                .sum::<glam::DVec3>()
+                .normalize_or_zero()
+        };
+        let gone = |x: glam::DVec3, d: glam::DVec3| gone(grid, x, d);
+        if rules.cull_caustics {
+            // The paper's deposit reads the midpoint only.
+            if gone(mid, dir()) {
+                return Fate::Exit;
+            }
+        } else if (0..4).all(|c| gone(x[c], self.v[c])) {
+            // The track-length deposit lights every cell a patch covers, so a
+            // patch across the bounds stays until each corner has left (and a
+            // patch torn apart, its midpoint inside long after its corners
+            // parted ways across a silhouette, goes then too).
             return Fate::Exit;
         }
-    } else if (0..4).all(|c| gone(x[c], p.corner[c][i].v)) {
-        // The track-length deposit lights every cell a patch covers, so a
-        // patch across the bounds stays until each corner has left (and a
-        // patch torn apart, its midpoint inside long after its corners
-        // parted ways across a silhouette, goes then too).
-        return Fate::Exit;
-    }
-    let (f, f0) = (p.flux[i], p.flux0[i]);
-    if (0..3).all(|c| f[c] <= rules.threshold * f0[c]) {
-        return Fate::Absorbed;
-    }
-    // A patch that has been split and dimmed until it carries less than
-    // `faint` of what a voxel of the unobstructed light carries cannot
-    // change any cell by more than that fraction: light trapped and
-    // bouncing in absorbing glass would otherwise keep splitting for
-    // thousands of steps. It ends still travelling, its flux counted as
-    // trapped: in clear glass that is most of what total internal
-    // reflection holds (it splits without dimming until it is faint).
-    if rules.faint > 0.0 && f[0] + f[1] + f[2] < rules.faint * rules.incident.at(mid) {
-        return Fate::Faint;
-    }
-    if rules.cull_caustics && normal(&x).dot(dir) <= 0.0 {
-        return Fate::Caustic;
-    }
-    if span(&x) > rules.split_span * (1.0 + SPLIT_SLACK) && p.depth[i] < rules.max_depth {
-        if rules.dim > 0.0 {
-            // A patch spread so thin that its irradiance is a small part of
-            // what the light would give there unobstructed adds little to
-            // any cell: it is not worth more patches (it deposits along its
-            // corner rays once it is over two voxels across,
-            // `deposit::tube`).
-            let flux = f[0] + f[1] + f[2];
-            if flux < rules.dim * rules.incident.at(mid) * area(&x) {
-                return Fate::Retain;
-            }
+        let (f, f0) = (self.flux, self.flux0);
+        if (0..3).all(|c| f[c] <= rules.threshold * f0[c]) {
+            return Fate::Absorbed;
         }
-        Fate::Split
-    } else {
-        Fate::Retain
+        // A patch that has been split and dimmed until it carries less than
+        // `faint` of what a voxel of the unobstructed light carries cannot
+        // change any cell by more than that fraction: light trapped and
+        // bouncing in absorbing glass would otherwise keep splitting for
+        // thousands of steps. It ends still travelling, its flux counted as
+        // trapped: in clear glass that is most of what total internal
+        // reflection holds (it splits without dimming until it is faint).
+        if rules.faint > 0.0 && f[0] + f[1] + f[2] < rules.faint * rules.incident.at(mid) {
+            return Fate::Faint;
+        }
+        if rules.cull_caustics && normal(&x).dot(dir()) <= 0.0 {
+            return Fate::Caustic;
+        }
+        if span(&x) > rules.split_span * (1.0 + SPLIT_SLACK) && self.depth < rules.max_depth {
+            if rules.dim > 0.0 {
+                // A patch spread so thin that its irradiance is a small part
+                // of what the light would give there unobstructed adds little
+                // to any cell: it is not worth more patches (it deposits along
+                // its corner rays once it is over two voxels across,
+                // `deposit::tube`).
+                let flux = f[0] + f[1] + f[2];
+                if flux < rules.dim * rules.incident.at(mid) * area(&x) {
+                    return Fate::Retain;
+                }
+            }
+            Fate::Split
+        } else {
+            Fate::Retain
+        }
     }
 }
 

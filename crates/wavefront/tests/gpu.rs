@@ -37,11 +37,13 @@ fn run_cpu(scene: &Scene, m: &Medium, light: usize, opts: &Options) -> (LightVol
 }
 
 /// The point light's volume with the fluence deposit is the CPU's to f32
-/// rounding (the same patch lists), the cells about the light where the
+/// rounding when the CPU steps one step at a time as the GPU does (the
+/// same patch lists, the same tubes), the cells about the light where the
 /// chords to the start sphere go (deposited on the CPU) included (32^3):
-/// measured median relative difference 1.3e-6, largest within 3 voxels of
-/// the light 8.6e-7, total fluence 9e-9; asserted 1e-5, 1e-4, 1e-5, and no
-/// cell lit in one volume only.
+/// asserted 1e-5 median relative difference, 1e-4 within 3 voxels of the
+/// light, 1e-5 in total fluence, and no cell lit in one volume only. With
+/// the CPU's runs through empty space (each run one tube) the median stays
+/// within 5e-3.
 fn point_light_volume_matches_the_cpu(gpu: &Gpu) {
     let p = DVec3::new(0.013, -0.021, 0.007);
     let (scene, m) = medium(&format!(
@@ -50,7 +52,18 @@ fn point_light_volume_matches_the_cpu(gpu: &Gpu) {
         p.x, p.y, p.z
     ));
     let (vol, _) = run_gpu(gpu, &scene, &m, 0, &fluence());
-    let (cv, _) = run_cpu(&scene, &m, 0, &fluence());
+    let steps = Options {
+        runs: false,
+        ..fluence()
+    };
+    let (cv, _) = run_cpu(&scene, &m, 0, &steps);
+    let (runs, _) = run_cpu(&scene, &m, 0, &fluence());
+    let with_runs = agreement(&runs, &vol);
+    println!(
+        "point light, GPU vs CPU with runs: median {:.1e}",
+        with_runs.median
+    );
+    assert!(with_runs.median < 5e-3, "{}", with_runs.median);
     let a = agreement(&cv, &vol);
     let g = &m.geometry;
     let mut near: f64 = 0.0;

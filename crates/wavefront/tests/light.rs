@@ -366,24 +366,52 @@ fn runs_through_empty_space_deposit_what_their_steps_do() {
         (tally.into_volume(), patch_calls)
     };
     let (one, calls_one) = volume(propagate::Run::NONE);
+    // Rules under which nothing is split or ended before it leaves the
+    // grid: runs go as far as empty space and the grid let them.
+    let rules = eikon_wavefront::refine::Rules {
+        split_span: 4.0 * h,
+        threshold: 0.0,
+        max_patches: usize::MAX,
+        max_depth: 0,
+        cull_caustics: false,
+        dim: 0.0,
+        incident: eikon_wavefront::refine::Incident::Uniform(1.0),
+        faint: 0.0,
+    };
     let (runs, calls_runs) = volume(propagate::Run {
         max_steps: propagate::MAX_RUN,
-        split_span: 4.0 * h,
+        rules: Some(rules),
     });
     assert!(
         calls_runs * 4 < calls_one * 3,
         "{calls_runs} against {calls_one} patch steps"
     );
-    let top = one.fluence.iter().fold(0.0f32, |a, &b| a.max(b));
-    let (mut worst, mut lit) = (0.0f32, 0);
-    for (a, b) in one.fluence.iter().zip(runs.fluence.iter()) {
+    let top = one.fluence.iter().fold(0.0f32, |a, &b| a.max(b)) as f64;
+    let (mut worst, mut diff, mut lit) = (0.0f64, 0.0f64, 0);
+    let (mut sum_one, mut sum_runs) = (0.0f64, 0.0f64);
+    for (&a, &b) in one.fluence.iter().zip(runs.fluence.iter()) {
+        let (a, b) = (a as f64, b as f64);
         worst = worst.max((a - b).abs());
-        lit += (*a > 0.01 * top) as usize;
+        diff += (a - b).abs();
+        sum_one += a;
+        sum_runs += b;
+        lit += (a > 0.01 * top) as usize;
     }
-    println!("runs: {calls_runs} patch steps against {calls_one}; worst fluence difference {worst:e} of {top}");
+    let l1 = diff / sum_one;
+    println!(
+        "runs: {calls_runs} patch steps against {calls_one}; fluence: worst difference {:.2e} of the top, relative L1 {l1:.2e}, sums {sum_runs} against {sum_one}",
+        worst / top
+    );
     assert!(lit > 20_000, "{lit} lit cells");
-    // Corner positions may differ in the last bit (a run normalizes v
-    // once), which could move a piece's rounding by a unit of 1e-9 (here
-    // the volumes are bitwise equal).
-    assert!(worst <= 1e-6 * top, "{worst} of {top}");
+    // A run's tube is deposited in one pass, its steps' one at a time:
+    // the same flux times length, spread by sub-patch footprints that
+    // differ only where a patch grows along the run (a run's patch is cut
+    // into the sub-patches its end needs), so that what footprints at the
+    // grid's faces leave outside differs a little too.
+    assert!(
+        (sum_runs / sum_one - 1.0).abs() < 1e-4,
+        "{sum_runs} against {sum_one}"
+    );
+    assert!(l1 < 1e-3, "relative L1 {l1}");
+    assert!(worst < 1e-2 * top, "{worst} of {top}");
 }

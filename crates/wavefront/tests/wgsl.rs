@@ -220,7 +220,7 @@ fn geometry(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
 }
 
 // ---------------------------------------------------------------------
-// The deposit geometry: sub-patches, box footprints, a chord's pieces.
+// The deposit geometry: sub-patches, swept footprints, a chord's pieces.
 
 fn grid() -> GridGeometry {
     GridGeometry::new(
@@ -230,7 +230,7 @@ fn grid() -> GridGeometry {
     )
 }
 
-fn subpatches_and_box_footprints_match_the_cpu(gpu: &Gpu) {
+fn subpatches_and_swept_footprints_match_the_cpu(gpu: &Gpu) {
     let main = format!(
         "{IO}
 // Input: a tube's corners before (4) and after (4), the voxel in w of the
@@ -251,22 +251,21 @@ fn subpatches(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgro
     output[8u * i] = vec4<f32>(f32(k.x), f32(k.y), 0.0, 0.0);
 }}
 
-// Input (centre, width): the footprint's count and parts.
+// Input (centre, width, sweep): the swept footprint's first cell, count
+// and fractions.
 @compute @workgroup_size(WORKGROUP)
-fn boxes(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+fn swept(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
     let i = item(id, groups);
     if i >= arrayLength(&input) {{
         return;
     }}
-    let span = deposit_box_span(input[i].x, input[i].y);
-    let n = deposit_box_count(span);
-    // Offsets relative to the footprint's centre, whatever the cell.
-    for (var k = 0u; k < MAX_PARTS; k++) {{
-        var p = vec2<f32>(0.0);
-        if k < n {{
-            p = deposit_box_part(span, k);
+    let p = deposit_swept(input[i].x, input[i].y, input[i].z);
+    for (var k = 0u; k < MAX_SWEPT; k++) {{
+        var f = 0.0;
+        if k < p.count {{
+            f = p.fraction[k];
         }}
-        output[MAX_PARTS * i + k] = vec4<f32>(p, f32(n), 0.0);
+        output[MAX_SWEPT * i + k] = vec4<f32>(f, f32(p.first), f32(p.count), 0.0);
     }}
 }}
 
@@ -321,7 +320,7 @@ fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>) {{}}
     }
     assert!(checked > 2900, "{checked}");
 
-    let cases: Vec<(f64, f64)> = (0..4000)
+    let cases: Vec<(f64, f64, f64)> = (0..4000)
         .map(|k| {
             let width = match k % 5 {
                 0 => 0.0,
@@ -330,39 +329,44 @@ fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>) {{}}
                 3 => r.f(2.0, 3.0),
                 _ => r.f(3.0, 5.0),
             };
-            (r.f(0.0, 40.0), width)
+            let sweep = match k % 3 {
+                0 => 0.0,
+                1 => r.f(0.0, 1.0),
+                _ => r.f(1.0, 2.5),
+            };
+            (r.f(0.0, 40.0), width, sweep)
         })
         .collect();
     let inputs: Vec<[f32; 4]> = cases
         .iter()
-        .map(|&(c, w)| [c as f32, w as f32, 0.0, 0.0])
+        .map(|&(c, w, s)| [c as f32, w as f32, s as f32, 0.0])
         .collect();
-    let parts = deposit::MAX_PARTS;
-    let out = gpu.eval(&source, "boxes", &inputs, parts, &[]).unwrap();
-    for (k, &(c, w)) in cases.iter().enumerate() {
-        let want = deposit::box_parts(c, w);
-        let n = want.iter().filter(|p| p.0 > 0.0).count();
-        let got = &out[parts * k..parts * (k + 1)];
+    let most = deposit::MAX_SWEPT;
+    let out = gpu.eval(&source, "swept", &inputs, most, &[]).unwrap();
+    let mut checked = 0;
+    for (k, &(c, w, s)) in cases.iter().enumerate() {
+        // The case as the GPU read it.
+        let (c, w, s) = (c as f32 as f64, w as f32 as f64, s as f32 as f64);
+        let want = deposit::swept_parts(c, w, s);
+        let got = &out[most * k..most * (k + 1)];
         // An edge within f32 rounding of a cell face may cut a sliver
         // either side of it.
-        let lo = c - 0.5 * w.min((parts - 1) as f64);
-        let hi = c + 0.5 * w.min((parts - 1) as f64);
+        let half = 0.5 * (w.min((deposit::MAX_PARTS - 1) as f64) + s.min(2.0));
         let on_face = |x: f64| (x - x.round()).abs() < 1e-4;
-        if w > 1e-9 && (on_face(lo) || on_face(hi)) {
+        if on_face(c - half) || on_face(c + half) {
             continue;
         }
-        assert_eq!(got[0][2] as usize, n, "parts of ({c}, {w})");
-        for (p, g) in want.iter().take(n).zip(got) {
+        checked += 1;
+        assert_eq!(got[0][2] as usize, want.count, "count of ({c}, {w}, {s})");
+        assert_eq!(got[0][1] as i64, want.first, "first of ({c}, {w}, {s})");
+        for (f, g) in want.fraction[..want.count].iter().zip(got) {
             assert!(
-                (g[0] as f64 - p.0).abs() < 1e-5,
-                "fraction of ({c}, {w}): {g:?} vs {p:?}"
-            );
-            assert!(
-                (g[1] as f64 - p.1).abs() < 1e-5,
-                "offset of ({c}, {w}): {g:?} vs {p:?}"
+                (g[0] as f64 - f).abs() < 1e-5,
+                "fraction of ({c}, {w}, {s}): {g:?} vs {f}"
             );
         }
     }
+    assert!(checked > 3800, "{checked}");
 }
 
 fn a_chords_pieces_match_the_cpu_deposit(gpu: &Gpu) {
@@ -634,8 +638,8 @@ fn main() {
             patch_geometry_matches_the_cpu,
         )
         .gpu(
-            "subpatches_and_box_footprints_match_the_cpu",
-            subpatches_and_box_footprints_match_the_cpu,
+            "subpatches_and_swept_footprints_match_the_cpu",
+            subpatches_and_swept_footprints_match_the_cpu,
         )
         .gpu(
             "a_chords_pieces_match_the_cpu_deposit",

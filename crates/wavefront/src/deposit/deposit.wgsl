@@ -1,14 +1,15 @@
-// The track-length deposit (`deposit.rs`): the tube a patch sweeps in one
-// step, as sub-patch chords with box footprints, each chord cut among the
-// cells it crosses by a 3D DDA. Each piece [ta, tb] of a chord adds its
-// fluence and flux-vector amounts, in fixed-point units not yet rounded,
-// to its cell through the hook.
+// The track-length deposit (`deposit.rs`): the tube a patch sweeps,
+// sub-patch by sub-patch, layer by layer of cells along its major axis,
+// each piece's swept box footprint across the minor axes; and chords cut
+// among the cells they cross by a 3D DDA (the corner rays of a torn
+// patch). Each piece adds its fluence and flux-vector amounts, in
+// fixed-point units not yet rounded, to its cell through the hook.
 //
 // Hook: `fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>)`,
 // where the pieces go (the light simulator sums them per cell in a small
 // cache before its atomic adds).
-// Needs: the `grid` and `patch` modules; MAX_SUBPATCHES, SUBPATCH_SIZE, SUBPATCH_SLACK,
-// MAX_PARTS (generated).
+// Needs: the `grid` and `patch` modules; MAX_SUBPATCHES, SUBPATCH_SIZE,
+// SUBPATCH_SLACK, MAX_PARTS, MAX_SWEPT, MAX_CUTS (generated).
 
 // What a chord's pieces are worth: fluence units per watt-unit of length
 // per channel, flux-vector units per watt-unit of length, and the
@@ -32,13 +33,7 @@ fn one_minus_exp(x: f32) -> f32 {
 // per unit of t; wf: flux-vector units per unit of t per channel; u: the
 // chord's direction; depth: its optical depth per channel.
 fn deposit_piece(g: GridGpu, c: vec3<i32>, ta: f32, tb: f32, w: vec3<f32>, wf: vec3<f32>, u: vec3<f32>, depth: vec3<f32>) {
-    var weight = vec3<f32>(tb - ta);
-    for (var ch = 0u; ch < 3u; ch++) {
-        let tau = depth[ch];
-        if tau > 0.0 {
-            weight[ch] = exp(-tau * ta) * one_minus_exp(tau * (tb - ta)) / tau;
-        }
-    }
+    let weight = deposit_attenuated(depth, ta, tb);
     deposit_put(grid_flat(g, vec3<u32>(c)), w * weight, u * dot(wf, weight));
 }
 
@@ -140,42 +135,167 @@ fn deposit_subpatches(x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, voxel: f
     return vec2<u32>(u32(ks), u32(kt));
 }
 
-// A box footprint of `width` cells centred at cell coordinate `centre`
-// (`deposit::box_parts`), as its span (lo, hi) relative to the cell of the
-// centre (so that f32 keeps its digits for the offsets), narrowed to
-// MAX_PARTS - 1 cells; a footprint too narrow to cut is (0, 0), one part of
-// the whole width at the centre.
-fn deposit_box_span(centre: f32, width: f32) -> vec2<f32> {
-    let w = min(width, f32(MAX_PARTS - 1u));
-    if !(w > 1e-9) || !(abs(centre) < 3.0e38) {
-        return vec2<f32>(0.0);
-    }
-    let c = centre - floor(centre);
-    return vec2<f32>(c - 0.5 * w, c + 0.5 * w);
+// `deposit::swept_parts`: a box footprint of `width` cells whose centre
+// moves uniformly over `sweep` cells, centred at cell coordinate `centre`:
+// the cells it covers (`count` from `first`) and the fraction of its mass
+// each holds, the integral over each cell of the trapezoid that is the
+// convolution of the two boxes. Computed relative to the cell of the
+// centre, so that f32 keeps its digits.
+struct SweptParts {
+    first: i32,
+    count: u32,
+    fraction: array<f32, MAX_SWEPT>,
 }
 
-// The parts of a footprint span: at least one.
-fn deposit_box_count(span: vec2<f32>) -> u32 {
-    if !(span.y > span.x) {
-        return 1u;
+fn deposit_swept(centre: f32, width: f32, sweep: f32) -> SweptParts {
+    var out: SweptParts;
+    out.first = 0;
+    out.count = 1u;
+    out.fraction[0] = 1.0;
+    if !(abs(centre) < 3.0e38) {
+        return out;
     }
-    return clamp(u32(ceil(span.y) - floor(span.x)), 1u, MAX_PARTS);
+    let base = floor(centre);
+    let c = centre - base;
+    var w = 0.0;
+    if width == width {
+        w = min(width, f32(MAX_PARTS - 1u));
+    }
+    var s = 0.0;
+    if sweep == sweep {
+        s = min(sweep, 2.0);
+    }
+    let a = min(w, s);
+    let b = max(w, s);
+    let half = 0.5 * (a + b);
+    let first = floor(c - half);
+    out.first = i32(base) + i32(first);
+    if b <= 1e-9 || c + half <= first + 1.0 {
+        return out;
+    }
+    let inner = 0.5 * (b - a);
+    var ramp = 0.0;
+    if a > 1e-9 * b {
+        ramp = 0.5 / (a * b);
+    }
+    let end = c + half;
+    var below = 0.0;
+    var k = 0u;
+    for (; k < MAX_SWEPT; k++) {
+        let face = first + f32(k + 1u);
+        if face >= end {
+            out.fraction[k] = 1.0 - below;
+            k++;
+            break;
+        }
+        let x = face - c;
+        var upto: f32;
+        if x <= -inner {
+            upto = (x + half) * (x + half) * ramp;
+        } else if x <= inner {
+            upto = (x + inner) / b + 0.5 * a / b;
+        } else {
+            upto = 1.0 - (half - x) * (half - x) * ramp;
+        }
+        out.fraction[k] = upto - below;
+        below = upto;
+    }
+    out.count = k;
+    return out;
 }
 
-// Part k of a footprint span: (fraction of the width, offset of its centre
-// from the footprint's centre, cells).
-fn deposit_box_part(span: vec2<f32>, k: u32) -> vec2<f32> {
-    if !(span.y > span.x) {
-        return vec2<f32>(1.0, 0.0);
+// `deposit::attenuated`: the integral of exp(-tau t) over [ta, tb] per
+// channel.
+fn deposit_attenuated(depth: vec3<f32>, ta: f32, tb: f32) -> vec3<f32> {
+    var weight = vec3<f32>(tb - ta);
+    for (var ch = 0u; ch < 3u; ch++) {
+        let tau = depth[ch];
+        if tau > 0.0 {
+            weight[ch] = exp(-tau * ta) * one_minus_exp(tau * (tb - ta)) / tau;
+        }
     }
-    let base = floor(span.x) + f32(k);
-    let a = max(span.x, base);
-    let b = min(span.y, base + 1.0);
-    return vec2<f32>(max(b - a, 0.0) / (span.y - span.x), 0.5 * (a + b) - 0.5 * (span.x + span.y));
+    return weight;
 }
 
-// `deposit::tube`: the tube a patch sweeps in one step, corners from x0 to
-// x1, carrying `flux` at the start and losing `depth` over the step.
+// One sub-patch of a tube in cell coordinates (`deposit::Lane`).
+struct DepositLane {
+    at: vec3<f32>,
+    moves: vec3<f32>,
+    e1: vec3<f32>,
+    de1: vec3<f32>,
+    e2: vec3<f32>,
+    de2: vec3<f32>,
+    lo: f32,
+    hi: f32,
+    w: vec3<f32>,
+    wf: vec3<f32>,
+    u: vec3<f32>,
+}
+
+// `Lane::in_layer`: the part of the lane's parameter in `layer` of the
+// major axis m; empty when x >= y.
+fn deposit_in_layer(l: DepositLane, m: u32, layer: i32) -> vec2<f32> {
+    let g = l.at[m];
+    let d = l.moves[m];
+    let l0 = f32(layer);
+    let l1 = f32(layer + 1);
+    if d > 0.0 {
+        return vec2<f32>(max((l0 - g) / d, l.lo), min((l1 - g) / d, l.hi));
+    } else if d < 0.0 {
+        return vec2<f32>(max((l1 - g) / d, l.lo), min((l0 - g) / d, l.hi));
+    } else if i32(floor(g)) == layer {
+        return vec2<f32>(l.lo, l.hi);
+    }
+    return vec2<f32>(1.0, 0.0);
+}
+
+// `Lane::deposit`: the piece [ta, tb] of the lane in `layer`, its swept
+// box footprint across the minor axes.
+fn deposit_lane_piece(g: GridGpu, l: DepositLane, ta: f32, tb: f32, depth: vec3<f32>, axes: vec3<u32>, layer: i32) {
+    let dt = tb - ta;
+    if !(dt > 0.0) {
+        return;
+    }
+    let m = axes.x;
+    let ab = axes.y;
+    let ac = axes.z;
+    let t = 0.5 * (ta + tb);
+    let c = l.at + l.moves * t;
+    let e1 = l.e1 + l.de1 * t;
+    let e2 = l.e2 + l.de2 * t;
+    let width = sqrt(e1 * e1 + e2 * e2);
+    let weight = deposit_attenuated(depth, ta, tb);
+    let fl = l.w * weight;
+    let along = l.u * dot(l.wf, weight);
+    let pb = deposit_swept(c[ab], width[ab], abs(l.moves[ab] * dt));
+    let pc = deposit_swept(c[ac], width[ac], abs(l.moves[ac] * dt));
+    let dims = vec3<i32>(g.dims);
+    for (var kb = 0u; kb < pb.count; kb++) {
+        let ib = pb.first + i32(kb);
+        if ib < 0 || ib >= dims[ab] {
+            continue;
+        }
+        for (var kc = 0u; kc < pc.count; kc++) {
+            let ic = pc.first + i32(kc);
+            if ic < 0 || ic >= dims[ac] {
+                continue;
+            }
+            var idx = vec3<u32>(0u);
+            idx[m] = u32(layer);
+            idx[ab] = u32(ib);
+            idx[ac] = u32(ic);
+            let f = pb.fraction[kb] * pc.fraction[kc];
+            deposit_put(grid_flat(g, idx), fl * f, along * f);
+        }
+    }
+}
+
+// `deposit::tube`: the tube a patch sweeps along straight corner paths,
+// corners from x0 to x1, carrying `flux` at the start and losing `depth`
+// over the way. Sub-patch by sub-patch (the CPU goes layer by layer over
+// all of them, which only orders the same pieces differently), each
+// followed layer by layer along the major axis and cut where its centre
+// crosses a face of the minor axes.
 fn deposit_tube(g: GridGpu, sc: ChordScales, x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, flux: vec3<f32>, depth: vec3<f32>) {
     let k = deposit_subpatches(x0, x1, g.voxel);
     var whole = k.x > 0u;
@@ -193,21 +313,19 @@ fn deposit_tube(g: GridGpu, sc: ChordScales, x0: array<vec3<f32>, 4>, x1: array<
     }
     let ns = k.x;
     let nt = k.y;
-    let share = 1.0 / f32(ns * nt);
-    // The axis the tube runs along most (in cells): footprints are boxes in
-    // the plane of the other two.
+    let share = flux / f32(ns * nt);
+    // The axis the tube runs along most (in cells) and the other two.
     let run = ((x1[0] + x1[1] + x1[2] + x1[3]) - (x0[0] + x0[1] + x0[2] + x0[3])) * g.inv_spacing;
     let r = abs(run);
-    var major = 2u;
+    var m = 2u;
     if r.x >= r.y && r.x >= r.z {
-        major = 0u;
+        m = 0u;
     } else if r.y >= r.z {
-        major = 1u;
+        m = 1u;
     }
-    let ab = (major + 1u) % 3u;
-    let ac = (major + 2u) % 3u;
-    // Halfway through the step.
-    let xm = array<vec3<f32>, 4>((x0[0] + x1[0]) * 0.5, (x0[1] + x1[1]) * 0.5, (x0[2] + x1[2]) * 0.5, (x0[3] + x1[3]) * 0.5);
+    let axes = vec3<u32>(m, (m + 1u) % 3u, (m + 2u) % 3u);
+    let dims_m = f32(g.dims[m]);
+    let top = i32(g.dims[m]) - 1;
     let inv_ns = 1.0 / f32(ns);
     let inv_nt = 1.0 / f32(nt);
     for (var i = 0u; i < ns; i++) {
@@ -220,28 +338,90 @@ fn deposit_tube(g: GridGpu, sc: ChordScales, x0: array<vec3<f32>, 4>, x1: array<
             let tm = 0.5 * (t0 + t1);
             let a = patch_bilinear(x0, sm, tm);
             let b = patch_bilinear(x1, sm, tm);
-            // The sub-patch halfway through the step: its second moments
-            // across the two minor axes give the box.
-            let q0 = patch_bilinear(xm, s0, t0);
-            let q1 = patch_bilinear(xm, s1, t0);
-            let q2 = patch_bilinear(xm, s1, t1);
-            let q3 = patch_bilinear(xm, s0, t1);
-            let e1 = (q1 - q0 + q2 - q3) * 0.5;
-            let e2 = (q3 - q0 + q2 - q1) * 0.5;
-            let extent = sqrt(e1 * e1 + e2 * e2) * g.inv_spacing;
-            let cc = ((a + b) * 0.5 - g.min) * g.inv_spacing;
-            let sb = deposit_box_span(cc[ab], extent[ab]);
-            let sc2 = deposit_box_span(cc[ac], extent[ac]);
-            let nb = deposit_box_count(sb);
-            let nc = deposit_box_count(sc2);
-            for (var kb = 0u; kb < nb; kb++) {
-                let pb = deposit_box_part(sb, kb);
-                for (var kc = 0u; kc < nc; kc++) {
-                    let pc = deposit_box_part(sc2, kc);
-                    var off = vec3<f32>(0.0);
-                    off[ab] = pb.y * g.spacing[ab];
-                    off[ac] = pc.y * g.spacing[ac];
-                    deposit_chord(g, sc, a + off, b + off, flux * (share * pb.x * pc.x), depth);
+            let len = length(b - a);
+            if !(len > 0.0 && len < 3.0e38) {
+                continue;
+            }
+            var l: DepositLane;
+            l.at = (a - g.min) * g.inv_spacing;
+            l.moves = (b - a) * g.inv_spacing;
+            let p0 = patch_bilinear(x0, s0, t0);
+            let p1 = patch_bilinear(x0, s1, t0);
+            let p2 = patch_bilinear(x0, s1, t1);
+            let p3 = patch_bilinear(x0, s0, t1);
+            let q0 = patch_bilinear(x1, s0, t0);
+            let q1 = patch_bilinear(x1, s1, t0);
+            let q2 = patch_bilinear(x1, s1, t1);
+            let q3 = patch_bilinear(x1, s0, t1);
+            let e1 = (p1 - p0 + p2 - p3) * 0.5;
+            let e2 = (p3 - p0 + p2 - p1) * 0.5;
+            let f1 = (q1 - q0 + q2 - q3) * 0.5;
+            let f2 = (q3 - q0 + q2 - q1) * 0.5;
+            l.e1 = e1 * g.inv_spacing;
+            l.de1 = (f1 - e1) * g.inv_spacing;
+            l.e2 = e2 * g.inv_spacing;
+            l.de2 = (f2 - e2) * g.inv_spacing;
+            // The part of the centre's path inside the grid along the
+            // major axis.
+            if l.moves[m] != 0.0 {
+                let ta = -l.at[m] / l.moves[m];
+                let tb = (dims_m - l.at[m]) / l.moves[m];
+                l.lo = max(min(ta, tb), 0.0);
+                l.hi = min(max(ta, tb), 1.0);
+            } else if l.at[m] >= 0.0 && l.at[m] < dims_m {
+                l.lo = 0.0;
+                l.hi = 1.0;
+            } else {
+                continue;
+            }
+            if !(l.hi > l.lo) {
+                continue;
+            }
+            l.w = share * len * sc.fluence;
+            l.wf = share * (len * sc.flux / 3.0);
+            if sc.group >= 0 {
+                l.wf = vec3<f32>(0.0);
+                l.wf[sc.group] = share[sc.group] * len * sc.flux;
+            }
+            l.u = (b - a) / len;
+            // Clamped before the conversion (see `grid_cell_of`).
+            let la = i32(clamp(floor(l.at[m] + l.moves[m] * l.lo), 0.0, f32(top)));
+            let lb = i32(clamp(floor(l.at[m] + l.moves[m] * l.hi), 0.0, f32(top)));
+            for (var layer = min(la, lb); layer <= max(la, lb); layer++) {
+                let span = deposit_in_layer(l, m, layer);
+                let ta = span.x;
+                let tb = span.y;
+                if !(tb > ta) {
+                    continue;
+                }
+                // Cut where the centre crosses a face of a minor axis.
+                var cuts: array<f32, 10>;
+                var n = 1u;
+                cuts[0] = ta;
+                for (var q = 1u; q < 3u; q++) {
+                    let ax = axes[q];
+                    let ya = l.at[ax] + l.moves[ax] * ta;
+                    let yb = l.at[ax] + l.moves[ax] * tb;
+                    var face = floor(min(ya, yb)) + 1.0;
+                    let last = n + MAX_CUTS;
+                    for (; face < max(ya, yb) && n < last; face += 1.0) {
+                        cuts[n] = clamp((face - l.at[ax]) / l.moves[ax], ta, tb);
+                        n++;
+                    }
+                }
+                cuts[n] = tb;
+                n++;
+                // Insertion sort of the inner cuts.
+                for (var p = 2u; p + 1u < n; p++) {
+                    let v = cuts[p];
+                    var q = p;
+                    for (; q > 1u && cuts[q - 1u] > v; q--) {
+                        cuts[q] = cuts[q - 1u];
+                    }
+                    cuts[q] = v;
+                }
+                for (var p = 0u; p + 1u < n; p++) {
+                    deposit_lane_piece(g, l, cuts[p], cuts[p + 1u], depth, axes, layer);
                 }
             }
         }

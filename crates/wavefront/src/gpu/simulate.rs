@@ -14,9 +14,11 @@
 //! the CPU exactly as there; the patches are then uploaded and every step
 //! runs on the GPU: propagate ([Ihrke07 eqs 14-15, 18], Fresnel at interfaces) with,
 //! for the fluence deposit, the tube each patch sweeps deposited in the
-//! same kernel (`deposit::tube`: sub-patches, box footprints, chords cut
-//! among the cells by a 3D DDA, summed per cell in a small per-thread
-//! cache), tessellation analysis (`refine::fate`, the deposit's own
+//! same kernel (`deposit::tube`: sub-patches followed layer by layer of
+//! cells with swept box footprints, a torn patch's corner rays cut among
+//! the cells by a 3D DDA, summed per cell in a small per-thread cache; one
+//! step at a time, where the CPU takes runs through empty space as one
+//! tube), tessellation analysis (`refine::fate`, the deposit's own
 //! rules: caustics culled with the paper's only, exit when every corner
 //! has left, faint and dim patches), the split grants (in patch order, by
 //! the rank of each split read off a HistoPyramid of the split flags), the
