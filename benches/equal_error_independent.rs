@@ -115,14 +115,9 @@ fn wavefront(
     let mut out = None;
     for _ in 0..3 {
         let t = Instant::now();
-        let (volume, summary) = simulate_light_in(
-            &scene.lights[0],
-            medium,
-            regions,
-            opts,
-            &|_, _| {},
-        )
-        .expect("the wavefront simulation runs");
+        let (volume, summary) =
+            simulate_light_in(&scene.lights[0], medium, regions, opts, &|_, _| {})
+                .expect("the wavefront simulation runs");
         times.push(t.elapsed().as_secs_f64());
         out = Some((volume, summary));
     }
