@@ -50,7 +50,7 @@ fn slab(sigma: f64, offset: f64, direction: &str) -> String {
 /// as sigma grows (but for the paper's rule obliquely, see below), from
 /// the same beam without the slab on, and no cell
 /// exceeds what the deposit reads for the bare beam (1 along the axis; an
-/// oblique beam's swept box footprints read 1 to within 1% per cell) and, along
+/// oblique beam's swept box footprints read 1 to about 1% per cell) and, along
 /// the axis, none exceeds the incident; the largest value in the slab and
 /// the mean over the grid fall (the maximum strictly along the axis, where
 /// the first slab cell lies wholly in the slab). Along the axis the mean over each
