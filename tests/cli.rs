@@ -537,6 +537,55 @@ fn simulate_traces_reflected_light_when_asked() {
     }
 }
 
+/// `--no-runs` steps every patch one step at a time and the sidecar says
+/// which was done; the light in front of the slab and inside it reads the
+/// same either way (1 and T = 0.96, to the deposit's own accuracy), and
+/// the energy account is the same.
+#[test]
+fn simulate_without_runs_says_so_and_reads_the_same() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_scene(dir.path(), "slab.toml", SLAB);
+    let mut read = Vec::new();
+    for flag in [None, Some("--no-runs")] {
+        let out = dir.path().join(format!("runs{}", flag.is_none()));
+        let mut args = vec![
+            "simulate",
+            scene.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--json",
+        ];
+        args.extend(flag);
+        let run = eikon_ok(&args);
+        let summary: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+        let exited = summary["lights"][0]["energy_w"]["exited"][0]
+            .as_f64()
+            .unwrap();
+        let sidecar: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("light_volumes.json")).unwrap())
+                .unwrap();
+        assert_eq!(
+            sidecar["options"]["runs"].as_bool(),
+            Some(flag.is_none()),
+            "{sidecar}"
+        );
+        let probe = |at: &str| {
+            let p = eikon_ok(&["probe", out.to_str().unwrap(), "--at", at, "--json"]);
+            let v: serde_json::Value = serde_json::from_slice(&p.stdout).unwrap();
+            v["lights"][0]["fluence"][0].as_f64().unwrap()
+        };
+        read.push((probe("0.05,0.5,0.05"), probe("0.05,-0.6,0.05"), exited));
+    }
+    let ((front, inside, exited), (front1, inside1, exited1)) = (read[0], read[1]);
+    for (a, b, want) in [(front, front1, 1.0), (inside, inside1, 0.96)] {
+        assert!(
+            (a - want).abs() < 2e-3 && (b - want).abs() < 2e-3,
+            "{read:?}"
+        );
+    }
+    assert!((exited - exited1).abs() < 1e-9, "{read:?}");
+}
+
 #[test]
 fn simulate_refuses_bad_input_without_writing() {
     let dir = tempfile::tempdir().unwrap();
