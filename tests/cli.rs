@@ -483,6 +483,28 @@ direction = [0, -1, 0]
 power = [1, 1, 1]
 "#;
 
+/// `eikon simulate SCENE -o OUT --json [FLAG]`: its JSON summary and the
+/// sidecar it wrote.
+fn simulate_json(
+    scene: &Path,
+    out: &Path,
+    flag: Option<&str>,
+) -> (serde_json::Value, serde_json::Value) {
+    let mut args = vec![
+        "simulate",
+        scene.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--json",
+    ];
+    args.extend(flag);
+    let run = eikon_ok(&args);
+    let summary = serde_json::from_slice(&run.stdout).unwrap();
+    let sidecar =
+        serde_json::from_slice(&std::fs::read(out.join("light_volumes.json")).unwrap()).unwrap();
+    (summary, sidecar)
+}
+
 /// With `--reflections` the Fresnel-reflected light is traced on and
 /// recorded so; by default it is dropped and counted as reflected. In
 /// front of the slab the fluence reads `1 + R` (R = 0.04) and 1.
@@ -492,22 +514,10 @@ fn simulate_traces_reflected_light_when_asked() {
     let scene = write_scene(dir.path(), "slab.toml", SLAB);
     for (flag, want) in [(Some("--reflections"), 1.04), (None, 1.0)] {
         let out = dir.path().join(format!("light{}", flag.is_some()));
-        let mut args = vec![
-            "simulate",
-            scene.to_str().unwrap(),
-            "-o",
-            out.to_str().unwrap(),
-            "--json",
-        ];
-        args.extend(flag);
-        let run = eikon_ok(&args);
-        let summary: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+        let (summary, sidecar) = simulate_json(&scene, &out, flag);
         let light = &summary["lights"][0];
         let traced = light["reflections"].as_u64().unwrap_or(0);
         let reflected = light["energy_w"]["reflected"][0].as_f64().unwrap();
-        let sidecar: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(out.join("light_volumes.json")).unwrap())
-                .unwrap();
         assert_eq!(
             sidecar["options"]["reflections"].as_bool(),
             Some(flag.is_some()),
@@ -548,22 +558,10 @@ fn simulate_without_runs_says_so_and_reads_the_same() {
     let mut read = Vec::new();
     for flag in [None, Some("--no-runs")] {
         let out = dir.path().join(format!("runs{}", flag.is_none()));
-        let mut args = vec![
-            "simulate",
-            scene.to_str().unwrap(),
-            "-o",
-            out.to_str().unwrap(),
-            "--json",
-        ];
-        args.extend(flag);
-        let run = eikon_ok(&args);
-        let summary: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+        let (summary, sidecar) = simulate_json(&scene, &out, flag);
         let exited = summary["lights"][0]["energy_w"]["exited"][0]
             .as_f64()
             .unwrap();
-        let sidecar: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(out.join("light_volumes.json")).unwrap())
-                .unwrap();
         assert_eq!(
             sidecar["options"]["runs"].as_bool(),
             Some(flag.is_none()),

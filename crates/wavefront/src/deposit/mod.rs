@@ -422,6 +422,7 @@ pub fn tube(
             flux,
             depth,
             group,
+            axes: axes(x0, x1, tally.inv_spacing),
         };
         tube.lanes(n, lanes);
         tube.deposit(lanes);
@@ -485,6 +486,8 @@ struct Tube<'a> {
     flux: &'a [f64; 3],
     depth: DVec3,
     group: Option<usize>,
+    /// Its major axis, then the two minor ones ([`axes`]).
+    axes: [usize; 3],
 }
 
 /// One sub-patch of a [`tube`], in cell coordinates: its centre at the
@@ -513,7 +516,7 @@ impl Tube<'_> {
         let &Tube { tally, x0, x1, .. } = self;
         let g = &tally.grid;
         let inv = tally.inv_spacing;
-        let m = axes(x0, x1, inv)[0];
+        let m = self.axes[0];
         let dims_m = g.dims[m] as f64;
         let share = self.flux.map(|f| f / (ns * nt) as f64);
         let cell = |p: DVec3| (p - g.min) * inv;
@@ -574,14 +577,9 @@ impl Tube<'_> {
     /// are summed over every sub-patch before they reach the counters.
     fn deposit(&self, lanes: &[Lane]) {
         let &Tube {
-            tally,
-            x0,
-            x1,
-            depth,
-            ..
+            tally, depth, axes, ..
         } = self;
         let g = &tally.grid;
-        let axes = axes(x0, x1, tally.inv_spacing);
         let [m, ab, ac] = axes;
         let top = g.dims[m] as i64 - 1;
         let layer = |l: &Lane, t: f64| (floor(l.at[m] + l.moves[m] * t) as i64).clamp(0, top);
