@@ -20,6 +20,7 @@ pub mod geometry;
 pub mod interface;
 pub mod mesh_solid;
 pub mod object;
+pub mod profile;
 pub mod ray;
 pub mod region;
 pub mod scene;

@@ -60,6 +60,15 @@ impl IndexProfile {
     pub fn value(&self, p: DVec3, channel: usize) -> f64 {
         self.sample(p, channel).0
     }
+
+    /// Whether every colour channel sees the same index everywhere (no
+    /// dispersion), so that rays of every colour take one path.
+    pub fn achromatic(&self) -> bool {
+        match self {
+            IndexProfile::Constant([r, g, b]) => r == g && g == b,
+            IndexProfile::Luneburg { .. } | IndexProfile::Linear { .. } => true,
+        }
+    }
 }
 
 /// Optical properties of a medium (an object's interior or the ambient).

@@ -273,6 +273,15 @@ impl<'a> Regions<'a> {
         m.index_grid.is_none() && matches!(m.index, crate::IndexProfile::Constant(_))
     }
 
+    /// Whether region `r` bends every colour channel alike: its index is
+    /// the same for all three ([`crate::IndexProfile::achromatic`]; a VDB index
+    /// grid holds one index for all).
+    #[inline]
+    pub fn achromatic(&self, r: Region) -> bool {
+        let m = self.material(r);
+        m.index_grid.is_some() || m.index.achromatic()
+    }
+
     /// The index of region `r` at `p` for colour `ch`, and its gradient:
     /// the region's own profile, exactly (a VDB index grid by central
     /// differences half a grid voxel either way).
@@ -960,7 +969,7 @@ pub fn gpu_regions(scene: &Scene) -> Result<GpuRegions, String> {
                 frame(rot);
                 r.kind = SHAPE_REVOLUTION;
                 r.center = f3(*base);
-                let orient = crate::surface::profile_orientation(profile);
+                let orient = profile.orientation();
                 r.shape_a = orient as f32;
                 r.data = data.len() as u32;
                 r.data_len = profile.len() as u32;

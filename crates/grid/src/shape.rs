@@ -7,6 +7,7 @@
 //! those cells are supersampled.
 
 use crate::mesh_solid::MeshSolid;
+use crate::profile::Profile;
 use crate::vdb::VdbSolid;
 use glam::{DMat3, DVec2, DVec3};
 use std::sync::Arc;
@@ -35,7 +36,7 @@ pub enum Shape {
     /// polygon `profile` of (radius, height) points is swept around the axis.
     Revolution {
         base: DVec3,
-        profile: Vec<DVec2>,
+        profile: Profile,
         rot: DMat3,
     },
     /// Ring torus in the local xz plane (axis along local y).
@@ -230,18 +231,20 @@ impl Shape {
 /// crossing rule and not on an edge, where the distance would be zero. Only
 /// an edge whose heights span `p.y` can pass through `p`, so only those are
 /// measured.
-fn polygon_contains(poly: &[DVec2], p: DVec2) -> bool {
-    let n = poly.len();
+fn polygon_contains(poly: &Profile, p: DVec2) -> bool {
+    // The edges filed at p's height: every edge that spans it, the only
+    // ones either test below can count.
+    let edges = poly.edges_at(p.y);
     let mut inside = false;
-    for i in 0..n {
-        let (a, b) = (poly[i], poly[(i + 1) % n]);
+    for &i in edges {
+        let (a, b) = poly.edge(i as usize);
         if (a.y > p.y) != (b.y > p.y) && p.x < a.x + (p.y - a.y) / (b.y - a.y) * (b.x - a.x) {
             inside = !inside;
         }
     }
     inside
-        && (0..n).all(|i| {
-            let (a, b) = (poly[i], poly[(i + 1) % n]);
+        && edges.iter().all(|&i| {
+            let (a, b) = poly.edge(i as usize);
             if p.y < a.y.min(b.y) || p.y > a.y.max(b.y) {
                 return true;
             }
@@ -283,22 +286,24 @@ mod tests {
     fn polygon_contains_is_the_sign_of_the_distance() {
         // A wine-glass outline with a repeated vertex; points on a lattice
         // that hits vertices and edges exactly, and scattered ones.
-        let poly: Vec<DVec2> = [
-            [0.0, 0.0],
-            [0.3, 0.0],
-            [0.3, 0.025],
-            [0.06, 0.05],
-            [0.04, 0.1],
-            [0.04, 0.5],
-            [0.04, 0.5],
-            [0.25, 0.7],
-            [0.27, 1.3],
-            [0.245, 1.3],
-            [0.0, 0.575],
-        ]
-        .iter()
-        .map(|&[x, y]| DVec2::new(x, y))
-        .collect();
+        let poly: Profile = Profile::new(
+            [
+                [0.0, 0.0],
+                [0.3, 0.0],
+                [0.3, 0.025],
+                [0.06, 0.05],
+                [0.04, 0.1],
+                [0.04, 0.5],
+                [0.04, 0.5],
+                [0.25, 0.7],
+                [0.27, 1.3],
+                [0.245, 1.3],
+                [0.0, 0.575],
+            ]
+            .iter()
+            .map(|&[x, y]| DVec2::new(x, y))
+            .collect(),
+        );
         let mut checked = (0, 0);
         for i in -4..=70 {
             for j in -4..=280 {
@@ -316,7 +321,7 @@ mod tests {
             }
         }
         assert!(checked.0 > 1000 && checked.1 > 1000, "{checked:?}");
-        for v in &poly {
+        for v in poly.iter() {
             assert!(!polygon_contains(&poly, *v));
         }
     }
@@ -346,12 +351,12 @@ mod tests {
         // A cylinder profile swept about y is a cylinder.
         let r = Shape::Revolution {
             base: DVec3::ZERO,
-            profile: vec![
+            profile: Profile::new(vec![
                 DVec2::new(0.0, 0.0),
                 DVec2::new(1.0, 0.0),
                 DVec2::new(1.0, 2.0),
                 DVec2::new(0.0, 2.0),
-            ],
+            ]),
             rot: DMat3::IDENTITY,
         };
         assert!((r.distance(DVec3::new(0.0, 1.0, 3.0)) - 2.0).abs() < 1e-12);

@@ -21,6 +21,7 @@
 //! previous crossing, must not find its own starting point again.
 
 use crate::mesh_solid::MeshSolid;
+use crate::profile::Profile;
 use crate::shape::Shape;
 use crate::vdb::VdbSolid;
 use eikon_mesh::Ray;
@@ -694,22 +695,6 @@ fn rounded_box(o: DVec3, d: DVec3, half: DVec3, r: f64) -> (f64, f64) {
     (t_in, t_out)
 }
 
-/// Twice the signed area of the profile: positive when counter-clockwise
-/// in the (radius, height) plane.
-pub(crate) fn profile_orientation(profile: &[DVec2]) -> f64 {
-    let n = profile.len();
-    let mut a = 0.0;
-    for i in 0..n {
-        let (p, q) = (profile[i], profile[(i + 1) % n]);
-        a += p.x * q.y - q.x * p.y;
-    }
-    if a >= 0.0 {
-        1.0
-    } else {
-        -1.0
-    }
-}
-
 fn finite_or_zero(s: f64) -> f64 {
     if s.is_finite() {
         s
@@ -736,22 +721,24 @@ pub(crate) fn edge_normal(a: DVec2, b: DVec2, orient: f64) -> DVec2 {
 
 /// The first crossing (local frame) of the surface of revolution.
 fn revolution_crossing(
-    profile: &[DVec2],
+    profile: &Profile,
     o: DVec3,
     d: DVec3,
     lo: f64,
     hi: f64,
 ) -> Option<(f64, DVec3)> {
-    let n = profile.len();
     let mut best: Option<(f64, usize)> = None;
+    // The nearest crossing; of equal ones the lowest edge's, whatever the
+    // order the edges come in.
     let mut take = |t: f64, i: usize| {
-        if t > lo && t <= hi && best.is_none_or(|(b, _)| t < b) {
+        if t > lo && t <= hi && best.is_none_or(|(b, j)| t < b || (t == b && i < j)) {
             best = Some((t, i));
         }
     };
     // The heights the segment spans: an edge wholly above or below them
     // cannot be crossed (a light step is half a voxel, so this leaves one
-    // or two of the profile's edges). The margin covers the rounding of
+    // or two of the profile's edges, which the profile's filing by height
+    // finds without looking at the others). The margin covers the rounding of
     // the crossing's height, which is checked exactly below.
     let (ya, yb) = (o.y + d.y * lo, o.y + d.y * hi);
     let (span_lo, span_hi) = if ya.is_finite() && yb.is_finite() {
@@ -782,19 +769,19 @@ fn revolution_crossing(
     } else {
         (f64::NEG_INFINITY, f64::INFINITY)
     };
-    for i in 0..n {
-        let (a, b) = (profile[i], profile[(i + 1) % n]);
+    profile.for_edges_within(span_lo, span_hi, |i| {
+        let (a, b) = profile.edge(i);
         if a.y.max(b.y) < span_lo || a.y.min(b.y) > span_hi {
-            continue;
+            return;
         }
         let (ra, rb) = (a.x.max(0.0), b.x.max(0.0));
         if ra.max(rb) * ra.max(rb) < r2_lo || ra.min(rb) * ra.min(rb) > r2_hi {
-            continue;
+            return;
         }
         if a.y == b.y {
             // An annulus in the plane y = a.y.
             if d.y == 0.0 {
-                continue;
+                return;
             }
             let t = (a.y - o.y) / d.y;
             let p = o + d * t;
@@ -804,7 +791,7 @@ fn revolution_crossing(
             }
         } else {
             if a.x <= 0.0 && b.x <= 0.0 {
-                continue; // on the axis: inside the solid, no surface
+                return; // on the axis: inside the solid, no surface
             }
             // rho = m + k (y - o.y) along the edge's line.
             let k = (b.x - a.x) / (b.y - a.y);
@@ -835,23 +822,20 @@ fn revolution_crossing(
                 }
             }
         }
-    }
+    });
     let (t, i) = best?;
-    let n2 = edge_normal(
-        profile[i],
-        profile[(i + 1) % n],
-        profile_orientation(profile),
-    );
+    let (a, b) = profile.edge(i);
+    let n2 = edge_normal(a, b, profile.orientation());
     Some((t, swept_normal(n2, o + d * t)))
 }
 
 /// The outward normal (local frame) of the solid of revolution nearest `q`.
-fn revolution_normal(profile: &[DVec2], q: DVec3) -> DVec3 {
+fn revolution_normal(profile: &Profile, q: DVec3) -> DVec3 {
     let n = profile.len();
     if n < 2 {
         return DVec3::Y;
     }
-    let orient = profile_orientation(profile);
+    let orient = profile.orientation();
     let m = DVec2::new(DVec2::new(q.x, q.z).length(), q.y);
     let mut best = (f64::INFINITY, 0);
     for i in 0..n {
@@ -1317,7 +1301,7 @@ mod tests {
         ];
         Shape::Revolution {
             base: DVec3::new(0.0, -0.5, 0.1),
-            profile: profile.iter().map(|&(x, y)| DVec2::new(x, y)).collect(),
+            profile: Profile::new(profile.iter().map(|&(x, y)| DVec2::new(x, y)).collect()),
             rot: rot(),
         }
     }
@@ -1327,7 +1311,7 @@ mod tests {
         check(&wine_glass(), 3000, 20_000, true, 5);
         // The same profile clockwise: the normals must still point out.
         if let Shape::Revolution { base, profile, rot } = wine_glass() {
-            let reversed = profile.into_iter().rev().collect();
+            let reversed = Profile::new(profile.iter().rev().copied().collect());
             let s = Shape::Revolution {
                 base,
                 profile: reversed,

@@ -27,6 +27,33 @@ pub fn lit(text: &str) -> (Scene, Medium, Vec<LightVolume>) {
     (scene, medium, volumes)
 }
 
+/// A point light above and to the side of the origin, a grey floor below
+/// it and a camera looking at the origin from the front, `[w, h]` pixels
+/// of `samples` samples: the rest of a small render test's scene after its
+/// `[grid]`, `[ambient]` and objects.
+pub fn point_lit_floor([w, h]: [u32; 2], samples: u32) -> String {
+    format!(
+        r#"
+[[light]]
+type = "point"
+position = [0.6, 0.8, 0.3]
+power = [5, 5, 5]
+
+[receiver]
+point = [0, -0.7, 0]
+normal = [0, 1, 0]
+albedo = [0.8, 0.8, 0.8]
+
+[camera]
+position = [0.5, 1, 3]
+target = [0, 0, 0]
+fov = 45
+resolution = [{w}, {h}]
+samples = {samples}
+"#
+    )
+}
+
 /// The camera of a scene's `[camera]`.
 pub fn camera(scene: &Scene) -> Camera {
     eikon_view::render::camera(&eikon_view::render::camera_settings(scene)).unwrap()

@@ -42,7 +42,7 @@ use crate::background::{LightSample, Surroundings};
 use crate::macrocell::MacroCells;
 use crate::properties::{Properties, Sample};
 use eikon_grid::ray::{step_euler_sampled, step_rk4};
-use eikon_grid::region::Regions;
+use eikon_grid::region::{Regions, SharpRay};
 use eikon_grid::{CameraSettings, Form, IndexField, Integrator, Medium, Progress, RayState, Scene};
 use eikon_optics::phase::hg;
 use eikon_optics::{fresnel, Camera, CameraError, Image};
@@ -150,6 +150,13 @@ pub struct Renderer<'a> {
     eye_index: [f64; 3],
     /// With sharp interfaces: the scene's regions ([`Renderer::sharp`]).
     regions: Option<Regions<'a>>,
+    /// With dispersion and sharp interfaces, whether an eye ray starts
+    /// carrying all three channels ([`Lanes::All`]): the eye's region is
+    /// achromatic.
+    shared: bool,
+    /// Whether a light volume holds a flux direction per channel, so that
+    /// what is looked up in it depends on the channel.
+    chromatic_light: bool,
 }
 
 // How far either side of a boundary voxel the interface sides are read
@@ -159,6 +166,7 @@ pub struct Renderer<'a> {
 pub(crate) use eikon_grid::interface::probe_length;
 
 /// Where a ray is, and what it has gathered.
+#[derive(Clone, Copy)]
 struct Walk {
     ray: RayState,
     radiance: DVec3,
@@ -170,6 +178,38 @@ struct Walk {
     /// The ray's direction where it entered the interface band being
     /// crossed.
     incident: Option<DVec3>,
+}
+
+/// The colour channels one eye ray carries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Lanes {
+    /// Channel `c` alone, on the path of its own index field.
+    One(usize),
+    /// All three, along the path they share while no matter on the way
+    /// disperses (with sharp interfaces: [`Renderer::trace_sharp`]).
+    All,
+}
+
+impl Lanes {
+    /// The channel whose index the ray follows (under `All` every
+    /// channel's index along the path is the same).
+    fn index_channel(self) -> usize {
+        match self {
+            Lanes::One(c) => c,
+            Lanes::All => 0,
+        }
+    }
+}
+
+/// How [`Renderer::trace_sharp`] ended. Returned once per ray and never
+/// stored, so the larger variant costs a copy, where a box would cost an
+/// allocation per parted ray.
+#[allow(clippy::large_enum_variant)]
+enum Traced {
+    /// The radiance gathered and the work done.
+    Done(DVec3, Stats),
+    /// The channels part at the next step: the ray and walk before it.
+    Parted(SharpRay, Walk),
 }
 
 impl<'a> Renderer<'a> {
@@ -204,6 +244,8 @@ impl<'a> Renderer<'a> {
                     .0
             }),
             regions: None,
+            shared: false,
+            chromatic_light: volumes.iter().any(|v| v.flux.len() > 1),
         }
     }
 
@@ -215,9 +257,18 @@ impl<'a> Renderer<'a> {
         let regions = Regions::new(scene).clear_of(self.medium);
         let eye = self.camera.position();
         let at = regions.at(eye);
+        self.shared = self.medium.channels() == 3 && regions.achromatic(at);
         self.eye_index =
             [0, 1, 2].map(|c| regions.index(at, eye, c.min(self.medium.channels() - 1)).0);
         self.regions = Some(regions);
+        self
+    }
+
+    /// Trace every channel's eye ray on its own from the eye, as without
+    /// sharp interfaces: the shared ray of [`Renderer::radiance`] only
+    /// saves work, and this is what it is checked against.
+    pub fn channels_apart(mut self) -> Self {
+        self.shared = false;
         self
     }
 
@@ -284,6 +335,12 @@ impl<'a> Renderer<'a> {
         if self.medium.channels() == 1 {
             return self.march(o, d, 0);
         }
+        // With sharp interfaces the channels share one ray until matter
+        // that disperses parts them (each channel's result is the same as
+        // from its own ray, with less work where nothing disperses).
+        if let Some(regions) = self.regions.as_ref().filter(|_| self.shared) {
+            return self.march_sharp(regions, o, d, Lanes::All);
+        }
         let mut out = DVec3::ZERO;
         let mut stats = Stats::default();
         for c in 0..3 {
@@ -299,7 +356,7 @@ impl<'a> Renderer<'a> {
     /// radiance it gathers (with dispersion only channel `ch` is used).
     fn march(&self, o: DVec3, d: DVec3, ch: usize) -> (DVec3, Stats) {
         if let Some(regions) = &self.regions {
-            return self.march_sharp(regions, o, d, ch);
+            return self.march_sharp(regions, o, d, Lanes::One(ch));
         }
         let grid = &self.medium.geometry;
         let env = self.surroundings;
@@ -425,20 +482,26 @@ impl<'a> Renderer<'a> {
     /// index is constant and nothing along the way scatters or emits, Fresnel
     /// at every true crossing ([Ihrke07 eq 2]'s reflection term and
     /// [Ihrke07 eq 5]'s `tau`, at the exact angle of incidence).
-    fn march_sharp(&self, regions: &Regions, o: DVec3, d: DVec3, ch: usize) -> (DVec3, Stats) {
+    ///
+    /// With [`Lanes::All`] one ray carries the three colour channels while
+    /// its path is theirs alike, and splits into one ray per channel where
+    /// they part (see [`Renderer::trace_sharp`]).
+    fn march_sharp(&self, regions: &Regions, o: DVec3, d: DVec3, lanes: Lanes) -> (DVec3, Stats) {
         let grid = &self.medium.geometry;
         let env = self.surroundings;
         let Some((t0, _)) = grid.clip_line(o, d).filter(|&(_, t1)| t1 > 0.0) else {
-            return (env.radiance(o, d, ch), Stats::default());
+            return (
+                self.per_channel(lanes, |c| env.radiance(o, d, c)),
+                Stats::default(),
+            );
         };
         let t0 = t0.max(0.0);
         if let Some(t) = env.receiver_hit(o, d, t0) {
-            return (env.receiver_radiance(o + d * t, d, ch), Stats::default());
+            let l = self.per_channel(lanes, |c| env.receiver_radiance(o + d * t, d, c));
+            return (l, Stats::default());
         }
-        let h = grid.voxel_size();
-        let ds = self.opts.step * h;
-        let mut ray = regions.ray(o + d * t0, d, ch);
-        let mut walk = Walk {
+        let ray = regions.ray(o + d * t0, d, lanes.index_channel());
+        let walk = Walk {
             ray: ray.s,
             radiance: DVec3::ZERO,
             alpha: DVec3::ONE,
@@ -446,6 +509,60 @@ impl<'a> Renderer<'a> {
             mirrored: None,
             incident: None,
         };
+        self.finish_sharp(regions, ray, walk, lanes)
+    }
+
+    /// Go on with `ray` from `walk` to the end; a ray carrying every channel
+    /// that comes to dispersing matter goes on from there as three rays,
+    /// each giving its own channel.
+    fn finish_sharp(
+        &self,
+        regions: &Regions,
+        ray: SharpRay,
+        walk: Walk,
+        lanes: Lanes,
+    ) -> (DVec3, Stats) {
+        match self.trace_sharp(regions, ray, walk, lanes) {
+            Traced::Done(l, stats) => (l, stats),
+            Traced::Parted(ray, walk) => {
+                let mut out = DVec3::ZERO;
+                let mut stats = walk.stats;
+                for c in 0..3 {
+                    let (l, s) = self.finish_sharp(regions, ray, walk, Lanes::One(c));
+                    out[c] = l[c];
+                    stats.steps += s.steps - walk.stats.steps;
+                    stats.skips += s.skips - walk.stats.skips;
+                }
+                (out, stats)
+            }
+        }
+    }
+
+    /// The step loop of [`Renderer::march_sharp`]. Under [`Lanes::All`] the
+    /// path is followed with channel 0's index, which is every channel's
+    /// while the ray stays in achromatic regions ([`Regions::achromatic`]);
+    /// what the light volumes and the surroundings give is looked up per
+    /// channel. Before a step that would take the ray into a region whose
+    /// index differs by channel (or meet such a surface and reflect), it
+    /// stops and hands back its state before that step: each channel then
+    /// takes that step itself, so every channel's result is exactly the
+    /// one its own ray gives.
+    fn trace_sharp(
+        &self,
+        regions: &Regions,
+        mut ray: SharpRay,
+        mut walk: Walk,
+        lanes: Lanes,
+    ) -> Traced {
+        let grid = &self.medium.geometry;
+        let env = self.surroundings;
+        let ch = lanes.index_channel();
+        let all = lanes == Lanes::All;
+        if all && !regions.achromatic(ray.region) {
+            return Traced::Parted(ray, walk);
+        }
+        let h = grid.voxel_size();
+        let ds = self.opts.step * h;
         let lit = !self.volumes.is_empty();
         let budget = (64.0 * grid.diagonal() / ds) as u64 + 16;
         while walk.stats.steps + walk.stats.skips < budget {
@@ -457,8 +574,9 @@ impl<'a> Renderer<'a> {
                 break;
             }
             if walk.alpha.max_element() < self.opts.min_transmittance {
-                return (walk.radiance, walk.stats);
+                return Traced::Done(walk.radiance, walk.stats);
             }
+            let before = (ray, walk);
             let x0 = ray.s.x;
             let m = regions.material(ray.region);
             let sigma = m.extinction_at(x0);
@@ -485,6 +603,12 @@ impl<'a> Renderer<'a> {
                 step,
                 ch,
             );
+            if all
+                && (!regions.achromatic(ray.region)
+                    || st.event.is_some_and(|e| !regions.achromatic(e.to)))
+            {
+                return Traced::Parted(before.0, before.1);
+            }
             if quiet {
                 walk.stats.skips += 1;
             } else {
@@ -496,18 +620,21 @@ impl<'a> Renderer<'a> {
                 let u = chord / len;
                 if let Some(tr) = env.receiver_hit(x0, u, len) {
                     let tri = grid.trilinear(x0);
-                    self.absorb_and_emit(&tri, &here, n, u, tr, ch, &mut walk);
-                    walk.radiance += walk.alpha * env.receiver_radiance(x0 + u * tr, u, ch);
-                    return (walk.radiance, walk.stats);
+                    self.absorb_and_emit(&tri, &here, n, u, tr, lanes, &mut walk);
+                    let hit = x0 + u * tr;
+                    walk.radiance +=
+                        walk.alpha * self.per_channel(lanes, |c| env.receiver_radiance(hit, u, c));
+                    return Traced::Done(walk.radiance, walk.stats);
                 }
             }
             let tri = grid.trilinear(x0);
-            self.absorb_and_emit(&tri, &here, n, dir, st.used, ch, &mut walk);
+            self.absorb_and_emit(&tri, &here, n, dir, st.used, lanes, &mut walk);
             if let Some(ev) = st.event.filter(|e| !e.total) {
                 let rho = ev.reflectance;
                 if rho > 0.0 {
                     let mirror = fresnel::reflect(ev.incident, ev.normal);
-                    walk.radiance += walk.alpha * env.radiance(ev.point, mirror, ch) * rho;
+                    let l = self.per_channel(lanes, |c| env.radiance(ev.point, mirror, c));
+                    walk.radiance += walk.alpha * l * rho;
                     walk.alpha *= 1.0 - rho;
                 }
             }
@@ -519,11 +646,25 @@ impl<'a> Renderer<'a> {
             }
         }
         if walk.stats.steps + walk.stats.skips >= budget {
-            return (walk.radiance, walk.stats);
+            return Traced::Done(walk.radiance, walk.stats);
         }
         let dir = ray.s.v.normalize_or_zero();
-        walk.radiance += walk.alpha * env.radiance(ray.s.x, dir, ch);
-        (walk.radiance, walk.stats)
+        let x = ray.s.x;
+        walk.radiance += walk.alpha * self.per_channel(lanes, |c| env.radiance(x, dir, c));
+        Traced::Done(walk.radiance, walk.stats)
+    }
+
+    /// `f` for the ray's channels: `f(c)` for one channel `c`; for all
+    /// three, channel `c` of `f(c)` for each (one call where the light
+    /// volumes hold one flux direction for every channel, so that nothing
+    /// `f` looks up depends on the channel).
+    #[inline]
+    fn per_channel(&self, lanes: Lanes, f: impl Fn(usize) -> DVec3) -> DVec3 {
+        match lanes {
+            Lanes::One(c) => f(c),
+            Lanes::All if !self.chromatic_light => f(0),
+            Lanes::All => DVec3::new(f(0).x, f(1).y, f(2).z),
+        }
     }
 
     /// The medium's part of [Ihrke07 eq 1] over one step of length `step`
@@ -537,31 +678,36 @@ impl<'a> Renderer<'a> {
         n: f64,
         d: DVec3,
         step: f64,
-        ch: usize,
+        lanes: Lanes,
         w: &mut Walk,
     ) {
         let sigma = here.sigma;
         let mut source = here.emission;
         if here.scatter.max_element() > 0.0 {
-            for v in self.volumes {
-                let Some(light) = LightSample::at(v, tri, ch) else {
-                    continue;
-                };
-                // [Ihrke07 eq 6] with the first angular moment of the light: HG
-                // about the net flux direction with g scaled by the mean
-                // cosine (exact for one ray family, mu = 1), between the
-                // light's direction of travel and the direction towards
-                // the eye.
-                source += here.scatter
-                    * light.fluence
-                    * hg(light.direction.dot(-d), here.g * light.mean_cosine);
-            }
+            source = self.per_channel(lanes, |ch| {
+                let mut source = source;
+                for v in self.volumes {
+                    let Some(light) = LightSample::at(v, tri, ch) else {
+                        continue;
+                    };
+                    // [Ihrke07 eq 6] with the first angular moment of the
+                    // light: HG about the net flux direction with g scaled
+                    // by the mean cosine (exact for one ray family, mu =
+                    // 1), between the light's direction of travel and the
+                    // direction towards the eye.
+                    source += here.scatter
+                        * light.fluence
+                        * hg(light.direction.dot(-d), here.g * light.mean_cosine);
+                }
+                source
+            });
         }
         // The radiance law: L / n^2 is what a ray carries unchanged
         // ([Ihrke07 eq 1] leaves it out), so radiance arising where the index
         // is n reaches an eye in index n_eye scaled by (n_eye / n)^2.
-        // Without it matter in glass would look n^2 too bright.
-        source *= (self.eye_index[ch] / n).powi(2);
+        // Without it matter in glass would look n^2 too bright. (Under
+        // `Lanes::All` the eye's region is achromatic: one eye index.)
+        source *= (self.eye_index[lanes.index_channel()] / n).powi(2);
         // Exact for constant sigma and S over the step:
         // int_0^ds exp(-sigma s) ds = (1 - exp(-sigma ds)) / sigma.
         if sigma.max_element() > 0.0 {
@@ -597,7 +743,7 @@ impl<'a> Renderer<'a> {
     ) {
         let tri = self.medium.geometry.trilinear(x);
         let here = self.properties.sample_at(&tri);
-        self.absorb_and_emit(&tri, &here, n, d, step, ch, w);
+        self.absorb_and_emit(&tri, &here, n, d, step, Lanes::One(ch), w);
 
         let delta = here.delta;
         if delta <= 0.0 {

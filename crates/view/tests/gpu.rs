@@ -280,29 +280,15 @@ index = 1.0
 extinction = [0.5, 1, 2]
 albedo = [0.7, 0.7, 0.7]
 emission = [0.6, 0.3, 0.1]
-
-[[light]]
-type = "point"
-position = [0.6, 0.8, 0.3]
-power = [5, 5, 5]
-
-[receiver]
-point = [0, -0.7, 0]
-normal = [0, 1, 0]
-albedo = [0.8, 0.8, 0.8]
-
-[camera]
-position = [0.5, 1, 3]
-target = [0, 0, 0]
-fov = 45
-resolution = [96, 72]
-samples = 3
-
+"#
+    .to_owned()
+        + &eikon_testkit::scenes::point_lit_floor([96, 72], 3)
+        + r#"
 [background]
 type = "constant"
 color = [0.02, 0.02, 0.02]
 "#;
-    check(gpu, "emissive volume", text, Options::default(), 40.0);
+    check(gpu, "emissive volume", &text, Options::default(), 40.0);
 }
 
 /// Two lights (a directional and a spot light), so two light volumes and

@@ -6,7 +6,7 @@
 use eikon_grid::ray::{trace, TraceOptions};
 use eikon_grid::{AnalyticField, Form, Integrator, Medium, Scene};
 use eikon_optics::{hg, Camera, Image};
-use eikon_testkit::scenes::{camera, lit};
+use eikon_testkit::scenes::{camera, lit, point_lit_floor};
 use eikon_view::background::load_environment;
 use eikon_view::{Options, Renderer, Surroundings};
 use eikon_wavefront::LightVolume;
@@ -413,25 +413,10 @@ index = [1.48, 1.5, 1.52]
 extinction = [0.5, 1, 2]
 albedo = [0.7, 0.7, 0.7]
 emission = [0.1, 0, 0]
-
-[[light]]
-type = "point"
-position = [0.6, 0.8, 0.3]
-power = [5, 5, 5]
-
-[receiver]
-point = [0, -0.7, 0]
-normal = [0, 1, 0]
-albedo = [0.8, 0.8, 0.8]
-
-[camera]
-position = [0.5, 1, 3]
-target = [0, 0, 0]
-fov = 45
-resolution = [40, 30]
-samples = 3
-"#;
-    let (scene, medium, volumes) = lit(text);
+"#
+    .to_owned()
+        + &point_lit_floor([40, 30], 3);
+    let (scene, medium, volumes) = lit(&text);
     let pool = |n| {
         rayon::ThreadPoolBuilder::new()
             .num_threads(n)

@@ -646,7 +646,7 @@ fn check_shape(c: &Checker, sp: &[Seg], s: &RawShape, volumes: &mut Volumes) -> 
             }
             Shape::Revolution {
                 base: c.vec3(&f("base"), *base)?,
-                profile: pts,
+                profile: crate::profile::Profile::new(pts),
                 rot: rot(*rotation)?,
             }
         }
