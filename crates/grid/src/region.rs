@@ -26,7 +26,7 @@
 //! whatever length makes `|v| = n2`; when none does, the interface reflects
 //! totally.
 
-use crate::blocks::BlockGrid;
+use crate::blocks::{BlockGrid, BLOCK};
 use crate::field::Medium;
 use crate::object::Material;
 use crate::ray::{step_euler, step_rk4, Form, Integrator, RayState};
@@ -82,11 +82,12 @@ pub struct Regions<'a> {
     clear: Option<Clear>,
 }
 
-/// The 4^3 blocks of a grid that no surface comes near: the boundary
-/// indicator of the voxel medium built from the same scene is zero
-/// throughout the block and a voxel around it, so a straight piece no
-/// longer than a voxel that starts in the block crosses no surface, and the
-/// whole block belongs to one region. There a ray needs no surface test and
+/// The 4^3 blocks of a grid that no surface comes near: every shape's
+/// distance bound at the block's centre exceeds half the block's diagonal
+/// and a voxel, or the boundary indicator of the voxel medium built from
+/// the same scene is zero throughout the block and a voxel around it. So a
+/// straight piece no longer than a voxel that starts in the block crosses
+/// no surface, and the whole block belongs to one region. There a ray needs no surface test and
 /// no owner query.
 struct Clear {
     blocks: BlockGrid,
@@ -208,12 +209,23 @@ impl<'a> Regions<'a> {
         }
         let blocks = BlockGrid::new(g);
         let bnd = &medium.boundary;
+        let reach = g.spacing().min_element();
+        // A point of the block lies within half its diagonal of the centre;
+        // a piece from it within `reach` more. Where every shape's distance
+        // bound at the centre exceeds both (the true distance is at least
+        // the bound), no surface comes that near.
+        let far = 0.5 * (g.spacing() * BLOCK as f64).length() + reach;
+        let far = far * (1.0 + 1e-9);
+        let objects = &self.scene.objects;
         let owner = (0..blocks.len())
             .into_par_iter()
             .map(|f| {
                 let b = blocks.coords(f);
-                if blocks.all_around(b, |i, j, k| bnd[[i, j, k]] == 0.0) {
-                    match self.scene.owner(blocks.centre(b)) {
+                let c = blocks.centre(b);
+                if objects.iter().all(|o| o.shape.distance(c).abs() > far)
+                    || blocks.all_around(b, |i, j, k| bnd[[i, j, k]] == 0.0)
+                {
+                    match self.scene.owner(c) {
                         None => 1,
                         Some(i) => 2 + i as u32,
                     }
@@ -222,7 +234,6 @@ impl<'a> Regions<'a> {
                 }
             })
             .collect();
-        let reach = g.spacing().min_element();
         self.clear = Some(Clear {
             blocks,
             owner,

@@ -353,3 +353,75 @@ fn nested_dielectrics_follow_the_exact_snell_tracer() {
     assert!(compared >= 200, "only {compared} rays compared");
     assert!(false_hits > 0, "no ray met a false intersection");
 }
+
+/// `Regions::clear_of` marks blocks where a step of up to a voxel meets no
+/// surface, so that it skips the surface tests and owner queries there.
+/// On a wine glass holding wine (two solids of revolution, one inside the
+/// other) and a sphere: from points on a lattice through every block, in
+/// several directions, a step of just under a voxel ends bitwise where it
+/// ends with every surface tested, in the same region.
+#[test]
+fn clear_blocks_skip_only_tests_that_find_nothing() {
+    let text = grid(48)
+        + r#"
+[[object]]
+name = "glass"
+shape = { type = "revolution", base = [-0.3, -0.9, 0], profile = [
+  [0.0, 0.0], [0.4, 0.0], [0.4, 0.05], [0.08, 0.1], [0.05, 0.2], [0.05, 0.7],
+  [0.2, 0.8], [0.45, 1.0], [0.5, 1.3], [0.47, 1.7], [0.43, 1.7], [0.45, 1.3],
+  [0.4, 1.02], [0.18, 0.84], [0.0, 0.8],
+] }
+index = 1.5
+priority = 2
+
+[[object]]
+name = "wine"
+shape = { type = "revolution", base = [-0.3, -0.9, 0], profile = [
+  [0.0, 0.78], [0.2, 0.78], [0.45, 1.0], [0.5, 1.3], [0.0, 1.3],
+] }
+index = 1.34
+priority = 1
+
+[[object]]
+name = "ball"
+shape = { type = "sphere", center = [0.55, 0.4, 0.2], radius = 0.35 }
+index = 1.6
+"#;
+    let scene = parse(&text);
+    let medium = eikon_grid::Medium::build(&scene).expect("test scene voxelizes");
+    let every = Regions::new(&scene);
+    let clear = Regions::new(&scene).clear_of(&medium);
+    let h = scene.grid.geometry.spacing().min_element();
+    let dirs = [
+        DVec3::X,
+        -DVec3::Y,
+        DVec3::new(0.3, -1.0, 0.2).normalize(),
+        DVec3::new(-0.7, 0.5, -0.5).normalize(),
+    ];
+    let (mut checked, mut crossed) = (0, 0);
+    let n = 61;
+    for i in 0..n {
+        for j in 0..n {
+            for k in 0..n {
+                let p = DVec3::new(i as f64, j as f64, k as f64) / (n - 1) as f64 * 1.98
+                    - DVec3::splat(0.99);
+                assert_eq!(every.at(p), clear.at(p), "{p}");
+                for (q, d) in dirs.iter().enumerate() {
+                    let d = if (i + j + k + q) % 2 == 0 { *d } else { -*d };
+                    let (mut a, mut b) = (every.ray(p, d, 0), clear.ray(p, d, 0));
+                    // As light's corners step: no look-ahead kept.
+                    (a.ahead, b.ahead) = (None, None);
+                    let sa =
+                        every.step(&mut a, Form::EqualDistance, Integrator::Euler, 0.99 * h, 0);
+                    let sb =
+                        clear.step(&mut b, Form::EqualDistance, Integrator::Euler, 0.99 * h, 0);
+                    assert_eq!((a, sa), (b, sb), "{p} along {d}");
+                    checked += 1;
+                    crossed += usize::from(sa.at_surface);
+                }
+            }
+        }
+    }
+    println!("{checked} steps, {crossed} of them met a surface");
+    assert!(crossed > 1000, "{crossed}");
+}
