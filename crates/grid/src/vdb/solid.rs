@@ -160,8 +160,12 @@ impl VdbSolid {
         self.volume.sample(p) > self.threshold
     }
 
-    /// Signed distance bound: negative inside, never larger in magnitude
-    /// than the distance to the surface.
+    /// Signed distance bound: negative inside, positive outside, never
+    /// larger in magnitude than the distance to the surface. Where the
+    /// bound is zero (within the margin of the surface) it is the smallest
+    /// positive double, signed: the sign alone still tells the side, as
+    /// root finding on a path that crosses the surface needs (a zero
+    /// outside read as the far side cut a curved step at its start).
     pub fn distance(&self, p: DVec3) -> f64 {
         let inside = self.contains(p);
         let bound = if self.edt.is_empty() {
@@ -192,7 +196,7 @@ impl VdbSolid {
         if inside {
             -bound.max(f64::MIN_POSITIVE)
         } else {
-            bound
+            bound.max(f64::MIN_POSITIVE)
         }
     }
 
