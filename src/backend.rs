@@ -72,7 +72,7 @@ impl Backend {
     /// medium is uploaded here, once for every light.
     /// With `[grid] interfaces = "sharp"` the simulation crosses the
     /// scene's exact surfaces (on the GPU, for the shapes its region table
-    /// holds: `eikon_grid::region::gpu_table`).
+    /// holds: `eikon_grid::region::gpu_regions`).
     pub fn simulator<'a>(&'a self, medium: &'a Medium, scene: &'a Scene) -> Result<Simulator<'a>> {
         let sharp = scene.grid.interfaces == eikon_grid::Interfaces::Sharp;
         Ok(match self {
@@ -101,22 +101,24 @@ impl Backend {
     }
 
     /// Host memory the GPU light simulator's buffers take, for the memory
-    /// check (`None` on the CPU or a discrete GPU: see [`host_bytes`]).
+    /// check (`None` on the CPU or a discrete GPU: see [`host_bytes`]),
+    /// with `sharp` interfaces or without.
     pub fn simulator_host_bytes(
         &self,
         dims: [usize; 3],
         channels: usize,
         opts: &eikon_wavefront::Options,
+        sharp: bool,
     ) -> Option<u64> {
         match self {
             Backend::Cpu => {
-                let _ = (dims, channels, opts);
+                let _ = (dims, channels, opts, sharp);
                 None
             }
             #[cfg(feature = "gpu")]
             Backend::Gpu(g) => host_bytes(
                 g,
-                eikon_wavefront::gpu::GpuSimulator::device_bytes(dims, channels, opts),
+                eikon_wavefront::gpu::GpuSimulator::device_bytes(dims, channels, opts, sharp),
             ),
         }
     }

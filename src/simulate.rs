@@ -492,7 +492,12 @@ pub fn simulate(
             photons: args.method == SimMethod::Photons,
             gpu: (args.method == SimMethod::Wavefront)
                 .then(|| {
-                    backend.simulator_host_bytes(scene.grid.geometry.dims, scene.channels(), &opts)
+                    backend.simulator_host_bytes(
+                        scene.grid.geometry.dims,
+                        scene.channels(),
+                        &opts,
+                        scene.grid.interfaces == eikon_grid::Interfaces::Sharp,
+                    )
                 })
                 .flatten(),
             ..crate::grid::Needs::default()

@@ -614,9 +614,7 @@ impl Gpu {
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        self.device
-            .poll(wgpu::PollType::Wait)
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
+        self.wait()?;
         rx.recv()
             .map_err(|e| GpuError::Readback(e.to_string()))?
             .map_err(|e| GpuError::Readback(e.to_string()))?;
@@ -626,7 +624,28 @@ impl Gpu {
     }
 }
 
+/// How long [`Gpu::wait`] waits for the GPU in all. wgpu gives up on one
+/// wait after a minute; lavapipe (llvmpipe) compiles a kernel when a
+/// submission first dispatches it, not when the pipeline is made, and cold
+/// (no shader cache) the view renderer's kernel with every sharp shape and
+/// VDB grids took longer than that. A hardware GPU's driver ends a
+/// submission long before this.
+const MOST_WAIT: std::time::Duration = std::time::Duration::from_secs(1800);
+
 impl Gpu {
+    /// Block until everything submitted has run, waiting again where one
+    /// of wgpu's waits times out, for up to [`MOST_WAIT`] in all.
+    pub fn wait(&self) -> Result<(), GpuError> {
+        let start = std::time::Instant::now();
+        loop {
+            match self.device.poll(wgpu::PollType::Wait) {
+                Ok(_) => return Ok(()),
+                Err(wgpu::PollError::Timeout) if start.elapsed() < MOST_WAIT => {}
+                Err(e) => return Err(GpuError::Readback(e.to_string())),
+            }
+        }
+    }
+
     /// Compile `entry` of the WGSL `source` as an [`Eval`] kernel.
     pub fn eval_kernel(&self, source: &str, entry: &str) -> Result<Eval, GpuError> {
         Ok(Eval {

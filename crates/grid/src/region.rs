@@ -762,6 +762,14 @@ pub const SHAPE_TORUS: u32 = 7;
 pub const SHAPE_SUPERQUADRIC: u32 = 8;
 /// A triangle mesh (its triangles and BVH in the data buffer).
 pub const SHAPE_MESH: u32 = 9;
+/// A VDB grid's solid (`data` its volume, `radius` the threshold).
+pub const SHAPE_VDB: u32 = 10;
+/// Not a shape: the bit of [`table_kinds`] for regions whose index a VDB
+/// grid gives.
+pub const KIND_GRID_INDEX: u32 = 11;
+/// The bit of [`table_kinds`] for regions whose extinction a VDB grid
+/// gives.
+pub const KIND_GRID_EXTINCTION: u32 = 12;
 /// [`RegionGpu::flags`]: the mesh is shaded with its vertex normals.
 pub const FLAG_SMOOTH: u32 = 1;
 /// Index profiles of [`RegionGpu`].
@@ -770,11 +778,16 @@ pub const PROFILE_CONSTANT: u32 = 0;
 pub const PROFILE_LUNEBURG: u32 = 1;
 /// [`crate::IndexProfile::Linear`].
 pub const PROFILE_LINEAR: u32 = 2;
+/// An index from a VDB grid ([`crate::object::GridIndex`]): `index_b +
+/// index_a * value` of the volume at `index_volume`.
+pub const PROFILE_VDB: u32 = 3;
+/// No volume (`RegionGpu::ext_volume`).
+pub const NO_VOLUME: u32 = u32::MAX;
 
 eikon_shader::layout! {
     /// One region as a kernel reads it (`RegionGpu` in `region.wgsl`), in
     /// f32: an object's shape and material, or the ambient medium's
-    /// material ([`gpu_table`]).
+    /// material ([`gpu_regions`]).
     pub struct RegionGpu {
         /// Sphere, box or cylinder centre; a half-space's point.
         pub center: [f32; 3],
@@ -795,25 +808,26 @@ eikon_shader::layout! {
         pub object: u32,
         /// Its z axis.
         pub axis_z: [f32; 3],
-        /// Padding.
-        pub pad0: u32,
+        /// A VDB index's volume in the data buffer.
+        pub index_volume: u32,
         /// Constant: n per channel; Luneburg: the centre; linear: the
         /// gradient.
         pub index: [f32; 3],
-        /// Luneburg: the radius; linear: n0.
+        /// Luneburg: the radius; linear: n0; VDB: the scale of the value.
         pub index_a: f32,
         /// Linear: the origin.
         pub index_origin: [f32; 3],
-        /// Luneburg: the outer index.
+        /// Luneburg: the outer index; VDB: n where the value is 0.
         pub index_b: f32,
-        /// RGB extinction.
+        /// RGB extinction; with an extinction grid, per unit of its value.
         pub extinction: [f32; 3],
         /// Henyey-Greenstein g.
         pub g: f32,
         /// RGB single-scattering albedo.
         pub albedo: [f32; 3],
-        /// Padding.
-        pub pad1: f32,
+        /// The extinction grid's volume in the data buffer, or
+        /// [`NO_VOLUME`].
+        pub ext_volume: u32,
         /// RGB emission.
         pub emission: [f32; 3],
         /// Padding.
@@ -829,7 +843,8 @@ eikon_shader::layout! {
         /// `FLAG_*`.
         pub flags: u32,
         /// Where the shape's records start in the data buffer
-        /// ([`GpuRegions::data`]): a profile's points, a mesh's triangles.
+        /// ([`GpuRegions::data`]): a profile's points, a mesh's triangles,
+        /// a VDB grid's volume.
         pub data: u32,
         /// Profile points, or mesh triangles.
         pub data_len: u32,
@@ -850,9 +865,63 @@ pub struct GpuRegions {
     /// point of a solid of revolution `(r, y, n_r, n_y)`, with `n` the
     /// outward normal of the edge to the next point; per mesh triangle
     /// [`crate::surface::MESH_TRIANGLE_RECORDS`], per BVH node
-    /// [`crate::surface::MESH_NODE_RECORDS`]. Never
-    /// empty (a buffer binding cannot be).
+    /// [`crate::surface::MESH_NODE_RECORDS`]; per VDB volume (each once,
+    /// however many shapes and grids of the scene read it)
+    /// [`crate::surface::VDB_HEADER_RECORDS`] and its values four to a
+    /// record ([`volume_records`]). Never empty (a buffer binding cannot
+    /// be).
     pub data: Vec<[u32; 4]>,
+}
+
+impl GpuRegions {
+    /// Bytes of the data buffer.
+    pub fn data_bytes(&self) -> u64 {
+        self.data.len() as u64 * 16
+    }
+}
+
+/// A VDB volume in the data buffer: its header
+/// ([`crate::surface::VDB_HEADER_RECORDS`]: voxel size and background,
+/// translation, origin, dims) and its dense box's values, four to a
+/// record, x slowest and z fastest, as `FloatVolume` holds them.
+fn volume_records(v: &crate::vdb::FloatVolume, out: &mut Vec<[u32; 4]>) {
+    let t = &v.transform;
+    let [h, c] = [t.voxel_size, t.translation].map(f3);
+    out.push(record(h[0], h[1], h[2], v.background.to_bits()));
+    out.push(record(c[0], c[1], c[2], 0));
+    let o = v.origin();
+    out.push([o[0] as u32, o[1] as u32, o[2] as u32, 0]);
+    let d = v.dims();
+    out.push([d[0] as u32, d[1] as u32, d[2] as u32, 0]);
+    let values: Vec<f32> = v.voxels().map(|(_, x)| x).collect();
+    for chunk in values.chunks(4) {
+        let mut r = [0u32; 4];
+        for (slot, x) in r.iter_mut().zip(chunk) {
+            *slot = x.to_bits();
+        }
+        out.push(r);
+    }
+}
+
+/// The data buffer's VDB volumes, each written once.
+#[derive(Default)]
+struct Volumes {
+    /// Each volume written (by address) and its first record.
+    seen: Vec<(*const crate::vdb::FloatVolume, u32)>,
+}
+
+impl Volumes {
+    /// The first record of `v` in `data`, written there if new.
+    fn at(&mut self, v: &std::sync::Arc<crate::vdb::FloatVolume>, data: &mut Vec<[u32; 4]>) -> u32 {
+        let key = std::sync::Arc::as_ptr(v);
+        if let Some(&(_, at)) = self.seen.iter().find(|(k, _)| *k == key) {
+            return at;
+        }
+        let at = data.len() as u32;
+        volume_records(v, data);
+        self.seen.push((key, at));
+        at
+    }
 }
 
 /// A record of four floats, by their bits.
@@ -864,15 +933,39 @@ fn f3(v: DVec3) -> [f32; 3] {
     v.to_array().map(|x| x as f32)
 }
 
-/// Why a material has no GPU form with sharp interfaces, if it has none.
-fn gpu_material(m: &Material, out: &mut RegionGpu) -> Result<(), &'static str> {
-    if m.index_grid.is_some() {
-        return Err("its index is a VDB grid");
+/// A material's GPU form with sharp interfaces: its index profile (a VDB
+/// index grid's volume written to `data`) and optical properties (an
+/// extinction grid's volume too).
+fn gpu_material(
+    m: &Material,
+    out: &mut RegionGpu,
+    data: &mut Vec<[u32; 4]>,
+    volumes: &mut Volumes,
+) {
+    out.ext_volume = NO_VOLUME;
+    if let Some(g) = &m.extinction_grid {
+        out.ext_volume = volumes.at(&g.volume, data);
     }
-    if m.extinction_grid.is_some() {
-        return Err("its extinction is a VDB grid");
+    if let Some(g) = &m.index_grid {
+        out.profile = PROFILE_VDB;
+        out.index_volume = volumes.at(&g.volume, data);
+        (out.index_a, out.index_b) = match g.scale {
+            None => (1.0, 0.0),
+            Some(k) => (k as f32, 1.0),
+        };
+    } else {
+        gpu_profile(&m.index, out);
     }
-    match &m.index {
+    // With an extinction grid, `extinction` is the scale of its value.
+    out.extinction = f3(m.extinction_grid.as_ref().map_or(m.extinction, |g| g.scale));
+    out.albedo = f3(m.albedo);
+    out.g = m.g as f32;
+    out.emission = f3(m.emission);
+}
+
+/// An index profile's GPU form.
+fn gpu_profile(index: &crate::IndexProfile, out: &mut RegionGpu) {
+    match index {
         crate::IndexProfile::Constant(n) => {
             out.profile = PROFILE_CONSTANT;
             out.index = n.map(|x| x as f32);
@@ -898,31 +991,19 @@ fn gpu_material(m: &Material, out: &mut RegionGpu) -> Result<(), &'static str> {
             out.index_origin = f3(*origin);
         }
     }
-    out.extinction = f3(m.extinction);
-    out.albedo = f3(m.albedo);
-    out.g = m.g as f32;
-    out.emission = f3(m.emission);
-    Ok(())
 }
 
 /// The regions of `scene` as a kernel reads them: its objects in
 /// precedence order (highest priority first), then the ambient medium,
-/// and the data of the shapes that need more than the table holds.
-/// Sharp interfaces on the GPU support every shape but VDB grids, with
-/// constant, Luneburg or linear index profiles; any other object is an
-/// error naming it.
-pub fn gpu_regions(scene: &Scene) -> Result<GpuRegions, String> {
+/// and the data of the shapes and grids that need more than the table
+/// holds: every shape, index profile and grid of the CPU's.
+pub fn gpu_regions(scene: &Scene) -> GpuRegions {
     use crate::shape::Shape;
-    let unsupported = |what: &str, why: &str| {
-        format!(
-            "{what}: {why}; sharp interfaces on the GPU support every shape but VDB grids, with constant, Luneburg or linear index profiles (use --backend cpu, or --interfaces smoothed)"
-        )
-    };
     let mut out = Vec::with_capacity(scene.objects.len() + 1);
     let mut data: Vec<[u32; 4]> = Vec::new();
+    let mut volumes = Volumes::default();
     for &i in scene.precedence() {
         let o = &scene.objects[i];
-        let what = format!("object {} (\"{}\")", i, o.name);
         let size = o.shape.aabb().map_or(0.0, |(a, b)| (b - a).length() as f32);
         let mut r = RegionGpu {
             object: i as u32,
@@ -1055,14 +1136,15 @@ pub fn gpu_regions(scene: &Scene) -> Result<GpuRegions, String> {
                     ));
                 }
             }
-            other @ Shape::Vdb(_) => {
-                return Err(unsupported(
-                    &what,
-                    &format!("its shape is a {}", other.kind()),
-                ))
+            Shape::Vdb(solid) => {
+                r.kind = SHAPE_VDB;
+                r.data = volumes.at(solid.volume(), &mut data);
+                r.radius = solid.threshold() as f32;
+                // Its size as the CPU takes it (the dense box's diagonal).
+                r.size = o.shape.fixed_size().unwrap_or(0.0) as f32;
             }
         }
-        gpu_material(&o.material, &mut r).map_err(|why| unsupported(&what, why))?;
+        gpu_material(&o.material, &mut r, &mut data, &mut volumes);
         out.push(r);
     }
     let mut ambient = RegionGpu {
@@ -1070,41 +1152,28 @@ pub fn gpu_regions(scene: &Scene) -> Result<GpuRegions, String> {
         object: u32::MAX,
         ..Default::default()
     };
-    gpu_material(&scene.ambient, &mut ambient)
-        .map_err(|why| unsupported("the ambient medium", why))?;
+    gpu_material(&scene.ambient, &mut ambient, &mut data, &mut volumes);
     out.push(ambient);
     if data.is_empty() {
         data.push([0; 4]);
     }
-    Ok(GpuRegions { table: out, data })
-}
-
-/// The region table of [`gpu_regions`] alone, for a kernel that binds no
-/// data buffer: the shapes that need one (solids of revolution, meshes)
-/// are refused, naming the object.
-pub fn gpu_table(scene: &Scene) -> Result<Vec<RegionGpu>, String> {
-    let regions = gpu_regions(scene)?;
-    for r in &regions.table {
-        if matches!(r.kind, SHAPE_REVOLUTION | SHAPE_MESH) {
-            let o = &scene.objects[r.object as usize];
-            return Err(format!(
-                "object {} (\"{}\"): its shape is a {}, whose data this kernel does not bind (use --backend cpu, or --interfaces smoothed)",
-                r.object,
-                o.name,
-                o.shape.kind()
-            ));
-        }
-    }
-    Ok(regions.table)
+    GpuRegions { table: out, data }
 }
 
 /// `REGION_KINDS` of every kind: a kernel holds every shape's code unless
 /// [`only_kinds`] narrows it.
 const ALL_KINDS: u32 = u32::MAX;
 
-/// The shape kinds (`SHAPE_*` bits) of a region table.
+/// The shape kinds (`SHAPE_*` bits) of a region table, with
+/// [`KIND_GRID_INDEX`] and [`KIND_GRID_EXTINCTION`] where a region reads
+/// its index or extinction from a VDB grid: each kind's code is compiled
+/// only where the scene needs it (see [`only_kinds`]).
 pub fn table_kinds(table: &[RegionGpu]) -> u32 {
-    table.iter().fold(0, |k, r| k | (1 << r.kind))
+    table.iter().fold(0, |k, r| {
+        let index = u32::from(r.profile == PROFILE_VDB) << KIND_GRID_INDEX;
+        let ext = u32::from(r.ext_volume != NO_VOLUME) << KIND_GRID_EXTINCTION;
+        k | (1 << r.kind) | index | ext
+    })
 }
 
 /// `source`, a kernel composed with [`WGSL`], holding the code of the
@@ -1136,18 +1205,23 @@ fn region_declarations() -> String {
             .u32("SHAPE_TORUS", SHAPE_TORUS)
             .u32("SHAPE_SUPERQUADRIC", SHAPE_SUPERQUADRIC)
             .u32("SHAPE_MESH", SHAPE_MESH)
+            .u32("SHAPE_VDB", SHAPE_VDB)
+            .u32("KIND_GRID_INDEX", KIND_GRID_INDEX)
+            .u32("KIND_GRID_EXTINCTION", KIND_GRID_EXTINCTION)
             .u32("FLAG_SMOOTH", FLAG_SMOOTH)
             .u32("REGION_KINDS", ALL_KINDS)
             .u32("PROFILE_CONSTANT", PROFILE_CONSTANT)
             .u32("PROFILE_LUNEBURG", PROFILE_LUNEBURG)
             .u32("PROFILE_LINEAR", PROFILE_LINEAR)
+            .u32("PROFILE_VDB", PROFILE_VDB)
+            .u32("NO_VOLUME", NO_VOLUME)
             .wgsl()
     )
 }
 
 /// The WGSL of sharp interfaces (`region.wgsl`): `RegionGpu`, the owner by
 /// priority, each region's index, the next surface, [`refract`] and
-/// [`Regions::cross`], over the table of [`gpu_table`] that a kernel
+/// [`Regions::cross`], over the table of [`gpu_regions`] that a kernel
 /// provides through the hooks `region_count` and `region_object`.
 pub static WGSL: eikon_shader::Module = eikon_shader::Module {
     name: "region",

@@ -70,6 +70,11 @@ fn region_shape_crossing(r: RegionGpu, o: vec3<f32>, d: vec3<f32>, lo: f32, hi: 
                 return surface_mesh(region_mesh(r), o, d, lo, hi);
             }
         }
+        case SHAPE_VDB: {
+            if region_has(SHAPE_VDB) {
+                return surface_vdb(r.data, r.radius, o, d, lo, hi);
+            }
+        }
         default: {
             return surface_miss();
         }
@@ -87,7 +92,9 @@ fn region_shape_distance(r: RegionGpu, p: vec3<f32>) -> f32 {
 
 // `Shape::distance` of every shape but the mesh (whose nearest-triangle
 // search `region_shape_contains` does without: drivers inline each call,
-// so code that cannot run there is left out).
+// so code that cannot run there is left out). For a VDB grid only its
+// sign: the threshold less the grid's value (negative inside, as
+// `VdbSolid::contains`); the kernels read no more of it.
 fn region_solid_distance(r: RegionGpu, p: vec3<f32>) -> f32 {
     switch r.kind {
         case SHAPE_SPHERE: {
@@ -120,6 +127,11 @@ fn region_solid_distance(r: RegionGpu, p: vec3<f32>) -> f32 {
         case SHAPE_SUPERQUADRIC: {
             if region_has(SHAPE_SUPERQUADRIC) {
                 return surface_superquadric_distance((p - r.center) * region_rot(r), r.half, r.shape_a, r.shape_b);
+            }
+        }
+        case SHAPE_VDB: {
+            if region_has(SHAPE_VDB) {
+                return r.radius - surface_vdb_sample(r.data, p);
             }
         }
         default: {
@@ -166,6 +178,11 @@ fn region_shape_normal(r: RegionGpu, p: vec3<f32>) -> vec3<f32> {
                 return surface_mesh_normal(region_mesh(r), p);
             }
         }
+        case SHAPE_VDB: {
+            if region_has(SHAPE_VDB) {
+                return surface_vdb_normal(r.data, p);
+            }
+        }
         default: {
             return r.half;
         }
@@ -210,10 +227,41 @@ fn region_index(ri: u32, p: vec3<f32>, ch: u32) -> vec4<f32> {
         case PROFILE_LINEAR: {
             return vec4<f32>(r.index_a + dot(r.index, p - r.index_origin), r.index);
         }
+        case PROFILE_VDB: {
+            if !region_has(KIND_GRID_INDEX) {
+                return vec4<f32>(1.0, vec3<f32>(0.0));
+            }
+            // The grid's value (scaled), its gradient by central
+            // differences half a grid voxel either way.
+            let v = r.index_volume;
+            let h = 0.5 * abs(surface_data_f(v).x);
+            let n = r.index_b + r.index_a * surface_vdb_sample(v, p);
+            // Written out: a loop here would count towards lavapipe's
+            // budget of loop iterations at every sample (see `surface`).
+            let ex = vec3<f32>(h, 0.0, 0.0);
+            let ey = vec3<f32>(0.0, h, 0.0);
+            let ez = vec3<f32>(0.0, 0.0, h);
+            let g = vec3<f32>(
+                surface_vdb_sample(v, p + ex) - surface_vdb_sample(v, p - ex),
+                surface_vdb_sample(v, p + ey) - surface_vdb_sample(v, p - ey),
+                surface_vdb_sample(v, p + ez) - surface_vdb_sample(v, p - ez),
+            ) * (r.index_a / (2.0 * h));
+            return vec4<f32>(n, g);
+        }
         default: {
             return vec4<f32>(r.index[min(ch, 2u)], vec3<f32>(0.0));
         }
     }
+}
+
+// `Material::extinction_at`: region r's RGB extinction at p (from its
+// extinction grid where it has one).
+fn region_extinction(ri: u32, p: vec3<f32>) -> vec3<f32> {
+    let r = region_object(ri);
+    if r.ext_volume == NO_VOLUME || !region_has(KIND_GRID_EXTINCTION) {
+        return r.extinction;
+    }
+    return r.extinction * surface_vdb_sample(r.ext_volume, p);
 }
 
 // `Regions::uniform`: region r's index is one constant.

@@ -69,6 +69,13 @@ fn region_step_cross(ray: ptr<function, RegionRay>, out: ptr<function, RegionSte
 // surface (by bisection on the step length, where the CPU takes false
 // position; both stop within eps). eps: the length below which two points
 // on a ray are one.
+//
+// Each function that tests every shape (`region_next_surface`,
+// `region_cross` through `region_step_cross`, `region_shape_distance`,
+// `region_shape_normal`) and the integrator's step are called from one
+// place only: drivers inline every call, and a copy per call site of the
+// shapes' code (BVH traversals, profiles, grids) made kernels take minutes
+// to compile on lavapipe.
 fn region_step(ray: ptr<function, RegionRay>, form: u32, integrator: u32, h: f32, ch: u32, eps: f32) -> RegionStep {
     var out: RegionStep;
     out.used = h;
@@ -80,36 +87,30 @@ fn region_step(ray: ptr<function, RegionRay>, form: u32, integrator: u32, h: f32
     out.beyond = (*ray).region;
     let r = (*ray).region;
     let x0 = (*ray).x;
-    if region_uniform(r) {
-        let n = region_index(r, x0, ch).x;
-        let d = normalize_or_zero((*ray).v);
-        // The distance that uses the whole step.
-        let per = select(n, 1.0, form == FORM_EQUAL_DISTANCE);
-        let len = h / per;
-        let hit = region_next_surface(x0, d, eps, len);
-        if hit.ok {
-            (*ray).opl += n * hit.t;
-            region_step_cross(ray, &out, hit.obj, d * n, x0 + d * hit.t, hit.normal, ch, eps);
-            out.used = hit.t * per;
-            out.at_surface = true;
-        } else {
-            (*ray).x = x0 + d * len;
-            (*ray).v = d * n;
-            (*ray).opl += n * len;
-        }
-        return out;
-    }
-    field_region = r;
-    // On the eikonal shell of the region's index, so that in the
-    // equal-time form every step is exactly h of optical path.
-    let v0 = ray_onto_shell((*ray).v, region_index(r, x0, ch).x);
     let opl0 = (*ray).opl;
-    let full = region_take(form, integrator, x0, v0, h);
-    let chord = full.x;
-    let len = length(chord);
+    let uniform = region_uniform(r);
+    let n = region_index(r, x0, ch).x;
+    let d = normalize_or_zero((*ray).v);
+    // Straight: along d for the distance that uses the whole step; curved:
+    // one step of the integrator on the region's own profile, from the
+    // eikonal shell of its index (so that in the equal-time form every
+    // step is exactly h of optical path).
+    let per = select(n, 1.0, form == FORM_EQUAL_DISTANCE);
+    var v0 = d * n;
+    var full = RayDeriv(d * (h / per), vec3<f32>(0.0), n * (h / per));
+    if !uniform {
+        field_region = r;
+        v0 = ray_onto_shell((*ray).v, n);
+        full = region_take(form, integrator, x0, v0, h);
+    }
+    let len = length(full.x);
+    var dir = d;
+    if !uniform {
+        dir = full.x / max(len, 1e-30);
+    }
     var hit = RegionHit(false, 0u, 0.0, vec3<f32>(0.0));
     if len > 0.0 {
-        hit = region_next_surface(x0, chord / len, eps, len);
+        hit = region_next_surface(x0, dir, eps, len);
     }
     if !hit.ok {
         (*ray).x = x0 + full.x;
@@ -118,41 +119,68 @@ fn region_step(ray: ptr<function, RegionRay>, form: u32, integrator: u32, h: f32
         field_region = NONE;
         return out;
     }
-    // Cut the step where its end lies on the surface: the object's signed
-    // distance changes sign between the start's side and the far one.
-    let obj = region_object(hit.obj);
-    let u = chord / len;
-    let side = select(1.0, -1.0, region_shape_distance(obj, x0 + u * (0.5 * hit.t)) < 0.0);
-    var a = 0.0;
-    var b = h;
-    var at = full;
-    if side * region_shape_distance(obj, x0 + full.x) > 0.0 {
-        // The end is back on the start's side (the step crossed the
-        // surface twice, or grazed it): cut at the chord's crossing.
-        b = h * (hit.t / len);
-        at = region_take(form, integrator, x0, v0, b);
-    }
-    for (var k = 0u; k < 48u; k++) {
-        if b - a <= eps {
-            break;
+    // Where the step meets the surface: straight, at the crossing.
+    var at = RayDeriv(dir * hit.t, vec3<f32>(0.0), n * hit.t);
+    var b = hit.t * per;
+    var normal = hit.normal;
+    if !uniform {
+        // Cut the step where its end lies on the surface: the object's
+        // signed distance changes sign between the start's side and the
+        // far one. Evaluation 0 is the side at the chord's middle, 1 the
+        // step's end; where the end is back on the start's side (the step
+        // crossed the surface twice, or grazed it) the step is cut at the
+        // chord's crossing; then bisection on the step length.
+        let obj = region_object(hit.obj);
+        var side = 1.0;
+        var a = 0.0;
+        b = h;
+        at = full;
+        var cut = false;
+        var m = 0.0;
+        for (var k = 0u; k < 50u; k++) {
+            var xq = x0 + full.x;
+            var inc = full;
+            if k == 0u {
+                xq = x0 + dir * (0.5 * hit.t);
+            } else if k >= 2u {
+                if cut {
+                    m = b;
+                } else {
+                    m = 0.5 * (a + b);
+                    if b - a <= eps || m <= a || m >= b {
+                        break;
+                    }
+                }
+                inc = region_take(form, integrator, x0, v0, m);
+                xq = x0 + inc.x;
+                if cut {
+                    at = inc;
+                    cut = false;
+                    continue;
+                }
+            }
+            let dq = region_shape_distance(obj, xq);
+            if k == 0u {
+                side = select(1.0, -1.0, dq < 0.0);
+            } else if k == 1u {
+                if side * dq > 0.0 {
+                    b = h * (hit.t / len);
+                    cut = true;
+                }
+            } else if side * dq > 0.0 {
+                a = m;
+            } else {
+                b = m;
+                at = inc;
+            }
         }
-        let m = 0.5 * (a + b);
-        if m <= a || m >= b {
-            break;
-        }
-        let inc = region_take(form, integrator, x0, v0, m);
-        if side * region_shape_distance(obj, x0 + inc.x) > 0.0 {
-            a = m;
-        } else {
-            b = m;
-            at = inc;
-        }
+        normal = region_shape_normal(obj, x0 + at.x);
     }
     field_region = NONE;
     let at_x = x0 + at.x;
     var probe = *ray;
-    region_step_cross(&probe, &out, hit.obj, v0 + at.v, at_x, region_shape_normal(obj, at_x), ch, eps);
-    if !out.c.event {
+    region_step_cross(&probe, &out, hit.obj, v0 + at.v, at_x, normal, ch, eps);
+    if !out.c.event && !uniform {
         // A false crossing, or a graze that turns back into the region:
         // nothing changes there, so the whole step stands, in the region
         // where it ends (as on the CPU).

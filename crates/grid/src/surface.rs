@@ -28,11 +28,13 @@ use eikon_mesh::Ray;
 use eikon_shader::{Module, VECTOR};
 use glam::{DMat3, DVec2, DVec3};
 
-/// The WGSL of every shape but the VDB grid: [`Shape::first_crossing`],
-/// [`Shape::normal`] and [`Shape::distance`] in f32 (`surface.wgsl`), by
-/// the same methods as here. A kernel provides the hook
-/// `surface_data(i: u32) -> vec4<u32>`, record `i` of the data buffer that
-/// holds profiles, mesh triangles and BVH nodes
+/// The WGSL of every shape: [`Shape::first_crossing`], [`Shape::normal`]
+/// and [`Shape::distance`] in f32 (`surface.wgsl`), by the same methods
+/// as here (a VDB grid's distance only by its sign: the bound of its
+/// distance transform is not on the GPU, and no kernel needs more than
+/// the side), and a VDB grid's trilinear sample. A kernel provides the
+/// hook `surface_data(i: u32) -> vec4<u32>`, record `i` of the data buffer
+/// that holds profiles, mesh triangles and BVH nodes, and VDB volumes
 /// (`crate::region::GpuRegions::data`).
 pub static WGSL: Module = Module {
     name: "surface",
@@ -47,6 +49,10 @@ pub static WGSL: Module = Module {
 pub const MESH_TRIANGLE_RECORDS: u32 = 6;
 /// Records per BVH node there: `(lo, offset)`, `(hi, count | axis << 16)`.
 pub const MESH_NODE_RECORDS: u32 = 2;
+/// Records of a VDB volume's header there, before its values (four to a
+/// record): `(voxel size, background)`, `(translation, 0)`, `(origin, 0)`
+/// and `(dims, 0)`.
+pub const VDB_HEADER_RECORDS: u32 = 4;
 /// The superquadric's march takes this fraction of its distance bound...
 const SUPERQUADRIC_SAFETY: f64 = 0.25;
 /// ... and steps of at most its size over this (see [`Shape::march`]).
@@ -73,6 +79,7 @@ fn surface_declarations() -> String {
     eikon_shader::Consts::new()
         .u32("MESH_TRIANGLE_RECORDS", MESH_TRIANGLE_RECORDS)
         .u32("MESH_NODE_RECORDS", MESH_NODE_RECORDS)
+        .u32("VDB_HEADER_RECORDS", VDB_HEADER_RECORDS)
         .u32("BVH_STACK", eikon_mesh::bvh::STACK as u32)
         .f32("SUPERQUADRIC_SAFETY", SUPERQUADRIC_SAFETY as f32)
         .f32("SUPERQUADRIC_STEPS", SUPERQUADRIC_STEPS as f32)

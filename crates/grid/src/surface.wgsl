@@ -995,3 +995,285 @@ fn surface_mesh_normal(m: SurfaceMesh, p: vec3<f32>) -> vec3<f32> {
     let n = surface_corner(m, near.slot, 3u) * w0 + surface_corner(m, near.slot, 4u) * w1 + surface_corner(m, near.slot, 5u) * w2;
     return surface_unit_or(n, face);
 }
+
+// ---- VDB grid ----
+// A float volume (`vdb::FloatVolume`) in the data buffer from record v:
+// (voxel size, background), (translation, 0), (origin as i32, 0),
+// (dims, 0), then its dense box's values four to a record, x slowest, z
+// fastest (`region::volume_records`).
+
+// Volume v's dense box: its origin, dims and background, read once for
+// the voxels of a cell.
+struct SurfaceBox {
+    values: u32,
+    origin: vec3<i32>,
+    dims: vec3<u32>,
+    background: f32,
+}
+
+fn surface_vdb_box(v: u32) -> SurfaceBox {
+    return SurfaceBox(v + VDB_HEADER_RECORDS, bitcast<vec3<i32>>(surface_data(v + 2u).xyz), surface_data(v + 3u).xyz, surface_data_f(v).w);
+}
+
+// The value of voxel `ijk` of a box (the background outside it).
+fn surface_box_value(b: SurfaceBox, ijk: vec3<i32>) -> f32 {
+    let l = ijk - b.origin;
+    if any(l < vec3<i32>(0)) || any(vec3<u32>(l) >= b.dims) {
+        return b.background;
+    }
+    let flat = (u32(l.x) * b.dims.y + u32(l.y)) * b.dims.z + u32(l.z);
+    return bitcast<f32>(surface_data(b.values + flat / 4u)[flat % 4u]);
+}
+
+// `Transform::world_to_index` of volume v.
+fn surface_vdb_index(v: u32, p: vec3<f32>) -> vec3<f32> {
+    return (p - surface_data_f(v + 1u).xyz) / surface_data_f(v).xyz;
+}
+
+// Whether the cell with lowest corner `f` (whole numbers) lies within a
+// voxel of volume v's box on every axis (`FloatVolume::sample`'s test;
+// also false for NaN), so that its corners convert to i32 safely.
+fn surface_vdb_near(v: u32, f: vec3<f32>) -> bool {
+    let origin = vec3<f32>(bitcast<vec3<i32>>(surface_data(v + 2u).xyz));
+    let dims = vec3<f32>(surface_data(v + 3u).xyz);
+    return all(f >= origin - 1.0) && all(f <= origin + dims);
+}
+
+// The eight values of volume v's cell with lowest corner i0, corner c at
+// bit k of c along axis k. Written out rather than looped (here and in the
+// other grid functions): a grid is sampled many times per step of a
+// curved ray, and lavapipe ends every loop of an invocation once all of
+// them together have run 65535 iterations.
+struct SurfaceCell {
+    c0: vec4<f32>,
+    c1: vec4<f32>,
+}
+
+fn surface_vdb_cell(v: u32, i0: vec3<i32>) -> SurfaceCell {
+    let b = surface_vdb_box(v);
+    let x = vec3<i32>(1, 0, 0);
+    let y = vec3<i32>(0, 1, 0);
+    let z = vec3<i32>(0, 0, 1);
+    return SurfaceCell(
+        vec4<f32>(
+            surface_box_value(b, i0),
+            surface_box_value(b, i0 + x),
+            surface_box_value(b, i0 + y),
+            surface_box_value(b, i0 + x + y),
+        ),
+        vec4<f32>(
+            surface_box_value(b, i0 + z),
+            surface_box_value(b, i0 + x + z),
+            surface_box_value(b, i0 + y + z),
+            surface_box_value(b, i0 + x + y + z),
+        ),
+    );
+}
+
+// The trilinear interpolant of a cell at fractions t.
+fn surface_cell_lerp(c: SurfaceCell, t: vec3<f32>) -> f32 {
+    let a = mix(c.c0.xz, c.c0.yw, t.x);
+    let b = mix(c.c1.xz, c.c1.yw, t.x);
+    return mix(mix(a.x, a.y, t.y), mix(b.x, b.y, t.y), t.z);
+}
+
+// `FloatVolume::sample`: trilinear interpolation between voxel centres
+// (OpenVDB's BoxSampler); the background far from the data.
+fn surface_vdb_sample(v: u32, p: vec3<f32>) -> f32 {
+    let u = surface_vdb_index(v, p);
+    let f = floor(u);
+    if !surface_vdb_near(v, f) {
+        return surface_data_f(v).w;
+    }
+    return surface_cell_lerp(surface_vdb_cell(v, vec3<i32>(f)), u - f);
+}
+
+// The cubic c0 + c1 s + c2 s^2 + c3 s^3 at s.
+fn surface_cubic(c: vec4<f32>, s: f32) -> f32 {
+    return ((c.w * s + c.z) * s + c.y) * s + c.x;
+}
+
+// The root of the cubic c on [a, b], where its sign is `side_a` (> 0) at a
+// and the other at b: bisection until no f32 lies between (`bisect`); the
+// end on b's side.
+fn surface_cubic_root(c: vec4<f32>, a_in: f32, b_in: f32, side_a: bool) -> f32 {
+    var a = a_in;
+    var b = b_in;
+    for (var k = 0u; k < 160u; k++) {
+        let m = 0.5 * (a + b);
+        if m <= min(a, b) || m >= max(a, b) {
+            break;
+        }
+        if (surface_cubic(c, m) > 0.0) == side_a {
+            a = m;
+        } else {
+            b = m;
+        }
+    }
+    return b;
+}
+
+// One corner's part of the cubic along a line: its value times three
+// weights linear in s, each (constant, slope), multiplied out as the CPU
+// does (constant first).
+fn surface_corner_poly(val: f32, wx: vec2<f32>, wy: vec2<f32>, wz: vec2<f32>) -> vec4<f32> {
+    var p = vec4<f32>(val, 0.0, 0.0, 0.0);
+    p = vec4<f32>(p.x * wx.x, p.y * wx.x + p.x * wx.y, p.z * wx.x + p.y * wx.y, p.w * wx.x + p.z * wx.y);
+    p = vec4<f32>(p.x * wy.x, p.y * wy.x + p.x * wy.y, p.z * wy.x + p.y * wy.y, p.w * wy.x + p.z * wy.y);
+    p = vec4<f32>(p.x * wz.x, p.y * wz.x + p.x * wz.y, p.z * wz.x + p.y * wz.y, p.w * wz.x + p.z * wz.y);
+    return p;
+}
+
+// `vdb_crossing`: the first crossing, on lo < t <= hi, of the solid where
+// volume v exceeds `thr`: the cells the segment passes (a 3-D DDA), one
+// cubic per cell, split at its extrema into monotone pieces. Returns
+// (t, 1 found).
+fn surface_vdb_t(v: u32, thr: f32, o: vec3<f32>, d: vec3<f32>, lo: f32, hi: f32) -> vec2<f32> {
+    let dims = surface_data(v + 3u).xyz;
+    if any(dims == vec3<u32>(0u)) {
+        return vec2<f32>(0.0);
+    }
+    let org = vec3<f32>(bitcast<vec3<i32>>(surface_data(v + 2u).xyz));
+    let h = surface_data_f(v).xyz;
+    let u0 = surface_vdb_index(v, o);
+    let du = d / h;
+    // Beyond the middle of the background layer round the dense box the
+    // interpolant is the constant background.
+    var a = lo;
+    var b = hi;
+    for (var k = 0u; k < 3u; k++) {
+        let s = surface_slab(u0[k], du[k], org[k] - 0.5, org[k] + f32(dims[k]) - 0.5);
+        a = max(a, s.x);
+        b = min(b, s.y);
+    }
+    if !(a < b) {
+        return vec2<f32>(0.0);
+    }
+    // The side of the cells passed so far: 0 none yet, 1 inside, 2 outside.
+    var side = 0u;
+    var t = a;
+    for (var steps = 0u; steps < SURFACE_MAX_MARCH; steps++) {
+        if !(t < b) {
+            break;
+        }
+        let u = u0 + du * t;
+        var cellf = floor(u);
+        var te = b;
+        for (var k = 0u; k < 3u; k++) {
+            if du[k] < 0.0 {
+                cellf[k] = ceil(u[k]) - 1.0;
+            }
+            if du[k] > 0.0 {
+                te = min(te, (cellf[k] + 1.0 - u0[k]) / du[k]);
+            } else if du[k] < 0.0 {
+                te = min(te, (cellf[k] - u0[k]) / du[k]);
+            }
+        }
+        if te <= t {
+            // Rounding at a cell face: nudge across it.
+            te = min(t + (abs(t) + 1.0) * 1e-6, b);
+            if te <= t {
+                break;
+            }
+        }
+        // The cell lies within the slab-clipped box, a voxel of
+        // background round the data at most.
+        let cell = vec3<i32>(clamp(cellf, org - 2.0, org + vec3<f32>(dims) + 1.0));
+        let raw = surface_vdb_cell(v, cell);
+        let vals = SurfaceCell(raw.c0 - thr, raw.c1 - thr);
+        let all_in = all(vals.c0 > vec4<f32>(0.0)) && all(vals.c1 > vec4<f32>(0.0));
+        let all_out = all(vals.c0 <= vec4<f32>(0.0)) && all(vals.c1 <= vec4<f32>(0.0));
+        if all_in || all_out {
+            // The interpolant is a mean of the corners: one side throughout.
+            let here = select(2u, 1u, all_in);
+            if side != 0u && side != here {
+                return vec2<f32>(t, 1.0);
+            }
+            side = here;
+            t = te;
+            continue;
+        }
+        // The interpolant along the line, s = t' - t in [0, te - t]: each
+        // axis's weight is linear in s, (1 - f - du s) or (f + du s); the
+        // products of three such, summed over the corners in the CPU's
+        // order.
+        let f0 = u - vec3<f32>(cell);
+        let lo_w = vec2<f32>(1.0 - f0.x, -du.x);
+        let hi_w = vec2<f32>(f0.x, du.x);
+        let lo_y = vec2<f32>(1.0 - f0.y, -du.y);
+        let hi_y = vec2<f32>(f0.y, du.y);
+        let lo_z = vec2<f32>(1.0 - f0.z, -du.z);
+        let hi_z = vec2<f32>(f0.z, du.z);
+        var poly = surface_corner_poly(vals.c0.x, lo_w, lo_y, lo_z);
+        poly += surface_corner_poly(vals.c0.y, hi_w, lo_y, lo_z);
+        poly += surface_corner_poly(vals.c0.z, lo_w, hi_y, lo_z);
+        poly += surface_corner_poly(vals.c0.w, hi_w, hi_y, lo_z);
+        poly += surface_corner_poly(vals.c1.x, lo_w, lo_y, hi_z);
+        poly += surface_corner_poly(vals.c1.y, hi_w, lo_y, hi_z);
+        poly += surface_corner_poly(vals.c1.z, lo_w, hi_y, hi_z);
+        poly += surface_corner_poly(vals.c1.w, hi_w, hi_y, hi_z);
+        let len = te - t;
+        // Split at the extrema: each piece is monotone.
+        var pts = array<f32, 3>(len, len, len);
+        let crit = surface_quadratic(3.0 * poly.w, poly.z, poly.y);
+        var m1 = len;
+        var m2 = len;
+        if crit.z >= 1.0 && crit.x > 0.0 && crit.x < len {
+            m1 = crit.x;
+        }
+        if crit.z >= 2.0 && crit.y > 0.0 && crit.y < len {
+            m2 = crit.y;
+        }
+        pts[0] = min(m1, m2);
+        pts[1] = max(m1, m2);
+        let s0 = surface_cubic(poly, 0.0) > 0.0;
+        var cur = s0;
+        if side != 0u && (side == 1u) != s0 {
+            return vec2<f32>(t, 1.0);
+        }
+        var prev = 0.0;
+        for (var j = 0u; j < 3u; j++) {
+            let s = pts[j];
+            let here = surface_cubic(poly, s) > 0.0;
+            if here != cur {
+                return vec2<f32>(t + surface_cubic_root(poly, prev, s, cur), 1.0);
+            }
+            prev = s;
+            cur = here;
+        }
+        side = select(2u, 1u, cur);
+        t = te;
+    }
+    return vec2<f32>(0.0);
+}
+
+// `vdb_normal`: the outward normal of the VDB solid at p, minus the
+// gradient of the trilinear interpolant of its cell, normalized.
+fn surface_vdb_normal(v: u32, p: vec3<f32>) -> vec3<f32> {
+    let u = surface_vdb_index(v, p);
+    let f = floor(u);
+    if !surface_vdb_near(v, f) {
+        return vec3<f32>(0.0, 1.0, 0.0);
+    }
+    let w = u - f;
+    let c = surface_vdb_cell(v, vec3<i32>(f));
+    // The interpolant's partial derivatives: differences across each axis,
+    // interpolated along the other two.
+    let dx = vec4<f32>(c.c0.y - c.c0.x, c.c0.w - c.c0.z, c.c1.y - c.c1.x, c.c1.w - c.c1.z);
+    let gx = mix(mix(dx.x, dx.y, w.y), mix(dx.z, dx.w, w.y), w.z);
+    let dy = vec4<f32>(c.c0.z - c.c0.x, c.c0.w - c.c0.y, c.c1.z - c.c1.x, c.c1.w - c.c1.y);
+    let gy = mix(mix(dy.x, dy.y, w.x), mix(dy.z, dy.w, w.x), w.z);
+    let dz = c.c1 - c.c0;
+    let gz = mix(mix(dz.x, dz.y, w.x), mix(dz.z, dz.w, w.x), w.y);
+    let g = vec3<f32>(gx, gy, gz);
+    return surface_unit_or(-g / surface_data_f(v).xyz, vec3<f32>(0.0, 1.0, 0.0));
+}
+
+// `Shape::first_crossing` of the VDB solid where volume v exceeds `thr`.
+fn surface_vdb(v: u32, thr: f32, o: vec3<f32>, d: vec3<f32>, lo: f32, hi: f32) -> SurfaceHit {
+    let r = surface_vdb_t(v, thr, o, d, lo, hi);
+    if r.y == 0.0 {
+        return surface_miss();
+    }
+    return SurfaceHit(true, r.x, surface_vdb_normal(v, o + d * r.x));
+}

@@ -549,7 +549,7 @@ fn gpu_device_bytes_bound_the_peak(gpu: &Gpu) {
         }
         assert_eq!(gpu.live_bytes(), base, "everything is freed");
         let peak = gpu.peak_bytes() - base;
-        let estimate = GpuSimulator::device_bytes(m.geometry.dims, m.channels(), &opts);
+        let estimate = GpuSimulator::device_bytes(m.geometry.dims, m.channels(), &opts, false);
         println!(
             "{} channel(s), {:?}, Fresnel {}, max_patches {max_patches} (peak {peak_patches}): estimate {estimate} bytes, peak {peak} ({:.3})",
             m.channels(),

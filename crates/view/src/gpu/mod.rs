@@ -21,7 +21,7 @@
 //!   image is linear in them).
 //! * Tone mapping stays on the host ([`eikon_optics::image`]).
 //! * Sharp interfaces ([`GpuRenderer::with_scene`]): the scene's regions
-//!   as a storage buffer (`eikon_grid::region::gpu_table`, objects in
+//!   as a storage buffer (`eikon_grid::region::gpu_regions`, objects in
 //!   precedence order, then the ambient medium) and `sharp.wgsl`, the
 //!   CPU's `march_sharp` over the shared `surface` and `region` modules
 //!   (every shape but VDB grids, the data of solids of revolution and
@@ -905,10 +905,10 @@ impl<'a> GpuRenderer<'a> {
     /// interfaces = "sharp"` eye rays follow each region's own index and
     /// refract at the exact surfaces, as the CPU's
     /// [`crate::Renderer::sharp`] (`march_sharp` in `render.wgsl`); else
-    /// the same as [`Self::new`]. Sharp interfaces on the GPU support
-    /// spheres, boxes (not rounded), cylinders and half-spaces with
-    /// constant, Luneburg or linear index profiles: any other object is a
-    /// [`GpuError::Unsupported`] naming it.
+    /// the same as [`Self::new`]. Every shape, index profile and VDB grid
+    /// of the CPU's has a GPU form (`eikon_grid::region::gpu_regions`);
+    /// shape data larger than a storage binding is a
+    /// [`GpuError::TooLarge`].
     pub fn with_scene(
         gpu: &'a Gpu,
         scene: &Scene,
@@ -934,13 +934,7 @@ impl<'a> GpuRenderer<'a> {
         opts: Options,
     ) -> Result<Self, GpuError> {
         Self::check_limits(gpu, medium, surroundings)?;
-        let table = match sharp {
-            Some(scene) => Some(
-                gpu_regions(scene)
-                    .map_err(|e| GpuError::Unsupported(format!("{}: {e}", scene.origin)))?,
-            ),
-            None => None,
-        };
+        let table = sharp.map(gpu_regions);
         let binding = |what: &str, bytes: u64| check_binding(gpu, what, bytes);
         let properties = Properties::new(medium, probe_length(medium));
         let textures = upload_medium(gpu, medium, &properties);
@@ -1220,10 +1214,7 @@ impl<'a> GpuRenderer<'a> {
             first = false;
             s0 = s1;
         }
-        gpu.device
-            .poll(wgpu::PollType::Wait)
-            .map_err(|e| GpuError::Readback(e.to_string()))?;
-        Ok(())
+        gpu.wait()
     }
 
     /// Render one frame (volumes already uploaded); returns the HDR image,

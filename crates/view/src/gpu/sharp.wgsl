@@ -3,7 +3,7 @@
 // other scenes get the stubs of `sharp_stub.wgsl`, so that their kernel
 // does not carry this code. Needs: the `region` module.
 
-// The regions (region.rs `gpu_table`): the objects in precedence order,
+// The regions (region.rs `gpu_regions`): the objects in precedence order,
 // then the ambient medium.
 @group(0) @binding(20) var<storage, read> regions: array<RegionGpu>;
 // Their shapes' data (region.rs `GpuRegions::data`): profiles, mesh
@@ -210,10 +210,12 @@ fn march_sharp(o: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
         }
         let x0 = ray.x;
         let m = region_object(ray.region);
-        let sigma = m.extinction;
+        let sigma = region_extinction(ray.region, x0);
         let scatter = m.albedo * sigma;
-        // Long straight steps where nothing needs gathering on the way.
-        let quiet = region_uniform(ray.region) && (is_zero(scatter) || !lit) && is_zero(m.emission);
+        // Long straight steps where nothing needs gathering on the way:
+        // a constant index with no scattering (or no light) and no
+        // emission, and an extinction that is one constant.
+        let quiet = region_uniform(ray.region) && (is_zero(scatter) || !lit) && is_zero(m.emission) && m.ext_volume == NO_VOLUME;
         var stp = min(ds, exit);
         if quiet {
             stp = exit;

@@ -48,44 +48,52 @@
 //! step 1 is `propagate_sharp`, [`propagate::Sharp`] on the GPU: each
 //! corner steps region by region with the shared `region_step` module
 //! (`eikon_grid::region::STEP_WGSL`, `Regions::step` in the equal-time
-//! form, over the region table of `eikon_grid::region::gpu_table`), the
-//! flux takes each corner's `(1 - R)^(1/4)`, and a torn patch is split in
-//! four where the step began and traced again, recursively (a walk over
-//! the tree of quarters, at most [`propagate::MAX_SPLIT_LEVEL`] deep, each
-//! node's corners derived again down its path: no stack in private
-//! memory), down to the smallest split; what is still torn is dropped and
-//! tallied as torn. The pieces go
-//! where the CPU puts them, deterministically: pass 0 steps every patch
-//! that holds together and only counts a torn one's pieces (tracing them
-//! without depositing); a HistoPyramid of the extra pieces (all but the
-//! first) gives each torn patch its slots after the list in patch order;
-//! the plan (`plan_pieces`) reads the torn patches' count and the
-//! pieces' total off the device; pass 1 (the same entry point, so the
-//! same code) walks each torn patch's tree again exactly as pass 0 did,
-//! keeps the patch in the other list and names each piece's node in its
-//! slot; and pass 2 (`sharp_pieces`, one thread per slot) traces each
-//! piece from the kept patch, depositing and tallying, and writes it, the
-//! first in the patch's slot. One trace per thread in pass 2 keeps each
-//! invocation's loops short, which lavapipe needs: llvmpipe ends every
-//! loop of an invocation once all of them together have run 65535
-//! iterations (`LP_MAX_TGSI_LOOP_ITERATIONS`, counted per group of SIMD
-//! lanes), and a heavily torn patch walked with its deposits ran past
-//! that and lost the rest of its pieces. Pass 1 never writes beyond the
-//! slots pass 0 counted (a piece without a slot is dropped and counted as
-//! torn; a slot without a piece carries nothing), so the list and the
-//! energy account stay consistent whatever a device does, and the result
-//! is still the same from run to run. A patch that has just
-//! crossed a surface and reflects ([`propagate::reflection`], the WGSL
-//! `patch_reflection`) adds one more piece the same way: pass 0 finds that
-//! it reflects (a whole patch marks its fate `FATE_REFLECTS`), pass 1
-//! writes the reflection, found again from the patch as pass 0 stored it,
-//! deposits its tube from the surface and tallies its flux as traced (the
-//! `E_TRACED` energy, taken off `E_REFLECTED`). New corners (splits, pieces) take the own index of the region
-//! where they lie, and a patch whose corners lie in different regions is
-//! not split (`refine::Hold`), as on the CPU. Crossings are found to
-//! `eikon_grid::region::gpu_eps` (a few ulps of the scene's scale; the
-//! CPU: 1e-9 voxel) and, in a graded region, cut by bisection (the CPU:
-//! false position).
+//! form, over the region table and shape data of
+//! `eikon_grid::region::gpu_regions`), the flux takes each corner's
+//! `(1 - R)^(1/4)`, and a torn patch is split in four where the step
+//! began and traced again, recursively, down to the smallest split or
+//! [`propagate::MAX_SPLIT_LEVEL`] levels; what is still torn is dropped
+//! and tallied as torn. On the GPU the tree of quarters is traced level
+//! by level, one node per thread (a node's corners derived from its
+//! patch's down its path: no stack, no saved copies):
+//! - pass 0 steps every patch that holds together (depositing, tallying)
+//!   and marks a torn one, whose four quarters are level 1 of the
+//!   frontier (their count in a HistoPyramid over the patches);
+//! - per level, `plan_level` reads the frontier's length off the pyramid
+//!   of the level before, `sharp_level` finds each entry's node by a walk
+//!   of that pyramid and traces it without depositing, writing 4 (torn:
+//!   its quarters go on), 1 (it held together: a piece, passed on
+//!   unchanged) or 0 (dropped), and `front_build` (one workgroup) builds
+//!   the pyramid of those counts;
+//! - after the last level the frontier lists every piece, patch by patch
+//!   and each patch's in the CPU's depth-first order; `sharp_count` puts
+//!   each torn patch's number of pieces in the pieces' pyramid over the
+//!   patches, which gives them their slots after the list in patch order;
+//!   `plan_pieces` reads the totals, pass 1 (`sharp_reflections`) writes
+//!   the reflections of the patches that reflect and pass 2
+//!   (`sharp_pieces`, one thread per piece) traces each piece again,
+//!   depositing and tallying, and writes it. The torn patch's own slot
+//!   ends at `analyse`.
+//!
+//! Where everything goes is fixed before it is written, so the result is
+//! the same from run to run. A thread traces one node: llvmpipe (lavapipe)
+//! ends every loop of an invocation once all of them together have run
+//! 65535 iterations (`LP_MAX_TGSI_LOOP_ITERATIONS`, counted per group of
+//! SIMD lanes), and a whole tree walked in one invocation ran past that
+//! on meshes and solids of revolution and lost its last pieces. A
+//! frontier or a list that outgrows the scratch or the live list halts
+//! the plan in mid-step; the host grows them and the step goes on where
+//! it stopped. A patch that has just crossed a surface and reflects
+//! ([`propagate::reflection`], the WGSL `patch_reflection`) adds one more
+//! piece after the list: pass 0 finds that it reflects, pass 1 writes the
+//! reflection, found again from the patch as pass 0 stored it, deposits
+//! its tube from the surface and tallies its flux as traced (the
+//! `E_TRACED` energy, taken off `E_REFLECTED`). New corners (splits,
+//! pieces) take the own index of the region where they lie, and a patch
+//! whose corners lie in different regions is not split (`refine::Hold`),
+//! as on the CPU. Crossings are found to `eikon_grid::region::gpu_eps` (a
+//! few ulps of the scene's scale; the CPU: 1e-9 voxel) and, in a graded
+//! region, cut by bisection (the CPU: false position).
 //!
 //! The fluence deposit adds to 64-bit fixed-point counters as
 //! [`Counters`] does (fluence per cell and channel, the flux vector per
@@ -160,7 +168,7 @@ use eikon_gpu::{
 use eikon_grid::blocks::BLOCK;
 use eikon_grid::geometry::GridGpu;
 use eikon_grid::interface::{probe_length, Interfaces};
-use eikon_grid::region::{gpu_eps, gpu_table, RegionGpu};
+use eikon_grid::region::{gpu_eps, gpu_regions, RegionGpu};
 use eikon_grid::{EmptySpace, Integrator, Light, Medium, Progress, Regions};
 use eikon_shader::{compose, layout, Consts, Layout, VECTOR};
 use glam::DVec3;
@@ -240,9 +248,9 @@ layout! {
         pub sharp_eps: f32,
         /// [`propagate::Sharp::min_span`].
         pub min_span: f32,
-        /// The pass of `propagate_sharp`: 0 steps every patch and counts
-        /// the torn ones' pieces, 1 writes them.
-        pub sharp_pass: u32,
+        /// With sharp interfaces: the step's patches before the torn
+        /// patches' pieces join them (pass 0's).
+        pub sharp_n: u32,
         /// Where the pieces' pyramid starts in the pyramid buffer.
         pub pieces_base: u32,
         /// The index channel of the wavefront (its regions' index).
@@ -250,21 +258,50 @@ layout! {
         /// 1: the Fresnel-reflected light is traced on
         /// ([`propagate::reflection`]).
         pub reflections: u32,
+        /// Entries of each of the frontier's two levels in `front` (the
+        /// scratch's patches).
+        pub front_cap: u32,
+        /// The level of the torn patches' trees being traced (>= 1).
+        pub front_level: u32,
+        /// Entries of the level before it (the step's patches at level 1).
+        pub front_prev: u32,
+        /// Entries of the frontier at this level.
+        pub front_len: u32,
+        /// The torn patches' pieces (pass 2's threads).
+        pub front_pieces: u32,
+        /// Padding (u32s: an array in a uniform block has a 16-byte
+        /// stride).
+        pub pad0: u32,
+        /// Padding.
+        pub pad1: u32,
+        /// Padding.
+        pub pad2: u32,
     }
 }
 
 layout! {
-    /// The uniform of one reduction dispatch (`L` in `simulate.wgsl`).
+    /// The uniform of one reduction dispatch, or of one pass of a sharp
+    /// step (`L` in `simulate.wgsl`).
     pub struct PyramidLevel {
         /// The level built (>= 1).
         pub level: u32,
         /// Which pyramid: 0 the counts', 1 the split flags', 2 the torn
-        /// patches' extra pieces (sharp interfaces).
+        /// patches' pieces (sharp interfaces).
         pub pyramid: u32,
+        /// `propagate_sharp`'s pass (`SHARP_*`).
+        pub pass_id: u32,
         /// Padding.
-        pub pad: [u32; 2],
+        pub pad: u32,
     }
 }
+
+/// `propagate_sharp`'s passes (`L.pass_id`): pass 0 over the step's
+/// patches, a level of the torn patches' trees, pass 1 (the reflections of
+/// the patches that held together), pass 2 (the torn patches' pieces).
+const SHARP_PATCHES: u32 = 0;
+const SHARP_LEVEL: u32 = 1;
+const SHARP_REFLECTIONS: u32 = 2;
+const SHARP_PIECES: u32 = 3;
 
 /// Energy categories of the tallies, each 64-bit fixed point per channel
 /// (two words): words `2 (3 category + channel)`.
@@ -295,18 +332,23 @@ const S_TORN_NOW: usize = S_EXITED + 8;
 const S_REFLECTIONS: usize = S_EXITED + 9;
 const STATS_WORDS: usize = S_EXITED + 10;
 /// `propagate_sharp`'s pass 0 marks a patch that held together and
-/// reflects (its reflection one extra piece) with this bit in its fate.
+/// reflects (its reflection one piece after the list) with this fate.
 const FATE_REFLECTS: u32 = 1 << 31;
-/// `propagate_sharp`'s pass 1 marks the slot of a torn patch's piece with
-/// this bit and the piece's node (level << 16 | path) for pass 2.
+/// `propagate_sharp`'s pass 0 marks a torn patch with this fate: its
+/// pieces follow the list, its slot ends at `analyse`.
+const FATE_TORN: u32 = 1 << 29;
+/// A frontier entry's node (level << 16 | path) with this bit has held
+/// together: a piece, passed on to the last level unchanged.
 const PIECE_TAG: u32 = 1 << 30;
 /// The plan's state (`Plan::state` in `simulate.wgsl`, words): why it
 /// halted (`HALT_*`), the steps begun, the step limit, the longest list,
 /// the live list (0 or 1), the two lists' and the scratch's capacities
 /// (patches), whether the next step rebuilds the list (every step but a
 /// wavefront's first), the paper deposit's next phase id, the length the
-/// last walk wrote or would write, and the list's length with the torn
-/// patches' pieces.
+/// last walk wrote or would write, the list's length with the torn
+/// patches' pieces, the level of the torn patches' trees `plan_level`
+/// plans next, the frontier's length it halted for, and the frontier's
+/// length at level 1.
 const PL_HALT: usize = 0;
 const PL_STEPS: usize = 1;
 const PL_MAX_STEPS: usize = 2;
@@ -318,23 +360,32 @@ const PL_REBUILD: usize = 8;
 const PL_STAMP: usize = 9;
 const PL_TOTAL: usize = 10;
 const PL_LEN: usize = 11;
+const PL_LEVEL: usize = 12;
+const PL_FRONT: usize = 13;
+const PL_DESCENT: usize = 14;
 const PLAN_STATE: usize = 16;
 /// Why the plan halted: not at all (the submission's steps all ran), no
 /// patch left, the step limit reached, no room for the next list, no
-/// room for the torn patches' pieces.
+/// room for the torn patches' pieces, no room for a level of their trees.
 const HALT_NONE: u32 = 0;
 const HALT_DONE: u32 = 1;
 const HALT_LIMIT: u32 = 2;
 const HALT_ROOM: u32 = 3;
 const HALT_PIECES: u32 = 4;
+const HALT_FRONTIER: u32 = 5;
 /// The plan's dispatch slots (three words each): the walk, the kernels
-/// over the step's list, the reductions of the pieces' pyramid over it
-/// (levels 1 to `MAX_LEVELS - 1`), pass 1, pass 2 (`sharp_pieces`), the
-/// kernels over the list with the pieces, and the reductions over that.
+/// over the step's list, the reductions of a pyramid over it (levels 1 to
+/// `MAX_LEVELS - 1`), a level of the torn patches' trees (`sharp_level`)
+/// and its pyramid (`front_build`), `sharp_count`, pass 1
+/// (`sharp_reflections`), pass 2 (`sharp_pieces`), the kernels over the
+/// list with the pieces, and the reductions over that.
 const A_REBUILD: usize = 0;
 const A_N: usize = 1;
 const A_LEVELS_N: usize = 2;
-const A_PASS1: usize = A_LEVELS_N + MAX_LEVELS - 1;
+const A_FRONT: usize = A_LEVELS_N + MAX_LEVELS - 1;
+const A_BUILD: usize = A_FRONT + 1;
+const A_COUNT: usize = A_BUILD + 1;
+const A_PASS1: usize = A_COUNT + 1;
 const A_PIECES: usize = A_PASS1 + 1;
 const A_LEN: usize = A_PIECES + 1;
 const A_LEVELS_LEN: usize = A_LEN + 1;
@@ -373,7 +424,12 @@ fn declarations() -> String {
         .u32("S_REFLECTIONS", S_REFLECTIONS as u32)
         .f32("REACH_SPANS", propagate::REACH_SPANS as f32)
         .f32("REFLECT_MIN", propagate::REFLECT_MIN as f32)
+        .u32("SHARP_PATCHES", SHARP_PATCHES)
+        .u32("SHARP_LEVEL", SHARP_LEVEL)
+        .u32("SHARP_REFLECTIONS", SHARP_REFLECTIONS)
+        .u32("SHARP_PIECES", SHARP_PIECES)
         .u32("FATE_REFLECTS", FATE_REFLECTS)
+        .u32("FATE_TORN", FATE_TORN)
         .u32("PIECE_TAG", PIECE_TAG)
         .u32("STATS_WORDS", STATS_WORDS as u32)
         .u32("MAX_CROSSINGS", propagate::MAX_CROSSINGS as u32)
@@ -399,15 +455,22 @@ fn declarations() -> String {
         .u32("PL_STAMP", PL_STAMP as u32)
         .u32("PL_TOTAL", PL_TOTAL as u32)
         .u32("PL_LEN", PL_LEN as u32)
+        .u32("PL_LEVEL", PL_LEVEL as u32)
+        .u32("PL_FRONT", PL_FRONT as u32)
+        .u32("PL_DESCENT", PL_DESCENT as u32)
         .u32("PLAN_STATE", PLAN_STATE as u32)
         .u32("HALT_NONE", HALT_NONE)
         .u32("HALT_DONE", HALT_DONE)
         .u32("HALT_LIMIT", HALT_LIMIT)
         .u32("HALT_ROOM", HALT_ROOM)
         .u32("HALT_PIECES", HALT_PIECES)
+        .u32("HALT_FRONTIER", HALT_FRONTIER)
         .u32("A_REBUILD", A_REBUILD as u32)
         .u32("A_N", A_N as u32)
         .u32("A_LEVELS_N", A_LEVELS_N as u32)
+        .u32("A_FRONT", A_FRONT as u32)
+        .u32("A_BUILD", A_BUILD as u32)
+        .u32("A_COUNT", A_COUNT as u32)
         .u32("A_PASS1", A_PASS1 as u32)
         .u32("A_PIECES", A_PIECES as u32)
         .u32("A_LEN", A_LEN as u32)
@@ -457,12 +520,15 @@ const PATCH_BYTES: u64 = POS_BYTES;
 /// Bytes per patch of the paper's deposit's scratch: each patch's five
 /// deposits of a step.
 const DEPOSIT_BYTES: u64 = 40;
+/// Bytes per patch of the frontier of the torn patches' trees: two levels
+/// of one (patch, node) entry.
+const FRONT_BYTES: u64 = 16;
 /// Smallest capacity of the patch lists (grown by doubling from there).
 const FIRST_CAP: usize = 4096;
 /// Format of the medium's textures.
 const TEXEL: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 /// Storage buffers bound at once (groups 0 to 2 of `simulate.wgsl`).
-const STORAGE_BUFFERS: u32 = 24;
+const STORAGE_BUFFERS: u32 = 26;
 /// Most pyramid levels (4^15 entries).
 const MAX_LEVELS: usize = 16;
 
@@ -490,13 +556,20 @@ enum Kernel {
     Grant,
     /// The patches left at the step limit.
     CullRest,
-    /// Step 1 with sharp interfaces (passes 0 and 1).
+    /// Step 1 with sharp interfaces, each of its passes (`SHARP_*`,
+    /// bound as [`Run::passes`]).
     PropagateSharp,
-    /// Its pass 2: the torn patches' pieces.
-    SharpPieces,
+    /// A level of the torn patches' trees: its counts' pyramid (one
+    /// workgroup).
+    FrontBuild,
+    /// The torn patches' numbers of pieces.
+    SharpCount,
 }
 
-const KERNELS: [&str; 15] = [
+/// The kernels with sharp interfaces only (the last of [`KERNELS`]).
+const SHARP_KERNELS: usize = 3;
+
+const KERNELS: [&str; 16] = [
     "rebuild",
     "mid_max",
     "mid_owner",
@@ -511,11 +584,17 @@ const KERNELS: [&str; 15] = [
     "grant",
     "cull_rest",
     "propagate_sharp",
-    "sharp_pieces",
+    "front_build",
+    "sharp_count",
 ];
 
-/// The plan's kernels: before a step, and after pass 0 of a sharp one.
-const PLANS: [&str; 2] = ["plan_step", "plan_pieces"];
+/// The plan's kernels: before a step, after the torn patches' trees of a
+/// sharp one, and before each level of them.
+const PLANS: [&str; 3] = ["plan_step", "plan_pieces", "plan_level"];
+/// Which of [`PLANS`].
+const PLAN_STEP: usize = 0;
+const PLAN_PIECES: usize = 1;
+const PLAN_LEVEL: usize = 2;
 
 /// The paper's deposit's six kernels, in order.
 const PAPER_DEPOSIT: [Kernel; 6] = [
@@ -569,8 +648,8 @@ pub struct GpuSimulator<'a> {
     medium: &'a Medium,
     layouts: [wgpu::BindGroupLayout; 5],
     kernels: Vec<wgpu::ComputePipeline>,
-    /// `plan_step` and `plan_pieces` (their group 3 is the plan).
-    plans: [wgpu::ComputePipeline; 2],
+    /// [`PLANS`] (their group 3 is the plan).
+    plans: [wgpu::ComputePipeline; 3],
     /// Per index channel: its texture and empty-space table.
     index: Vec<(Texture, Buffer)>,
     extinction: Texture,
@@ -587,9 +666,11 @@ pub struct GpuSimulator<'a> {
     inv_block: DVec3,
     /// With sharp interfaces, the scene's regions (emission, the pre-step
     /// tessellation) and their table on the device
-    /// (`eikon_grid::region::gpu_table`); else one placeholder region.
+    /// (`eikon_grid::region::gpu_regions`); else one placeholder region.
     regions: Option<Regions<'a>>,
     table: Buffer,
+    /// The regions' shape data (profiles, mesh triangles and BVH nodes).
+    data: Buffer,
     /// Objects in the table (the ambient medium follows them).
     region_count: u32,
 }
@@ -690,15 +771,18 @@ impl PatchSet {
     }
 }
 
-/// Bytes of the per-patch scratch over `n` patches: the `pyramids` pyramids
-/// (one buffer: the counts', the split flags' and, with sharp interfaces,
-/// the torn patches' extra pieces'), the fates, and each patch's deposits
-/// (`dep_bytes` per patch).
-fn scratch_bytes(n: usize, dep_bytes: u64, pyramids: u64) -> [u64; 3] {
+/// Bytes of the per-patch scratch over `n` patches: the pyramids (one
+/// buffer: the counts', the split flags' and, with `sharp` interfaces, the
+/// torn patches' pieces'), the fates, each patch's deposits (`dep_bytes`
+/// per patch) and, with `sharp` interfaces, the frontier of the torn
+/// patches' trees (two levels of `n` entries).
+fn scratch_bytes(n: usize, dep_bytes: u64, sharp: bool) -> [u64; 4] {
+    let pyramids = if sharp { 3 } else { 2 };
     [
         pyramids * pyramid_size(n) as u64 * 4,
         n as u64 * 4,
         n as u64 * dep_bytes,
+        if sharp { n as u64 * FRONT_BYTES } else { 0 },
     ]
 }
 
@@ -760,6 +844,9 @@ struct Run {
     /// bind group (the uniforms live as long as their bind groups, so the
     /// tally of live bytes is what the device holds).
     levels: [Vec<(Buffer, wgpu::BindGroup)>; 3],
+    /// Per pass of `propagate_sharp` (`SHARP_*`), its uniform and bind
+    /// group.
+    passes: Vec<(Buffer, wgpu::BindGroup)>,
 }
 
 /// The patch lists of one wavefront (the live one and the one the walk
@@ -776,8 +863,8 @@ struct Lists {
     /// Scratch bytes per patch of the paper's deposits (0 for the
     /// fluence deposit).
     dep_bytes: u64,
-    /// Pyramids in the pyramid buffer: 3 with sharp interfaces, else 2.
-    pyramids: u64,
+    /// Sharp interfaces: a third pyramid (the pieces') and the frontier.
+    sharp: bool,
     /// The index channel and whether Fresnel's interfaces are bound.
     channel: usize,
     fresnel: bool,
@@ -785,11 +872,23 @@ struct Lists {
     pyramid: Buffer,
     fates: Buffer,
     deps: Buffer,
+    /// The frontier of the torn patches' trees (`front` in
+    /// `simulate.wgsl`).
+    front: Buffer,
     /// Group 0 (the medium and the scratch).
     medium_group: wgpu::BindGroup,
     /// Group 1, `sets[k]` to `sets[1 - k]` (empty while a list is
     /// replaced).
     patch_groups: Vec<wgpu::BindGroup>,
+}
+
+/// Where a step that the plan halted in its middle goes on, once the host
+/// has made room: at a level of its torn patches' trees
+/// (`HALT_FRONTIER`), or at the plan of their pieces (`HALT_PIECES`).
+#[derive(Clone, Copy)]
+enum Resume {
+    Level(u32),
+    Pieces,
 }
 
 /// How one wavefront's steps went.
@@ -837,9 +936,9 @@ impl<'a> GpuSimulator<'a> {
     /// [`propagate::Sharp`]): corners cross the exact surfaces of
     /// `regions`' scene, each region's own index between them, as
     /// [`crate::simulate_light_in`] on the CPU. The GPU's region table
-    /// holds spheres, boxes, cylinders and half-spaces
-    /// (`eikon_grid::region::gpu_table`); a scene with any other object is
-    /// a [`GpuError::Unsupported`] naming it.
+    /// (`eikon_grid::region::gpu_regions`) holds every shape, index
+    /// profile and VDB grid of the CPU's; shape data larger than a storage
+    /// binding is a [`GpuError::TooLarge`].
     pub fn with_regions(
         gpu: &'a Gpu,
         medium: &'a Medium,
@@ -855,24 +954,34 @@ impl<'a> GpuSimulator<'a> {
         limit: u64,
         regions: Option<Regions<'a>>,
     ) -> Result<Self, GpuError> {
-        let table = match &regions {
-            Some(r) => {
-                let scene = r.scene();
-                let table = gpu_table(scene)
-                    .map_err(|e| GpuError::Unsupported(format!("{}: {e}", scene.origin)))?;
-                Some(table)
-            }
-            None => None,
-        };
+        let gpu_regions = regions.as_ref().map(|r| gpu_regions(r.scene()));
         let binding_limit = Self::check_limits(gpu, medium, limit)?;
-        let kinds = table.as_deref().map(eikon_grid::region::table_kinds);
+        if let Some(r) = &gpu_regions {
+            if r.data_bytes() > binding_limit {
+                return Err(too_large(
+                    "the regions' shape data: meshes, profiles and VDB grids (bytes)",
+                    r.data_bytes(),
+                    binding_limit,
+                    "use --backend cpu, or --interfaces smoothed",
+                ));
+            }
+        }
+        let kinds = gpu_regions
+            .as_ref()
+            .map(|r| eikon_grid::region::table_kinds(&r.table));
         let (layouts, kernels, plans) = Self::compile(gpu, kinds)?;
         let (_, empty_dims, inv_block) = empty_table(medium, 0);
         let (index, extinction, no_fresnel) = Self::upload_medium(gpu, medium)?;
-        let region_count = table.as_ref().map_or(0, |t| t.len() as u32 - 1);
-        let table = gpu.checked("uploading the regions", || match &table {
-            Some(t) => gpu.storage("regions", t),
-            None => gpu.storage("no regions", &[RegionGpu::default()]),
+        let region_count = gpu_regions.as_ref().map_or(0, |r| r.table.len() as u32 - 1);
+        let (table, data) = gpu.checked("uploading the regions", || match &gpu_regions {
+            Some(r) => (
+                gpu.storage("regions", &r.table),
+                gpu.storage("region shape data", &r.data),
+            ),
+            None => (
+                gpu.storage("no regions", &[RegionGpu::default()]),
+                gpu.storage("no shape data", &[[0u32; 4]]),
+            ),
         })?;
         Ok(Self {
             gpu,
@@ -889,6 +998,7 @@ impl<'a> GpuSimulator<'a> {
             inv_block,
             regions,
             table,
+            data,
             region_count,
         })
     }
@@ -943,7 +1053,7 @@ impl<'a> GpuSimulator<'a> {
         (
             [wgpu::BindGroupLayout; 5],
             Vec<wgpu::ComputePipeline>,
-            [wgpu::ComputePipeline; 2],
+            [wgpu::ComputePipeline; 3],
         ),
         GpuError,
     > {
@@ -961,6 +1071,8 @@ impl<'a> GpuSimulator<'a> {
             g0.extend((4..8).map(|b| storage_entry(b, false)));
             g0.push(texture_entry(8));
             g0.push(storage_entry(9, true));
+            g0.push(storage_entry(10, false));
+            g0.push(storage_entry(11, true));
             let g1: Vec<_> = (0..6).map(|b| storage_entry(b, false)).collect();
             let g2: Vec<_> = (0..VOLUME_BUFFERS as u32)
                 .map(|b| storage_entry(b, false))
@@ -1018,7 +1130,7 @@ impl<'a> GpuSimulator<'a> {
             let kernels = if sharp {
                 &KERNELS[..]
             } else {
-                &KERNELS[..KERNELS.len() - 2]
+                &KERNELS[..KERNELS.len() - SHARP_KERNELS]
             };
             let kernels = kernels
                 .iter()
@@ -1082,28 +1194,30 @@ impl<'a> GpuSimulator<'a> {
     ///   (kept by the simulator for later lights);
     /// * the light volume: one u32 per cell for each of its 12 arrays
     ///   (fluence deposit) or 9 (paper's, 3 unused placeholders);
-    /// * the uniforms (parameters, one per pyramid and level), the stats,
+    /// * the uniforms (parameters, one per pyramid and level, one per pass
+    ///   of a sharp step), the stats,
     ///   the plan of the steps and the placeholder
     ///   region table;
     /// * the two patch lists at `opts.max_patches` (the grants never let a
     ///   list grow past it; the device may lower it to
     ///   [`Self::patch_limit`], which only lowers the need);
     /// * the per-patch scratch at that cap: the two pyramids, the fates
-    ///   and, with the paper's deposit, the deposits;
+    ///   and, with the paper's deposit, the deposits; with `sharp`
+    ///   interfaces ([`Self::with_regions`]) a third pyramid (the torn
+    ///   patches' pieces') and the frontier of their trees;
     /// * the largest transient: the old scratch while it is copied into a
     ///   larger one, or the staging buffer one volume array is read back
     ///   through.
     ///
-    /// With sharp interfaces ([`Self::with_regions`]) the region table (one
-    /// [`RegionGpu`] per object), the third pyramid (the torn patches'
-    /// pieces, a third more scratch) and the pieces beyond `max_patches`
+    /// With sharp interfaces the region table (one [`RegionGpu`] per
+    /// object) and its shape data, and the pieces beyond `max_patches`
     /// that torn patches add to a list (as on the CPU) are not counted.
     /// A wavefront emitted larger than `opts.max_patches` (emission checks
     /// only that it stays under `EMIT_PER_PATCH_LIMIT` times it) sizes the
     /// lists itself and is not covered. Not counted either: wgpu's own
     /// staging of uploads (at most one upload, freed once submitted) and
     /// drivers' padding.
-    pub fn device_bytes(dims: [usize; 3], channels: usize, opts: &Options) -> u64 {
+    pub fn device_bytes(dims: [usize; 3], channels: usize, opts: &Options, sharp: bool) -> u64 {
         let cells = dims.iter().map(|&d| d as u64).product::<u64>();
         let buffer = |bytes: u64| bytes.max(MIN_BUFFER_BYTES);
         let blocks = dims
@@ -1126,14 +1240,14 @@ impl<'a> GpuSimulator<'a> {
                 + (VOLUME_BUFFERS - PAPER_VOLUME_BUFFERS) as u64 * MIN_BUFFER_BYTES
         };
         let small = buffer(SimParams::size() as u64)
-            + 3 * MAX_LEVELS as u64 * PyramidLevel::size() as u64
+            + (3 * MAX_LEVELS as u64 + 4) * PyramidLevel::size() as u64
             + buffer(RegionGpu::size() as u64)
             + buffer(STATS_WORDS as u64 * 4)
             + PLAN_BYTES;
         let cap = opts.max_patches;
         let lists = 2 * PatchSet::bytes(cap);
         let dep_bytes = if fluence { 0 } else { DEPOSIT_BYTES };
-        let scratch: u64 = scratch_bytes(cap, dep_bytes, 2)
+        let scratch: u64 = scratch_bytes(cap, dep_bytes, sharp)
             .into_iter()
             .map(buffer)
             .sum();
@@ -1377,22 +1491,36 @@ impl<'a> GpuSimulator<'a> {
                 .map(|b| b.as_entire_binding())
                 .collect::<Vec<_>>(),
         );
+        let uniform = |label, value: PyramidLevel| {
+            let u = gpu.uniform(label, &[value]);
+            let group = self.bind(3, &[u.as_entire_binding()]);
+            (u, group)
+        };
         let levels = [0u32, 1, 2].map(|pyramid| {
             (0..MAX_LEVELS as u32)
                 .map(|level| {
-                    let u = gpu.uniform(
+                    uniform(
                         "pyramid level",
-                        &[PyramidLevel {
+                        PyramidLevel {
                             level,
                             pyramid,
                             ..Default::default()
-                        }],
-                    );
-                    let group = self.bind(3, &[u.as_entire_binding()]);
-                    (u, group)
+                        },
+                    )
                 })
                 .collect()
         });
+        let passes = [SHARP_PATCHES, SHARP_LEVEL, SHARP_REFLECTIONS, SHARP_PIECES]
+            .map(|pass_id| {
+                uniform(
+                    "sharp pass",
+                    PyramidLevel {
+                        pass_id,
+                        ..Default::default()
+                    },
+                )
+            })
+            .into();
         let plan = gpu.storage_indirect("plan", PLAN_BYTES);
         let plan_group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("plan"),
@@ -1410,6 +1538,7 @@ impl<'a> GpuSimulator<'a> {
             plan,
             plan_group,
             levels,
+            passes,
         }
     }
 
@@ -1538,14 +1667,9 @@ impl<'a> GpuSimulator<'a> {
         gpu.queue
             .write_buffer(&sets[0].aux, 0, bytemuck::cast_slice(&aux));
         let dep_bytes = if fluence { 0 } else { DEPOSIT_BYTES };
-        let pyramids = if self.regions.is_some() { 3 } else { 2 };
-        let [pb, fb, db] = scratch_bytes(cap, dep_bytes, pyramids);
-        let (pyramid, fates, deps) = (
-            gpu.storage_empty("pyramids", pb),
-            gpu.storage_empty("fates", fb),
-            gpu.storage_empty("deposits", db),
-        );
-        let medium_group = self.bind_medium(run, g, fresnel, [&pyramid, &fates, &deps]);
+        let sharp = self.regions.is_some();
+        let [pyramid, fates, deps, front] = self.scratch(cap, dep_bytes, sharp);
+        let medium_group = self.bind_medium(run, g, fresnel, [&pyramid, &fates, &deps, &front]);
         let patch_groups = self.patch_groups(&sets);
         Lists {
             sets,
@@ -1553,15 +1677,27 @@ impl<'a> GpuSimulator<'a> {
             most,
             scratch_cap: cap,
             dep_bytes,
-            pyramids,
+            sharp,
             channel: g,
             fresnel,
             pyramid,
             fates,
             deps,
+            front,
             medium_group,
             patch_groups,
         }
+    }
+
+    /// New scratch buffers over `cap` patches (see [`scratch_bytes`]).
+    fn scratch(&self, cap: usize, dep_bytes: u64, sharp: bool) -> [Buffer; 4] {
+        let [pb, fb, db, nb] = scratch_bytes(cap, dep_bytes, sharp);
+        [
+            self.gpu.storage_empty("pyramids", pb),
+            self.gpu.storage_empty("fates", fb),
+            self.gpu.storage_empty("deposits", db),
+            self.gpu.storage_empty("frontier", nb),
+        ]
     }
 
     /// Group 0: the medium of index channel `g` (with its interfaces when
@@ -1571,7 +1707,7 @@ impl<'a> GpuSimulator<'a> {
         run: &Run,
         g: usize,
         fresnel: bool,
-        [pyramid, fates, deps]: [&wgpu::Buffer; 3],
+        [pyramid, fates, deps, front]: [&wgpu::Buffer; 4],
     ) -> wgpu::BindGroup {
         let (view, empty) = &self.index[g];
         let faces = match self.fresnel.get() {
@@ -1591,6 +1727,8 @@ impl<'a> GpuSimulator<'a> {
                 deps.as_entire_binding(),
                 wgpu::BindingResource::TextureView(&faces.view),
                 self.table.as_entire_binding(),
+                front.as_entire_binding(),
+                self.data.as_entire_binding(),
             ],
         )
     }
@@ -1639,7 +1777,6 @@ impl<'a> GpuSimulator<'a> {
         params.stamp = *stamp;
         params.splits_base = lists.splits_base();
         params.pieces_base = lists.pieces_base();
-        params.sharp_pass = 0;
         gpu.queue
             .write_buffer(&run.params, 0, bytemuck::bytes_of(params));
         let mut state = [0u32; PLAN_STATE];
@@ -1647,7 +1784,8 @@ impl<'a> GpuSimulator<'a> {
         state[PL_CUR] = lists.cur as u32;
         state[PL_STAMP] = *stamp;
         let mut steps = FIRST_STEPS_PER_SUBMISSION;
-        let mut after_pass0 = false;
+        // Where a step the plan halted in its middle goes on.
+        let mut resume: Option<Resume> = None;
         loop {
             state[PL_HALT] = HALT_NONE;
             state[PL_CAP] = lists.sets[0].cap as u32;
@@ -1663,14 +1801,22 @@ impl<'a> GpuSimulator<'a> {
                 let mut enc = gpu.device.create_command_encoder(&Default::default());
                 let mut cur = lists.cur;
                 let mut rebuild = state[PL_REBUILD] != 0;
-                if after_pass0 {
-                    self.encode_back(&mut enc, run, lists, cur);
+                match resume {
+                    Some(Resume::Level(level)) => {
+                        self.encode_levels(&mut enc, run, lists, cur, level);
+                        self.encode_back(&mut enc, run, lists, cur);
+                    }
+                    Some(Resume::Pieces) => self.encode_back(&mut enc, run, lists, cur),
+                    None => {}
                 }
                 for _ in 0..batch {
                     if rebuild {
                         cur = 1 - cur;
                     }
                     self.encode_front(&mut enc, run, lists, cur, rebuild);
+                    if self.regions.is_some() {
+                        self.encode_levels(&mut enc, run, lists, cur, 1);
+                    }
                     self.encode_back(&mut enc, run, lists, cur);
                     rebuild = true;
                 }
@@ -1679,7 +1825,7 @@ impl<'a> GpuSimulator<'a> {
             let words = gpu.read::<u32>(&run.plan, PLAN_STATE)?;
             state.copy_from_slice(&words);
             lists.cur = state[PL_CUR] as usize;
-            after_pass0 = false;
+            resume = None;
             let traced = Traced {
                 steps: state[PL_STEPS] as usize,
                 peak: state[PL_PEAK] as usize,
@@ -1712,9 +1858,14 @@ impl<'a> GpuSimulator<'a> {
                 }
                 HALT_PIECES => {
                     let (n, len) = (state[PL_TOTAL] as usize, state[PL_LEN] as usize);
-                    self.fit_pieces(run, lists, n, len)?;
-                    self.fit_saved(lists, n);
-                    after_pass0 = true;
+                    self.grow_live(lists, n, len)?;
+                    self.fit_scratch(run, lists, len)?;
+                    resume = Some(Resume::Pieces);
+                    steps = (traced.steps - s0 as usize).max(1);
+                }
+                HALT_FRONTIER => {
+                    self.fit_scratch(run, lists, state[PL_FRONT] as usize)?;
+                    resume = Some(Resume::Level(state[PL_LEVEL]));
                     steps = (traced.steps - s0 as usize).max(1);
                 }
                 HALT_DONE => {
@@ -1753,7 +1904,6 @@ impl<'a> GpuSimulator<'a> {
         state[PL_STAMP] += 2;
         params.splits_base = lists.splits_base();
         params.pieces_base = lists.pieces_base();
-        params.sharp_pass = 0;
         gpu.queue
             .write_buffer(&run.params, 0, bytemuck::bytes_of(params));
         gpu.checked("light simulation step", || {
@@ -1834,7 +1984,7 @@ impl<'a> GpuSimulator<'a> {
         cur: usize,
         rebuild: bool,
     ) {
-        self.encode_plan(enc, run, lists, 0);
+        self.encode_plan(enc, run, lists, PLAN_STEP);
         let sharp = self.regions.is_some();
         let fluence = lists.dep_bytes == 0;
         let mut pass = enc.begin_compute_pass(&Default::default());
@@ -1859,21 +2009,58 @@ impl<'a> GpuSimulator<'a> {
         } else {
             Kernel::Propagate
         };
+        if sharp {
+            pass.set_bind_group(3, &run.passes[SHARP_PATCHES as usize].1, &[]);
+        }
         self.planned(&mut pass, run, step, A_N);
         if sharp {
-            self.planned_levels(&mut pass, run, lists, 2, A_LEVELS_N);
+            // The pyramid of the torn patches' quarters (level 0 of their
+            // trees' frontier: the counts' pyramid, free until `grant`).
+            self.planned_levels(&mut pass, run, lists, 0, A_LEVELS_N);
         }
     }
 
+    /// The torn patches' trees of quarters, level by level from `from`
+    /// (each planned by `plan_level`: its frontier traced by
+    /// `sharp_level`, whose counts `front_build` sums), then their numbers
+    /// of pieces (`sharp_count`) and the pieces' pyramid over the list.
+    fn encode_levels(
+        &self,
+        enc: &mut wgpu::CommandEncoder,
+        run: &Run,
+        lists: &Lists,
+        cur: usize,
+        from: u32,
+    ) {
+        for _ in from..=propagate::MAX_SPLIT_LEVEL {
+            self.encode_plan(enc, run, lists, PLAN_LEVEL);
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_bind_group(0, &lists.medium_group, &[]);
+            pass.set_bind_group(1, &lists.patch_groups[cur], &[]);
+            pass.set_bind_group(2, &run.volume_group, &[]);
+            pass.set_bind_group(3, &run.passes[SHARP_LEVEL as usize].1, &[]);
+            self.planned(&mut pass, run, Kernel::PropagateSharp, A_FRONT);
+            self.planned(&mut pass, run, Kernel::FrontBuild, A_BUILD);
+        }
+        let mut pass = enc.begin_compute_pass(&Default::default());
+        pass.set_bind_group(0, &lists.medium_group, &[]);
+        pass.set_bind_group(1, &lists.patch_groups[cur], &[]);
+        pass.set_bind_group(2, &run.volume_group, &[]);
+        pass.set_bind_group(3, &run.levels[0][0].1, &[]);
+        self.planned(&mut pass, run, Kernel::SharpCount, A_COUNT);
+        self.planned_levels(&mut pass, run, lists, 2, A_LEVELS_N);
+    }
+
     /// The rest of a step over list `cur`: with sharp interfaces, the plan
-    /// of the torn patches' pieces and `propagate_sharp`'s pass 1, which
-    /// writes them; then `refine`: its tallies (`analyse`), the split
-    /// grants (the split flags' pyramid, `grant`) and the counts' pyramid
-    /// the next walk reads.
+    /// of the torn patches' pieces and the reflections, pass 1 (the
+    /// reflections) and pass 2 (the pieces), which write them after the
+    /// list; then `refine`: its tallies (`analyse`), the split grants (the
+    /// split flags' pyramid, `grant`) and the counts' pyramid the next
+    /// walk reads.
     fn encode_back(&self, enc: &mut wgpu::CommandEncoder, run: &Run, lists: &Lists, cur: usize) {
         let sharp = self.regions.is_some();
         if sharp {
-            self.encode_plan(enc, run, lists, 1);
+            self.encode_plan(enc, run, lists, PLAN_PIECES);
         }
         let mut pass = enc.begin_compute_pass(&Default::default());
         pass.set_bind_group(0, &lists.medium_group, &[]);
@@ -1881,8 +2068,11 @@ impl<'a> GpuSimulator<'a> {
         pass.set_bind_group(2, &run.volume_group, &[]);
         pass.set_bind_group(3, &run.levels[0][0].1, &[]);
         if sharp {
+            pass.set_bind_group(3, &run.passes[SHARP_REFLECTIONS as usize].1, &[]);
             self.planned(&mut pass, run, Kernel::PropagateSharp, A_PASS1);
-            self.planned(&mut pass, run, Kernel::SharpPieces, A_PIECES);
+            pass.set_bind_group(3, &run.passes[SHARP_PIECES as usize].1, &[]);
+            self.planned(&mut pass, run, Kernel::PropagateSharp, A_PIECES);
+            pass.set_bind_group(3, &run.levels[0][0].1, &[]);
         }
         self.planned(&mut pass, run, Kernel::Analyse, A_LEN);
         self.planned_levels(&mut pass, run, lists, 1, A_LEVELS_LEN);
@@ -1890,53 +2080,53 @@ impl<'a> GpuSimulator<'a> {
         self.planned_levels(&mut pass, run, lists, 0, A_LEVELS_LEN);
     }
 
-    /// Make room in the live list for the `len` patches it holds once the
-    /// torn patches' pieces are written after its `n`: the list grown with
-    /// its patches copied, and the scratch with the fates and the pieces'
-    /// pyramid, which `propagate_sharp`'s pass 1 reads.
-    fn fit_pieces(&self, run: &Run, lists: &mut Lists, n: usize, len: usize) -> Result<(), Error> {
-        self.grow_live(lists, n, len)?;
-        let gpu = self.gpu;
-        if len > lists.scratch_cap {
-            let cap = len.max(2 * lists.scratch_cap).min(lists.most);
-            let [pb, fb, db] = scratch_bytes(cap, lists.dep_bytes, lists.pyramids);
-            let pyramid = gpu.storage_empty("pyramids", pb);
-            let fates = gpu.storage_empty("fates", fb);
-            let old_base = lists.pieces_base() as u64 * 4;
-            lists.scratch_cap = cap;
-            let new_base = lists.pieces_base() as u64 * 4;
-            let mut enc = gpu.device.create_command_encoder(&Default::default());
-            let words = pyramid_size(n) as u64 * 4;
-            enc.copy_buffer_to_buffer(&lists.pyramid, old_base, &pyramid, new_base, words);
-            enc.copy_buffer_to_buffer(&lists.fates, 0, &fates, 0, n as u64 * 4);
-            gpu.submit([enc.finish()]);
-            lists.pyramid = pyramid;
-            lists.fates = fates;
-            lists.deps = gpu.storage_empty("deposits", db);
-            self.rebind_scratch(run, lists);
+    /// Make the scratch hold `need` patches (or entries of a level of the
+    /// torn patches' trees), what it holds carried over: the pyramids (each
+    /// moved to its base over the new size), the fates and the frontier.
+    fn fit_scratch(&self, run: &Run, lists: &mut Lists, need: usize) -> Result<(), Error> {
+        if need <= lists.scratch_cap {
+            return Ok(());
         }
-        Ok(())
-    }
-
-    /// Group 0 again, over the scratch `lists` holds now.
-    fn rebind_scratch(&self, run: &Run, lists: &mut Lists) {
+        let old = lists.scratch_cap;
+        let cap = need.max(2 * old).min(lists.most);
+        if need > cap {
+            return Err(too_large(
+                "the light simulator's scratch (patches, or pieces of torn patches)",
+                need as u64,
+                cap as u64,
+                "lower the resolution or use --backend cpu",
+            )
+            .into());
+        }
+        let gpu = self.gpu;
+        let [pyramid, fates, deps, front] = self.scratch(cap, lists.dep_bytes, lists.sharp);
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        let (from, to) = (pyramid_size(old) as u64 * 4, pyramid_size(cap) as u64 * 4);
+        let pyramids = if lists.sharp { 3 } else { 2 };
+        for r in 0..pyramids {
+            enc.copy_buffer_to_buffer(&lists.pyramid, r * from, &pyramid, r * to, from);
+        }
+        enc.copy_buffer_to_buffer(&lists.fates, 0, &fates, 0, old as u64 * 4);
+        if lists.sharp {
+            let half = FRONT_BYTES / 2;
+            for level in 0..2 {
+                let (a, b) = (level * old as u64 * half, level * cap as u64 * half);
+                enc.copy_buffer_to_buffer(&lists.front, a, &front, b, old as u64 * half);
+            }
+        }
+        gpu.submit([enc.finish()]);
+        lists.pyramid = pyramid;
+        lists.fates = fates;
+        lists.deps = deps;
+        lists.front = front;
+        lists.scratch_cap = cap;
         lists.medium_group = self.bind_medium(
             run,
             lists.channel,
             lists.fresnel,
-            [&lists.pyramid, &lists.fates, &lists.deps],
+            [&lists.pyramid, &lists.fates, &lists.deps, &lists.front],
         );
-    }
-
-    /// Make room in the other list for the `n` torn patches' copies that
-    /// `propagate_sharp`'s pass 1 keeps there (nothing else is in it
-    /// during the step: it is made again, larger).
-    fn fit_saved(&self, lists: &mut Lists, n: usize) {
-        let other = 1 - lists.cur;
-        if n > lists.sets[other].cap {
-            let cap = n.max(2 * lists.sets[other].cap).min(lists.most);
-            self.remake_list(lists, other, cap);
-        }
+        Ok(())
     }
 
     /// List `which`, whose patches nothing reads any more, made again to
@@ -1983,7 +2173,6 @@ impl<'a> GpuSimulator<'a> {
     /// writes, and the scratch (carrying the counts' pyramid over, which
     /// the walk still reads).
     fn fit(&self, run: &Run, lists: &mut Lists, total: usize) -> Result<(), Error> {
-        let gpu = self.gpu;
         let dst = 1 - lists.cur;
         if total > lists.sets[dst].cap {
             let cap = total.max(2 * lists.sets[dst].cap).min(lists.most);
@@ -1999,21 +2188,7 @@ impl<'a> GpuSimulator<'a> {
             // The walk overwrites the other list.
             self.remake_list(lists, dst, cap);
         }
-        if total > lists.scratch_cap {
-            let cap = total.max(2 * lists.scratch_cap).min(lists.most);
-            let [pb, fb, db] = scratch_bytes(cap, lists.dep_bytes, lists.pyramids);
-            let pyramid = gpu.storage_empty("pyramids", pb);
-            let mut enc = gpu.device.create_command_encoder(&Default::default());
-            let counts = pyramid_size(lists.scratch_cap) as u64 * 4;
-            enc.copy_buffer_to_buffer(&lists.pyramid, 0, &pyramid, 0, counts);
-            gpu.submit([enc.finish()]);
-            lists.pyramid = pyramid;
-            lists.fates = gpu.storage_empty("fates", fb);
-            lists.deps = gpu.storage_empty("deposits", db);
-            lists.scratch_cap = cap;
-            self.rebind_scratch(run, lists);
-        }
-        Ok(())
+        self.fit_scratch(run, lists, total)
     }
 
     /// Read back a wavefront group's tallies into `summary` and its share

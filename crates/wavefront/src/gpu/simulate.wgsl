@@ -44,10 +44,18 @@
 // read them instead of recomputing; the winner recomputes its value.
 @group(0) @binding(7) var<storage, read_write> deps: array<vec2<u32>>;
 @group(0) @binding(8) var fresnel_tex: texture_3d<f32>;
-// With sharp interfaces (P.sharp = 1), the regions (`region::gpu_table`:
+// With sharp interfaces (P.sharp = 1), the regions (`region::gpu_regions`:
 // the objects in precedence order, then the ambient medium); else one
 // placeholder.
 @group(0) @binding(9) var<storage, read> regions: array<RegionGpu>;
+// With sharp interfaces, the frontier of the torn patches' trees of
+// quarters: two levels of P.front_cap entries (patch, node), where node is
+// level << 16 | path (two bits a level, the first quarter highest), with
+// PIECE_TAG once the node has held together. Else one placeholder.
+@group(0) @binding(10) var<storage, read_write> front: array<vec2<u32>>;
+// With sharp interfaces, the regions' shape data (`region::gpu_regions`:
+// profiles, mesh triangles and BVH nodes); else one placeholder.
+@group(0) @binding(11) var<storage, read> shape_data: array<vec4<u32>>;
 
 @group(1) @binding(0) var<storage, read_write> pos: array<vec4<f32>>;
 @group(1) @binding(1) var<storage, read_write> vel: array<vec4<f32>>;
@@ -543,6 +551,12 @@ fn fate_of(i: u32) -> u32 {
 // The fate of patch i, its split flag, and its part of the tallies
 // (`refine::tally`).
 fn analyse_patch(i: u32) {
+    if P.sharp != 0u && i < P.sharp_n && fate[i] == FATE_TORN {
+        // A torn patch: its pieces carry its flux on (after the list), its
+        // slot ends here; `grant` gives it no slot.
+        pyramid[P.splits_base + i] = 0u;
+        return;
+    }
     let f = fate_of(i);
     fate[i] = f;
     pyramid[P.splits_base + i] = select(0u, 1u, f == FATE_SPLIT);
@@ -937,14 +951,27 @@ fn corner_write(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workg
 // takes each corner's Fresnel transmittance to the power 1/4, and a patch
 // whose corners disagree is taken back to where the step began and split
 // in four, each piece traced again, down to `P.min_span` or
-// MAX_SPLIT_LEVEL levels (`propagate::split_and_trace`, as a walk over
-// the tree of quarters here: `sharp_trace`). Where the pieces go is fixed before any is written, so the
-// list is the same whatever the order the threads run in: pass 0
-// (`P.sharp_pass` 0) steps every patch that holds together and, for a torn
-// one, traces its pieces without depositing and writes their count; a
-// HistoPyramid of the extra pieces (all but the first) gives each torn
-// patch its slots after the list, in patch order (the CPU's order); pass 1
-// traces the torn patches again, depositing, and writes the pieces there.
+// MAX_SPLIT_LEVEL levels (`propagate::split_and_trace`). Here the tree of
+// quarters is traced level by level, one node per thread: pass 0 steps
+// every patch that holds together and marks a torn one; then, for each
+// level, a pass traces the nodes of that level (the frontier)
+// without depositing and writes how many entries each passes to the next
+// (4 quarters of a torn node, 1 for a piece, 0 for a node dropped), and
+// `front_build` builds the HistoPyramid of those counts, which the next
+// level's threads walk to find their node. A piece passes through the
+// later levels unchanged, so the last level's frontier lists every piece
+// of every torn patch, patch by patch, each patch's in the CPU's depth-first
+// order. `sharp_count` writes each torn patch's number of pieces into the
+// pieces' pyramid, which gives them their slots after the list, in patch
+// order; pass 2 (one thread per piece) traces each again,
+// depositing and tallying, and writes it there. Where the pieces go is
+// fixed before any is written, so the list is the same whatever the order
+// the threads run in. One node per thread also keeps each invocation's
+// loops short, which lavapipe needs: llvmpipe ends every loop of an
+// invocation once all of them together have run 65535 iterations
+// (LP_MAX_TGSI_LOOP_ITERATIONS, counted per SIMD group), and a torn
+// patch's whole tree walked in one invocation, on meshes and solids of
+// revolution, ran past that.
 
 // The `region` module's hooks.
 fn region_count() -> u32 {
@@ -955,11 +982,10 @@ fn region_object(i: u32) -> RegionGpu {
     return regions[i];
 }
 
-// The `surface` module's hook: the shapes' data buffer. The simulator's
-// table (`gpu_table`) holds no profile or mesh, whose data would be read
-// here; scenes with them are refused before this kernel is built.
+// The `surface` module's hook: the shapes' data buffer (solids of
+// revolution's profiles, meshes' triangles and BVH nodes).
 fn surface_data(i: u32) -> vec4<u32> {
-    return vec4<u32>(0u);
+    return shape_data[i];
 }
 
 // The `region_step` module's hook: the region whose own profile
@@ -1305,21 +1331,6 @@ fn traced_reflection_of(moved: Quad, to: u32, flux: vec3<f32>, flux0: vec3<f32>)
     return r;
 }
 
-// Whether the patch that went from `start` to `moved` in this step has
-// just finished crossing a surface and reflects (`propagate::
-// reflected_piece`).
-fn reflects(start: Quad, moved: Quad, flux: vec3<f32>, flux0: vec3<f32>) -> bool {
-    if P.reflections == 0u {
-        return false;
-    }
-    let to = region_owner(moved.x[0]);
-    var crossed = false;
-    for (var c = 0u; c < 4u; c++) {
-        crossed = crossed || region_owner(start.x[c]) != to;
-    }
-    return crossed && traced_reflection_of(moved, to, flux, flux0).ok;
-}
-
 // Pass 1: deposit the reflection's tube from the surface, and take its
 // flux off the reflected light's tally.
 fn traced_reflection(r: Reflected, flux: vec3<f32>) {
@@ -1340,18 +1351,8 @@ fn quad_irradiance(q: Quad, flux: vec3<f32>) -> vec4<f32> {
     return vec4<f32>(e, 0.0);
 }
 
-// Piece k of torn patch i (of `count`): the first takes the patch's slot,
-// the others the slots from `base` on.
-fn write_piece(i: u32, k: u32, count: u32, base: u32, q: Quad, flux: vec3<f32>, flux0: vec3<f32>, area0: f32, depth: f32) {
-    if k >= count {
-        // The list stays within the slots pass 0 counted, whatever pass 1
-        // finds (see `sharp_trace`).
-        return;
-    }
-    var slot = i;
-    if k > 0u {
-        slot = base + k - 1u;
-    }
+// Write patch `slot` of the live list.
+fn write_patch(slot: u32, q: Quad, flux: vec3<f32>, flux0: vec3<f32>, area0: f32, depth: f32) {
     store_quad(slot, q);
     aux[3u * slot] = vec4<f32>(flux, area0);
     aux[3u * slot + 1u] = vec4<f32>(flux0, depth);
@@ -1381,10 +1382,10 @@ fn quarter(q: Quad, part: u32) -> Quarter {
     return Quarter(quad_child(q, part), share);
 }
 
-// A node of a torn patch's tree of quarters: its corners and flux, derived
-// from the patch's quarter by quarter down its path (two bits per level,
-// the first quarter in the highest bits), exactly as the recursion of
-// `split_and_trace` derives them.
+// A node of a torn patch's tree of quarters: its corners and flux (RGB,
+// and area0 in w), derived from the patch's quarter by quarter down its
+// path (two bits per level, the first quarter in the highest bits),
+// exactly as the recursion of `split_and_trace` derives them.
 struct Node {
     q: Quad,
     flux: vec4<f32>,
@@ -1403,240 +1404,214 @@ fn node_of(q: Quad, a: vec4<f32>, f0: vec3<f32>, level: u32, path: u32) -> Node 
     return n;
 }
 
-// Patch i as pass 1 kept it in the other list (the patch before the step,
-// bit for bit as `load_quad` reads it).
-fn load_saved_quad(i: u32) -> Quad {
-    var q: Quad;
-    let x0 = dpos[4u * i].xyz;
-    for (var c = 0u; c < 4u; c++) {
-        var r = vec3<f32>(0.0);
-        if c != 0u {
-            r = dpos[4u * i + c].xyz;
-        }
-        q.x[c] = x0 + r;
-        q.v[c] = dvel[4u * i + c].xyz;
-        q.opl[c] = dpos[4u * i + c].w;
-    }
-    return q;
+// Node `node` (level << 16 | path) of patch i's tree, from the patch in
+// its slot (a torn patch's slot is not written during its step).
+fn patch_node(i: u32, node: u32) -> Node {
+    return node_of(load_quad(i), aux[3u * i], aux[3u * i + 1u].xyz, (node >> 16u) & 0xfu, node & 0xffffu);
 }
 
-// One step of patch i with sharp interfaces (`propagate::propagate_sharp`).
-// Pass 0: `sharp_patch`; a patch that held together is written; a torn one
-// is split (`propagate::split_and_trace`: in four where the step began,
-// each quarter traced, the torn ones split again, depth first in quarter
-// order, the CPU's order of the pieces) without depositing, and its
-// pieces counted: `fate[i]` = 1 + count (0: it held together), its extra
-// pieces at the base of the pieces' pyramid. Pass 1 (`pass1`, the patches
-// before the pieces, P.n_old): a torn patch is traced again, depositing
-// and tallying, its pieces written: the first in its own slot, the others
-// after the list from the rank of its extra pieces. One call of
-// `sharp_patch` serves every trace, so that both passes run the same code.
-//
-// The recursion is a walk over the quarters' tree without a stack: the
-// node is its path from the patch, two bits per level (`path`, `level`),
-// and its corners and flux are derived again from the patch's, level by
-// level, exactly as the recursion derives them (a few bilinear
-// interpolations per level, against a whole trace per node).
-fn sharp_trace(i: u32, pass1: bool) {
-    var count = 0u;
-    var base = 0u;
-    if pass1 {
-        let f = fate[i];
-        if f == 0u {
-            return;
+// Where the counts of the frontier's level `level` are in the pyramid
+// buffer (level 0: the step's patches): the counts' pyramid and the split
+// flags' take turns, both free while a step propagates.
+fn front_pyramid(level: u32, splits_base: u32) -> u32 {
+    return select(splits_base, 0u, level % 2u == 0u);
+}
+
+// Entry k of the frontier's level `level` in `front`.
+fn front_at(level: u32, k: u32) -> u32 {
+    return (level % 2u) * P.front_cap + k;
+}
+
+// The frontier's entries at the last level: every piece of this step's
+// torn patches, patch by patch.
+fn pieces_total() -> u32 {
+    if P.front_len == 0u {
+        return 0u;
+    }
+    return hp_total(front_pyramid(MAX_SPLIT_LEVEL, P.splits_base), P.front_len);
+}
+
+// Piece k (of `pieces_total`): (patch, node).
+fn piece_at(k: u32) -> vec2<u32> {
+    let e = hp_locate(front_pyramid(MAX_SPLIT_LEVEL, P.splits_base), P.front_len, k).x;
+    return front[front_at(MAX_SPLIT_LEVEL, e)];
+}
+
+// The first piece of patch i or of a later patch (the pieces are in patch
+// order): a binary search.
+fn first_piece_of(i: u32, total: u32) -> u32 {
+    var lo = 0u;
+    var hi = total;
+    while lo < hi {
+        let mid = lo + (hi - lo) / 2u;
+        if piece_at(mid).x < i {
+            lo = mid + 1u;
+        } else {
+            hi = mid;
         }
-        base = P.n_old + hp_rank(P.pieces_base, P.n_old, i);
-        if (f & FATE_REFLECTS) != 0u {
-            // The patch held together (pass 0 moved it) and reflects: its
-            // reflection from where it is now, as pass 0 found it.
-            let a = aux[3u * i];
-            let f0 = aux[3u * i + 1u];
-            let m = load_quad(i);
-            let r = traced_reflection_of(m, region_owner(m.x[0]), a.xyz, f0.xyz);
+    }
+    return lo;
+}
+
+// One thread of `propagate_sharp` (`P`'s pass `L.pass_id`, each a
+// dispatch of its own): every pass traces its work with the one call of
+// `sharp_patch` and finds a reflection with the one call of
+// `traced_reflection_of` below, because drivers inline every call and a
+// kernel with several copies of the shapes' code (a mesh's BVH, a
+// profile's edges) took minutes to compile on lavapipe.
+//
+// - SHARP_PATCHES (pass 0), patch k (`propagate::propagate_sharp`): the
+//   whole patch traced; if it held together it is written, deposited and
+//   tallied, and marked if it reflects (`FATE_REFLECTS`: one piece, its
+//   reflection, written by pass 1); a torn one is marked `FATE_TORN` and
+//   left in its slot, to be split: its four quarters are the first level
+//   of the frontier, unless it is no longer than the smallest split, when
+//   it is dropped and tallied as torn.
+// - SHARP_LEVEL, entry k of the frontier's level P.front_level >= 1: found
+//   from the level before through its pyramid (a quarter of a torn node or
+//   patch, or a piece passed on), traced without depositing if it is a
+//   node, and its count for the next level written: 4 (torn: its
+//   quarters), 1 (a piece), 0 (torn and no longer split: dropped, tallied
+//   as torn).
+// - SHARP_REFLECTIONS (pass 1), patch k (the patches before the pieces,
+//   P.n_old): a patch that held together and reflects writes its
+//   reflection, found from where it is now as pass 0 found it, into its
+//   slot after the list, deposits its tube and tallies it.
+// - SHARP_PIECES (pass 2), piece k of the torn patches' (`pieces_total`):
+//   traced again from its patch, depositing and tallying, and written in
+//   its slot after the list: the patch's slots follow from the rank of its
+//   pieces in the pieces' pyramid, in the order of its pieces.
+fn sharp_work(k: u32, pass_id: u32) {
+    // The patch, and the node of its tree traced (0: the whole patch).
+    var e = vec2<u32>(k, 0u);
+    let level = P.front_level;
+    if pass_id == SHARP_LEVEL {
+        let at = hp_locate(front_pyramid(level - 1u, P.splits_base), P.front_prev, k);
+        if level == 1u {
+            e = vec2<u32>(at.x, (1u << 16u) | at.y);
+        } else {
+            e = front[front_at(level - 1u, at.x)];
+            if (e.y & PIECE_TAG) != 0u {
+                // A piece, passed on.
+                front[front_at(level, k)] = e;
+                pyramid[front_pyramid(level, P.splits_base) + k] = 1u;
+                return;
+            }
+            // A quarter of a torn node, one level down.
+            let depth = ((e.y >> 16u) & 0xfu) + 1u;
+            e.y = (depth << 16u) | ((e.y & 0xffffu) << 2u) | at.y;
+        }
+    } else if pass_id == SHARP_PIECES {
+        e = piece_at(k);
+        e.y &= ~PIECE_TAG;
+    } else if pass_id == SHARP_REFLECTIONS && fate[k] != FATE_REFLECTS {
+        return;
+    }
+    let i = e.x;
+    let a = aux[3u * i];
+    let f0 = aux[3u * i + 1u];
+    let nd = patch_node(i, e.y);
+    var t = Tried(true, nd.q, nd.flux.xyz);
+    if pass_id != SHARP_REFLECTIONS {
+        t = sharp_patch(nd.q, nd.flux.xyz, pass_id != SHARP_LEVEL);
+    }
+    // The patch as it reflects: as pass 0 stores it (and pass 1 reads it).
+    var moved = t.q;
+    if pass_id == SHARP_PATCHES && t.ok {
+        store_quad(i, t.q);
+        aux[3u * i] = vec4<f32>(t.flux, a.w);
+        aux[3u * i + 2u] = quad_irradiance(t.q, t.flux);
+        moved = load_quad(i);
+    }
+    var r: Reflected;
+    r.ok = false;
+    var look = pass_id == SHARP_REFLECTIONS;
+    // Pass 0: only a patch that has just crossed a surface reflects
+    // (`propagate::reflected_piece`).
+    let may = pass_id == SHARP_PATCHES && t.ok && P.reflections != 0u;
+    var to = 0u;
+    if look || may {
+        to = region_owner(moved.x[0]);
+    }
+    if may {
+        for (var c = 0u; c < 4u; c++) {
+            look = look || region_owner(nd.q.x[c]) != to;
+        }
+    }
+    if look {
+        r = traced_reflection_of(moved, to, t.flux, f0.xyz);
+    }
+    switch pass_id {
+        case SHARP_PATCHES: {
+            var quarters = 0u;
+            var pieces = 0u;
+            if t.ok {
+                fate[i] = select(0u, FATE_REFLECTS, r.ok);
+                if r.ok {
+                    pieces = 1u;
+                    atomicAdd(&wg_stats[S_TORN_NOW], 1u);
+                }
+            } else {
+                fate[i] = FATE_TORN;
+                atomicAdd(&wg_stats[S_TORN_NOW], 1u);
+                if quad_span(nd.q) > P.min_span {
+                    quarters = 4u;
+                } else {
+                    add_energy3(E_TORN, a.xyz);
+                    atomicAdd(&wg_stats[S_TORN], 1u);
+                }
+            }
+            pyramid[front_pyramid(0u, P.splits_base) + i] = quarters;
+            pyramid[P.pieces_base + i] = pieces;
+        }
+        case SHARP_LEVEL: {
+            var count = 1u;
+            if t.ok {
+                e.y |= PIECE_TAG;
+            } else if quad_span(nd.q) > P.min_span && ((e.y >> 16u) & 0xfu) + 1u <= MAX_SPLIT_LEVEL {
+                count = 4u;
+            } else {
+                add_energy3(E_TORN, nd.flux.xyz);
+                atomicAdd(&wg_stats[S_TORN], 1u);
+                count = 0u;
+            }
+            front[front_at(level, k)] = e;
+            pyramid[front_pyramid(level, P.splits_base) + k] = count;
+        }
+        case SHARP_REFLECTIONS: {
             var fl = vec3<f32>(0.0);
             if r.ok {
                 fl = reflected_flux(a.xyz, r);
                 traced_reflection(r, fl);
             }
-            write_piece(i, 1u, 2u, base, r.q, fl, f0.xyz, a.w, f0.w);
-            // Its slot is no piece for pass 2 (whatever an earlier step
-            // left there).
-            fate[base] = 0u;
-            return;
+            let slot = P.n_old + hp_rank(P.pieces_base, P.n_old, i);
+            write_patch(slot, r.q, fl, f0.xyz, a.w, f0.w);
         }
-        count = f - 1u;
-        // Pass 2 traces the pieces from the patch as it is now, before
-        // the step: kept in the other list, which nothing reads until the
-        // next step's walk writes it.
-        for (var c = 0u; c < 4u; c++) {
-            dpos[4u * i + c] = pos[4u * i + c];
-            dvel[4u * i + c] = vel[4u * i + c];
-        }
-        for (var c = 0u; c < 3u; c++) {
-            daux[3u * i + c] = aux[3u * i + c];
-        }
-    }
-    let q = load_quad(i);
-    let a = aux[3u * i];
-    let f0 = aux[3u * i + 1u];
-    let depth = f0.w + 1.0;
-    // Pass 0 first traces the whole patch (level 0); pass 1 starts at its
-    // first quarter. Entering level 1 (`split_and_trace` of the patch)
-    // drops a patch already no longer than the smallest split.
-    var level = select(0u, 1u, pass1);
-    var path = 0u;
-    var found = 0u;
-    var first_id = 0u;
-    if pass1 && quad_span(q) <= P.min_span {
-        add_energy3(E_TORN, a.xyz);
-        atomicAdd(&wg_stats[S_TORN], 1u);
-        level = 0u;
-    }
-    loop {
-        if pass1 && level == 0u {
-            break;
-        }
-        // The node: its corners and flux from the patch's, quarter by
-        // quarter down its path.
-        let nd = node_of(q, a, f0.xyz, level, path);
-        let node = nd.q;
-        let flux = nd.flux;
-        // Only the whole patch deposits here: pass 1 walks exactly as pass
-        // 0 did, and pass 2 deposits each piece.
-        let t = sharp_patch(node, flux.xyz, level == 0u);
-        var descend = false;
-        if t.ok {
-            if level == 0u {
-                // The whole patch held together.
-                store_quad(i, t.q);
-                aux[3u * i] = vec4<f32>(t.flux, a.w);
-                aux[3u * i + 2u] = quad_irradiance(t.q, t.flux);
-                // Its reflection, found from the patch as stored, as pass
-                // 1 will find it.
-                let mirrored = reflects(q, load_quad(i), t.flux, f0.xyz);
-                fate[i] = select(0u, FATE_REFLECTS | 2u, mirrored);
-                pyramid[P.pieces_base + i] = u32(mirrored);
-                if mirrored {
-                    atomicAdd(&wg_stats[S_TORN_NOW], 1u);
-                }
-                return;
-            }
-            if pass1 && found >= count {
-                // More pieces than pass 0 counted (see below): no slot is
-                // left for this one, so it is dropped, untraced, counted
-                // as torn, and the energy account still balances.
-                add_energy3(E_TORN, flux.xyz);
+        default: {
+            let r = k - first_piece_of(i, pieces_total());
+            let slot = P.n_old + hp_rank(P.pieces_base, P.n_old, i) + r;
+            var flux = t.flux;
+            if !t.ok {
+                // The level found it whole and this trace does not (it
+                // cannot, with the same code and input): dropped, counted
+                // as torn.
+                add_energy3(E_TORN, nd.flux.xyz);
                 atomicAdd(&wg_stats[S_TORN], 1u);
-            } else if pass1 {
-                // Its slot names the node for pass 2 (the first piece's
-                // slot, the patch's own, once the walk is done).
-                let id = PIECE_TAG | (level << 16u) | path;
-                if found == 0u {
-                    first_id = id;
-                } else {
-                    fate[base + found - 1u] = id;
-                }
+                flux = vec3<f32>(0.0);
             }
-            found += 1u;
-        } else if level == 0u || (quad_span(node) > P.min_span && level + 1u <= MAX_SPLIT_LEVEL) {
-            descend = true;
-        } else if pass1 {
-            // Still torn and no longer split: dropped.
-            add_energy3(E_TORN, flux.xyz);
-            atomicAdd(&wg_stats[S_TORN], 1u);
+            write_patch(slot, t.q, flux, nd.flux0, nd.flux.w, f0.w + 1.0);
         }
-        if level == 0u && !t.ok && quad_span(q) <= P.min_span {
-            // Pass 0: the torn patch is dropped whole.
-            break;
-        }
-        if descend {
-            level += 1u;
-            path = path << 2u;
-            continue;
-        }
-        // The next sibling, or the parent's next sibling.
-        loop {
-            if level <= 1u && (path & 3u) == 3u {
-                level = 0u;
-                break;
-            }
-            if (path & 3u) == 3u {
-                path = path >> 2u;
-                level -= 1u;
-                continue;
-            }
-            path += 1u;
-            break;
-        }
-        if level == 0u {
-            break;
-        }
-    }
-    if !pass1 {
-        fate[i] = 1u + found;
-        pyramid[P.pieces_base + i] = max(found, 1u) - 1u;
-        atomicAdd(&wg_stats[S_TORN_NOW], 1u);
-        return;
-    }
-    if found == 0u || count == 0u {
-        // Every piece was dropped (or pass 0 found none, and pass 1's were
-        // dropped for want of slots): the patch carries nothing on and
-        // ends at the next refine. Its slot must not keep the patch as it
-        // was before the step, whose flux the pieces have taken.
-        aux[3u * i] = vec4<f32>(vec3<f32>(0.0), a.w);
-        aux[3u * i + 1u] = vec4<f32>(f0.xyz, depth);
-        aux[3u * i + 2u] = vec4<f32>(0.0);
-        fate[i] = 0u;
-    } else {
-        fate[i] = first_id;
-    }
-    // Slots pass 0 counted and this pass did not fill carry nothing rather
-    // than stale data. Pass 1 walks with the same code and input as pass
-    // 0, so the two find the same pieces, unless a loop was cut short in
-    // one: lavapipe (llvmpipe) ends every loop of an invocation once all
-    // its loops together have run 65535 iterations
-    // (LP_MAX_TGSI_LOOP_ITERATIONS, counted per SIMD group). That is why
-    // the deposits are pass 2's, one piece per thread: walked with them,
-    // a heavily torn patch ran out of iterations in mid-walk and its
-    // remaining pieces were lost. These guards keep the list and the
-    // energy account consistent whatever happens.
-    for (var k = max(found, 1u); k < count; k++) {
-        write_piece(i, k, count, base, q, vec3<f32>(0.0), vec3<f32>(0.0), 0.0, depth);
-        fate[base + k - 1u] = 0u;
     }
 }
 
-// Pass 2 of a sharp step, one thread per slot s of the list with the
-// pieces (P.n; P.n_old patches before them): a piece of a torn patch
-// (`fate[s]` names its node, pass 1) is traced again from the patch as it
-// was before the step, depositing and tallying, and written in its slot.
-// The patch of an extra piece is found from the pieces' pyramid.
-fn sharp_piece(s: u32) {
-    let f = fate[s];
-    if (f & PIECE_TAG) == 0u || (f & FATE_REFLECTS) != 0u {
+// Torn patch i's number of pieces, into the pieces' pyramid (pass 0 wrote
+// every other patch's).
+fn sharp_count_patch(i: u32) {
+    if fate[i] != FATE_TORN {
         return;
     }
-    var i = s;
-    if s >= P.n_old {
-        i = hp_locate(P.pieces_base, P.n_old, s - P.n_old).x;
-    }
-    let a = daux[3u * i];
-    let f0 = daux[3u * i + 1u];
-    let depth = f0.w + 1.0;
-    let nd = node_of(load_saved_quad(i), a, f0.xyz, (f >> 16u) & 0xfu, f & 0xffffu);
-    let t = sharp_patch(nd.q, nd.flux.xyz, true);
-    var flux = t.flux;
-    if !t.ok {
-        // Pass 1 found it whole and this trace does not (it cannot, with
-        // the same code and input): dropped, counted as torn.
-        add_energy3(E_TORN, nd.flux.xyz);
-        atomicAdd(&wg_stats[S_TORN], 1u);
-        flux = vec3<f32>(0.0);
-    }
-    store_quad(s, t.q);
-    aux[3u * s] = vec4<f32>(flux, nd.flux.w);
-    aux[3u * s + 1u] = vec4<f32>(nd.flux0, depth);
-    aux[3u * s + 2u] = quad_irradiance(t.q, flux);
+    let total = pieces_total();
+    pyramid[P.pieces_base + i] = first_piece_of(i + 1u, total) - first_piece_of(i, total);
 }
 
 // ---------------------------------------------------------------------
@@ -1678,33 +1653,54 @@ fn propagate_tube(@builtin(global_invocation_id) id: vec3<u32>,
     wg_end(li);
 }
 
-// The step with sharp interfaces: pass 0 (every patch) or pass 1 (the
-// torn ones), `P.sharp_pass`; one entry point, so that both passes run
-// the same code.
+// The step with sharp interfaces: pass `L.pass_id` of `sharp_work` over
+// its threads (the step's patches, a level's entries, or the pieces).
 @compute @workgroup_size(WORKGROUP)
 fn propagate_sharp(@builtin(global_invocation_id) id: vec3<u32>,
                    @builtin(num_workgroups) groups: vec3<u32>,
                    @builtin(local_invocation_index) li: u32) {
     wg_begin(li);
-    let i = item(id, groups);
-    let pass1 = P.sharp_pass != 0u;
-    if i < select(P.n, P.n_old, pass1) {
-        sharp_trace(i, pass1);
+    let k = item(id, groups);
+    let pass_id = L.pass_id;
+    var n = P.n;
+    if pass_id == SHARP_LEVEL {
+        n = P.front_len;
+    } else if pass_id == SHARP_REFLECTIONS {
+        n = P.n_old;
+    } else if pass_id == SHARP_PIECES {
+        n = P.front_pieces;
+    }
+    if k < n {
+        sharp_work(k, pass_id);
     }
     wg_end(li);
 }
 
-// Pass 2 of a sharp step: the torn patches' pieces.
+// The pyramid of a frontier level's counts, by one workgroup (a level
+// holds few entries: one dispatch, not one per pyramid level).
 @compute @workgroup_size(WORKGROUP)
-fn sharp_pieces(@builtin(global_invocation_id) id: vec3<u32>,
-                @builtin(num_workgroups) groups: vec3<u32>,
-                @builtin(local_invocation_index) li: u32) {
-    wg_begin(li);
-    let s = item(id, groups);
-    if s < P.n {
-        sharp_piece(s);
+fn front_build(@builtin(local_invocation_index) li: u32) {
+    let base = front_pyramid(P.front_level, P.splits_base);
+    let n = P.front_len;
+    let depth = hp_depth(n);
+    for (var l = 1u; l < depth; l++) {
+        // Level l - 1 written by every thread of the group.
+        storageBarrier();
+        let len = hp_len(l, n);
+        for (var j = li; j < len; j += WORKGROUP) {
+            hp_reduce(base, n, l, j);
+        }
     }
-    wg_end(li);
+}
+
+// The torn patches' numbers of pieces.
+@compute @workgroup_size(WORKGROUP)
+fn sharp_count(@builtin(global_invocation_id) id: vec3<u32>,
+               @builtin(num_workgroups) groups: vec3<u32>) {
+    let i = item(id, groups);
+    if i < P.n {
+        sharp_count_patch(i);
+    }
 }
 
 @compute @workgroup_size(WORKGROUP)
@@ -1858,22 +1854,76 @@ fn plan_step() {
     plan.state[PL_STAMP] += 2u;
     plan.params.splits_base = words;
     plan.params.pieces_base = 2u * words;
-    plan.params.sharp_pass = 0u;
     atomicStore(&stats[S_KEPT], 0u);
     atomicStore(&stats[S_KEPT + 1u], 0u);
     atomicStore(&stats[S_TORN_NOW], 0u);
     plan_args(A_REBUILD, select(0u, total, rebuild));
     plan_args(A_N, total);
     plan_levels(A_LEVELS_N, total);
+    plan.params.sharp_n = total;
+    plan.params.front_cap = plan.state[PL_SCRATCH];
+    plan.params.front_len = 0u;
+    plan.params.front_pieces = 0u;
+    plan.state[PL_LEVEL] = 1u;
+    plan_args(A_FRONT, 0u);
+    plan_args(A_BUILD, 0u);
+    plan_args(A_COUNT, 0u);
     plan_args(A_PASS1, 0u);
     plan_args(A_PIECES, 0u);
     plan_args(A_LEN, total);
     plan_levels(A_LEVELS_LEN, total);
 }
 
-// After `propagate_sharp`'s pass 0: with torn patches, the list with
-// their pieces after it, pass 1's uniforms and the rest of the step's
-// slots over it.
+// Before level `PL_LEVEL` of the torn patches' trees (after pass 0, or
+// after the level before): the frontier's length, off the pyramid of the
+// level before (the patches' quarters at level 1), the level's uniforms,
+// and its two dispatches (`propagate_sharp`'s SHARP_LEVEL pass,
+// `front_build`); after the last,
+// `sharp_count`'s. A frontier longer than the scratch halts the plan.
+@compute @workgroup_size(1)
+fn plan_level() {
+    plan.params = P;
+    if plan.state[PL_HALT] != HALT_NONE {
+        return;
+    }
+    let level = plan.state[PL_LEVEL];
+    let words = pyramid_words(plan.state[PL_SCRATCH]);
+    var prev = P.front_len;
+    if level == 1u {
+        prev = P.n;
+    }
+    var total = 0u;
+    if prev > 0u {
+        total = hp_total(front_pyramid(level - 1u, words), prev);
+    }
+    if total > plan.state[PL_SCRATCH] {
+        plan.state[PL_FRONT] = total;
+        plan_halt(HALT_FRONTIER);
+        return;
+    }
+    if level == 1u {
+        plan.state[PL_DESCENT] = total;
+    }
+    plan.state[PL_LEVEL] = level + 1u;
+    plan.params.splits_base = words;
+    plan.params.pieces_base = 2u * words;
+    plan.params.front_cap = plan.state[PL_SCRATCH];
+    plan.params.front_level = level;
+    plan.params.front_prev = prev;
+    plan.params.front_len = total;
+    plan_args(A_FRONT, total);
+    // One workgroup builds the level's pyramid (none for an empty level:
+    // the next reads no pyramid then).
+    plan_args(A_BUILD, min(total, 1u));
+    if level == MAX_SPLIT_LEVEL && plan.state[PL_DESCENT] > 0u {
+        plan_args(A_COUNT, P.n);
+    }
+}
+
+// After the torn patches' trees: with torn or reflecting patches, the
+// list with their pieces after it (the pieces' pyramid gives their
+// slots), passes 1 and 2's uniforms and the rest of the step's slots over
+// it.
 @compute @workgroup_size(1)
 fn plan_pieces() {
     plan.params = P;
@@ -1884,19 +1934,22 @@ fn plan_pieces() {
     let words = pyramid_words(plan.state[PL_SCRATCH]);
     let len = n + hp_total(2u * words, n);
     plan.state[PL_LEN] = len;
-    // Pass 1 keeps the torn patches in the other list (for pass 2).
     let cur = plan.state[PL_CUR];
-    if len > plan.state[PL_CAP + cur] || len > plan.state[PL_SCRATCH] || n > plan.state[PL_CAP + 1u - cur] {
+    if len > plan.state[PL_CAP + cur] || len > plan.state[PL_SCRATCH] {
         plan_halt(HALT_PIECES);
         return;
     }
+    var pieces = 0u;
+    if P.front_len > 0u {
+        pieces = hp_total(front_pyramid(MAX_SPLIT_LEVEL, words), P.front_len);
+    }
     plan.params.n = len;
     plan.params.n_old = n;
-    plan.params.sharp_pass = 1u;
     plan.params.splits_base = words;
     plan.params.pieces_base = 2u * words;
+    plan.params.front_pieces = pieces;
     plan_args(A_PASS1, n);
-    plan_args(A_PIECES, len);
+    plan_args(A_PIECES, pieces);
     plan_args(A_LEN, len);
     plan_levels(A_LEVELS_LEN, len);
 }
