@@ -276,6 +276,7 @@ pub fn source(sharp: bool) -> String {
     ];
     if sharp {
         modules.push(&eikon_grid::region::WGSL);
+        modules.push(&eikon_grid::region::STEP_WGSL);
     }
     let main = format!("{SHADER}\n{}", if sharp { SHARP } else { SHARP_STUB });
     compose(&declarations(), &modules, &main)
