@@ -318,6 +318,9 @@ type = "sky"
     );
 }
 
+// Slow (`-- --ignored` runs it), for CI's time: 64 s from a cold shader
+// cache on lavapipe; it passed at 111.1 dB, steps 1.2% and skips 0.3%
+// apart.
 /// The wine glass of `configs/wine-glass.toml` (two solids of revolution:
 /// glass, and wine meeting it by priority; dispersion), small, on a
 /// receiver lit through a light volume.
@@ -503,7 +506,7 @@ fn main() {
             "sharp_vdb_grids_match_the_cpu",
             sharp_vdb_grids_match_the_cpu,
         )
-        .gpu(
+        .gpu_slow(
             "sharp_wine_glass_matches_the_cpu",
             sharp_wine_glass_matches_the_cpu,
         )

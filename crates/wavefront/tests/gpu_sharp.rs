@@ -306,7 +306,12 @@ fn nested_torn_silhouettes_match_the_cpu(gpu: &Gpu) {
 /// scene's bounds: the account balances within 2e-6 and each category
 /// agrees with the CPU's within 1e-3 of the entered power; median < 1e-2,
 /// within 10% > 98%, within 1% > 70%, aligned > 98%, under 1% of the cells
-/// lit in one volume only.
+/// lit in one volume only. Slow (`-- --ignored` runs it): 139 s on
+/// lavapipe from a cold shader cache, most of it compiling the kernel,
+/// which CI's time does not hold beside the rest; it passed with median
+/// 3.3e-6, imbalance 2.8e-9 and the account within 4.0e-5 of the CPU's.
+/// The shapes' functions are checked one by one in every run
+/// (`eikon-grid` `tests/wgsl_sharp.rs`).
 fn data_shapes_match_the_cpu(gpu: &Gpu) {
     let (scene, m) = medium(&vase_gem_and_drop(16));
     let sim = GpuSimulator::with_regions(gpu, &m, regions(&scene, &m)).unwrap();
@@ -404,7 +409,7 @@ fn main() {
             "sharp_runs_are_bitwise_repeatable",
             sharp_runs_are_bitwise_repeatable,
         )
-        .gpu("data_shapes_match_the_cpu", data_shapes_match_the_cpu)
+        .gpu_slow("data_shapes_match_the_cpu", data_shapes_match_the_cpu)
         .gpu("reflections_obey_fresnel", reflections_obey_fresnel)
         .run()
 }
