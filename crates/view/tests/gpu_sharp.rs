@@ -419,6 +419,9 @@ colors = [[0.9, 0.55, 0.12], [0.1, 0.18, 0.45]]
     check(gpu, "sharp meshes", text, 40.0, MAX_COUNT_DIFFERENCE);
 }
 
+// Slow (`-- --ignored` runs it), for CI's time; it passed at 59.1 dB
+// (below). The VDB functions themselves are checked in every run
+// (`eikon-grid` `tests/wgsl_sharp.rs`).
 /// VDB grids on the GPU: a drop that is the sample glass sphere's index
 /// grid above 1.25 (its surface found cell by cell in the grid), of
 /// constant index, with extinction from the density grid, beside a glass
@@ -502,7 +505,7 @@ fn main() {
             "sharp_rounded_box_torus_and_superquadric_match_the_cpu",
             sharp_rounded_box_torus_and_superquadric_match_the_cpu,
         )
-        .gpu(
+        .gpu_slow(
             "sharp_vdb_grids_match_the_cpu",
             sharp_vdb_grids_match_the_cpu,
         )
