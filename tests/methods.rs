@@ -38,16 +38,9 @@ type = "constant"
 color = [0.0, 0.0, 0.0]
 "#;
 
-/// The amber as a ball instead of a bumpy mesh: the GPU's sharp light
-/// simulation has no meshes (it refuses them, named), and on lavapipe a
-/// marched shape's kernel is slow.
 /// An absorbing glass ball in a 16^3 grid under a directional light: the
-/// scene of the tests that run the GPU light simulation through the CLI.
-/// Not the amber of the other tests: on lavapipe (Mesa 22.3) its GPU light
-/// simulation at 16^3 held 14 GB of host memory in lavapipe's queue thread
-/// by its end (4 GB at f6c6b01, with fewer dispatches per step), the time
-/// spent in lavapipe's own code, not in the kernels; this ball does not
-/// provoke it (docs/PERFORMANCE.md, "lavapipe's per-dispatch cost").
+/// scene of the tests that run the GPU light simulation through the CLI,
+/// small enough for lavapipe's kernels in CI.
 const BALL: &str = r#"
 [grid]
 resolution = 16

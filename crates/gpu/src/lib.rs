@@ -439,15 +439,47 @@ impl Gpu {
         }))
     }
 
-    /// A uniform buffer holding `data` (also a copy target, to be
-    /// rewritten with `queue.write_buffer`).
+    /// A small read-only buffer of parameters holding `data` (also a copy
+    /// target, to be rewritten with `queue.write_buffer`), which kernels
+    /// bind as `var<storage, read>`, not as a uniform block: lavapipe
+    /// (Mesa 22.3) inlines the values of a uniform block that feed loop
+    /// conditions and, where that shrinks the kernel enough, re-optimizes
+    /// the kernel at every dispatch and keeps each variant: the light
+    /// simulator's steps then cost far more than their kernels, and host
+    /// memory grew by the step (docs/PERFORMANCE.md, "lavapipe's
+    /// per-dispatch cost").
+    pub fn params<T: bytemuck::Pod>(&self, label: &str, data: &[T]) -> Buffer {
+        self.block(
+            label,
+            bytemuck::cast_slice(data),
+            wgpu::BufferUsages::STORAGE,
+        )
+    }
+
+    /// A uniform buffer holding `data` (also a copy target). lavapipe
+    /// specializes a kernel to the values of its uniform block where that
+    /// shrinks it; the view renderer, which dispatches its kernel a few
+    /// times a frame, runs several times faster for it (docs/PERFORMANCE.md,
+    /// "lavapipe's per-dispatch cost"), and render pipelines' vertex stages
+    /// may not read storage buffers.
+    /// Kernels dispatched many times with changing values take
+    /// [`Gpu::params`].
     pub fn uniform<T: bytemuck::Pod>(&self, label: &str, data: &[T]) -> Buffer {
+        self.block(
+            label,
+            bytemuck::cast_slice(data),
+            wgpu::BufferUsages::UNIFORM,
+        )
+    }
+
+    /// A buffer of `usage` (and a copy target) holding `bytes`.
+    fn block(&self, label: &str, bytes: &[u8], usage: wgpu::BufferUsages) -> Buffer {
         self.track(
             self.device
                 .create_buffer_init(&wgpu::util::BufferInitDescriptor {
                     label: Some(label),
-                    contents: bytemuck::cast_slice(data),
-                    usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                    contents: bytes,
+                    usage: usage | wgpu::BufferUsages::COPY_DST,
                 }),
         )
     }

@@ -5,7 +5,7 @@
 //! source is composed ([`source`]) from the WGSL modules it shares with
 //! the CPU code and the view renderer (the grid, the ray equation, Fresnel,
 //! the spot cone, patch and deposit geometry, [Ihrke07 eq 18]'s step depth, the
-//! HistoPyramid), its uniform block [`SimParams`] and its constants
+//! HistoPyramid), its parameter block [`SimParams`] and its constants
 //! generated from their Rust definitions.
 //!
 //! Per wavefront, emission (`light::emit`), the absorption inside a
@@ -32,7 +32,7 @@
 //! The device schedules its own steps (issue 16): before each, a
 //! one-thread kernel (`plan_step`) reads the new list's length off the
 //! counts' pyramid, checks it against the lists' room and the step limit,
-//! and writes the step's uniform block (copied into place by the command
+//! and writes the step's parameter block (copied into place by the command
 //! buffer) and how many workgroups each kernel of the step runs, which
 //! they are dispatched with indirectly. One submission holds many steps
 //! (up to `MOST_STEPS_PER_SUBMISSION`, doubling from
@@ -178,7 +178,7 @@ use std::sync::OnceLock;
 const SOURCE: &str = include_str!("simulate.wgsl");
 
 layout! {
-    /// The uniform block of the simulator's kernels (`P` in
+    /// The parameter block of the simulator's kernels (`P` in
     /// `simulate.wgsl`): what one step of one wavefront reads.
     pub struct SimParams {
         /// The grid.
@@ -280,7 +280,7 @@ layout! {
 }
 
 layout! {
-    /// The uniform of one reduction dispatch, or of one pass of a sharp
+    /// The parameters of one reduction dispatch, or of one pass of a sharp
     /// step (`L` in `simulate.wgsl`).
     pub struct PyramidLevel {
         /// The level built (>= 1).
@@ -528,7 +528,7 @@ const FIRST_CAP: usize = 4096;
 /// Format of the medium's textures.
 const TEXEL: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 /// Storage buffers bound at once (groups 0 to 2 of `simulate.wgsl`).
-const STORAGE_BUFFERS: u32 = 26;
+const STORAGE_BUFFERS: u32 = 28;
 /// Most pyramid levels (4^15 entries).
 const MAX_LEVELS: usize = 16;
 
@@ -688,19 +688,6 @@ fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
     }
 }
 
-fn uniform_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry {
-        binding,
-        visibility: wgpu::ShaderStages::COMPUTE,
-        ty: wgpu::BindingType::Buffer {
-            ty: wgpu::BufferBindingType::Uniform,
-            has_dynamic_offset: false,
-            min_binding_size: None,
-        },
-        count: None,
-    }
-}
-
 fn texture_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
@@ -830,21 +817,21 @@ fn dispatch(pass: &mut wgpu::ComputePass, k: &wgpu::ComputePipeline, items: usiz
 }
 
 /// What one light's simulation holds on the device beside the patch lists:
-/// its light volume, tallies, uniforms and the plan of its steps.
+/// its light volume, tallies, parameters and the plan of its steps.
 struct Run {
     volume: Vec<Buffer>,
     volume_group: wgpu::BindGroup,
     stats: Buffer,
     params: Buffer,
     /// `Plan` in `simulate.wgsl`: the state the host reads back, the next
-    /// uniform block and the indirect dispatches' sizes.
+    /// parameter block and the indirect dispatches' sizes.
     plan: Buffer,
     plan_group: wgpu::BindGroup,
-    /// Per pyramid (counts, then splits) and level, the uniform and its
-    /// bind group (the uniforms live as long as their bind groups, so the
+    /// Per pyramid (counts, then splits) and level, its parameters and their
+    /// bind group (the parameters live as long as their bind groups, so the
     /// tally of live bytes is what the device holds).
     levels: [Vec<(Buffer, wgpu::BindGroup)>; 3],
-    /// Per pass of `propagate_sharp` (`SHARP_*`), its uniform and bind
+    /// Per pass of `propagate_sharp` (`SHARP_*`), its parameters and bind
     /// group.
     passes: Vec<(Buffer, wgpu::BindGroup)>,
 }
@@ -1066,7 +1053,7 @@ impl<'a> GpuSimulator<'a> {
                         entries,
                     })
             };
-            let mut g0 = vec![uniform_entry(0), texture_entry(1), texture_entry(2)];
+            let mut g0 = vec![storage_entry(0, true), texture_entry(1), texture_entry(2)];
             g0.push(storage_entry(3, true));
             g0.extend((4..8).map(|b| storage_entry(b, false)));
             g0.push(texture_entry(8));
@@ -1081,7 +1068,7 @@ impl<'a> GpuSimulator<'a> {
                 make("simulator medium", &g0),
                 make("simulator patches", &g1),
                 make("simulator volume", &g2),
-                make("simulator level", &[uniform_entry(0)]),
+                make("simulator level", &[storage_entry(0, true)]),
                 make("simulator plan", &[storage_entry(1, false)]),
             ]
         })?;
@@ -1194,7 +1181,7 @@ impl<'a> GpuSimulator<'a> {
     ///   (kept by the simulator for later lights);
     /// * the light volume: one u32 per cell for each of its 12 arrays
     ///   (fluence deposit) or 9 (paper's, 3 unused placeholders);
-    /// * the uniforms (parameters, one per pyramid and level, one per pass
+    /// * the parameters (the wavefront's, one per pyramid and level, one per pass
     ///   of a sharp step), the stats,
     ///   the plan of the steps and the placeholder
     ///   region table;
@@ -1453,7 +1440,7 @@ impl<'a> GpuSimulator<'a> {
     }
 
     /// The light volume's buffers (see `simulate.wgsl`, group 2), the
-    /// tallies, the uniforms and the plan of one light.
+    /// tallies, the parameters and the plan of one light.
     fn open_run(&self, fluence: bool) -> Run {
         let gpu = self.gpu;
         let cells = self.medium.geometry.voxel_count() as u64;
@@ -1491,15 +1478,15 @@ impl<'a> GpuSimulator<'a> {
                 .map(|b| b.as_entire_binding())
                 .collect::<Vec<_>>(),
         );
-        let uniform = |label, value: PyramidLevel| {
-            let u = gpu.uniform(label, &[value]);
+        let block = |label, value: PyramidLevel| {
+            let u = gpu.params(label, &[value]);
             let group = self.bind(3, &[u.as_entire_binding()]);
             (u, group)
         };
         let levels = [0u32, 1, 2].map(|pyramid| {
             (0..MAX_LEVELS as u32)
                 .map(|level| {
-                    uniform(
+                    block(
                         "pyramid level",
                         PyramidLevel {
                             level,
@@ -1512,7 +1499,7 @@ impl<'a> GpuSimulator<'a> {
         });
         let passes = [SHARP_PATCHES, SHARP_LEVEL, SHARP_REFLECTIONS, SHARP_PIECES]
             .map(|pass_id| {
-                uniform(
+                block(
                     "sharp pass",
                     PyramidLevel {
                         pass_id,
@@ -1534,7 +1521,7 @@ impl<'a> GpuSimulator<'a> {
             volume,
             volume_group,
             stats: gpu.storage_empty("stats", STATS_WORDS as u64 * 4),
-            params: gpu.uniform("params", &[SimParams::default()]),
+            params: gpu.params("params", &[SimParams::default()]),
             plan,
             plan_group,
             levels,
@@ -1542,7 +1529,7 @@ impl<'a> GpuSimulator<'a> {
         }
     }
 
-    /// The uniform block of a wavefront: the grid, the rules, the
+    /// The parameter block of a wavefront: the grid, the rules, the
     /// incident light, the deposit's scales and the tallies' fixed point
     /// (the largest channel's power at 2^52 units).
     fn params(
@@ -1701,7 +1688,7 @@ impl<'a> GpuSimulator<'a> {
     }
 
     /// Group 0: the medium of index channel `g` (with its interfaces when
-    /// `fresnel`), the uniforms, tallies and the scratch.
+    /// `fresnel`), the parameters, tallies and the scratch.
     fn bind_medium(
         &self,
         run: &Run,
@@ -1931,7 +1918,7 @@ impl<'a> GpuSimulator<'a> {
         Ok(())
     }
 
-    /// One run of a plan kernel, then its uniform block copied into `P`.
+    /// One run of a plan kernel, then its parameter block copied into `P`.
     fn encode_plan(&self, enc: &mut wgpu::CommandEncoder, run: &Run, lists: &Lists, which: usize) {
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
@@ -2287,7 +2274,7 @@ mod tests {
     use super::*;
 
     /// The composed source parses and validates as wgpu compiles it, and
-    /// its uniform blocks have the Rust structs' offsets (no device
+    /// its parameter blocks have the Rust structs' offsets (no device
     /// needed).
     #[test]
     fn the_kernels_validate_and_their_layouts_match_rust() {

@@ -26,11 +26,11 @@
 // and the boundary indicator as a third, (n_lo, n_hi, delta, 0) per cell
 // (`eikon_grid::interface`).
 //
-// Generated ahead of this source: `SimParams` (the uniform block `P`),
+// Generated ahead of this source: `SimParams` (the parameter block `P`),
 // `Level`, the stats slots (E_*, S_*, STATS_WORDS), the fates (FATE_*),
 // the incident light's kinds (INCIDENT_*), NONE and LOCAL_CELLS.
 
-@group(0) @binding(0) var<uniform> P: SimParams;
+@group(0) @binding(0) var<storage, read> P: SimParams;
 @group(0) @binding(1) var index_tex: texture_3d<f32>;
 @group(0) @binding(2) var ext_tex: texture_3d<f32>;
 @group(0) @binding(3) var<storage, read> empty: array<f32>;
@@ -94,7 +94,7 @@
 @group(2) @binding(10) var<storage, read_write> fx_hi1: array<atomic<u32>>;
 @group(2) @binding(11) var<storage, read_write> fx_hi2: array<atomic<u32>>;
 
-@group(3) @binding(0) var<uniform> L: PyramidLevel;
+@group(3) @binding(0) var<storage, read> L: PyramidLevel;
 
 // ---------------------------------------------------------------------
 // Deterministic energy tallies: 64-bit fixed point (value * P.scale) in
@@ -1756,7 +1756,7 @@ fn cull_rest(@builtin(global_invocation_id) id: vec3<u32>,
 // holds many and nothing is read back between them (`simulate.rs`,
 // `GpuSimulator::trace`). Before a step `plan_step` reads the new list's
 // length off the counts' pyramid, checks that it fits and that the step
-// limit is not reached, and writes the step's uniform block and how many
+// limit is not reached, and writes the step's parameter block and how many
 // workgroups each of its kernels runs (indirect dispatch); with sharp
 // interfaces `plan_pieces` does the same after pass 0 for the torn
 // patches' pieces. The host copies `plan.params` into `P` after each.
