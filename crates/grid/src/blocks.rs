@@ -55,6 +55,13 @@ impl BlockGrid {
         self.inv_edge
     }
 
+    /// The grid's extent along `axis` in block units (the last block may
+    /// be cut short).
+    #[inline]
+    pub fn extent(&self, axis: usize) -> f64 {
+        self.voxels[axis] as f64 / BLOCK as f64
+    }
+
     /// The flat index of block `[i, j, k]`.
     #[inline(always)]
     pub fn flat(&self, [i, j, k]: [usize; 3]) -> usize {

@@ -309,54 +309,95 @@ impl Medium {
     }
 }
 
-/// Coarse map of the empty space of a medium, for skipping it: blocks of
-/// `BLOCK^3` cells ([`BlockGrid`]) where, out to one cell beyond the block, the index is
-/// one constant, its gradient is zero and nothing absorbs, scatters or
-/// emits. Any trilinear sample taken within a cell of such a block sees
-/// exactly that constant, so a ray there goes straight and loses nothing,
-/// and may be moved without sampling at all.
+/// Coarse map of the uniform and the empty space of a medium, for
+/// skipping it: blocks of `BLOCK^3` cells ([`BlockGrid`]) where, out to
+/// one cell beyond the block, the index is one constant, its gradient is
+/// zero, the extinction is one constant per channel and nothing emits
+/// (uniform blocks), and among them those where nothing absorbs or
+/// scatters (empty blocks). Any trilinear sample taken within a cell of
+/// such a block sees exactly those constants, so a ray there goes
+/// straight, loses a known share per unit of length, and may be moved
+/// without sampling at all. Neighbouring uniform blocks share their
+/// margins, so a cube of them holds one index and one extinction.
 #[derive(Clone, Debug)]
 pub struct EmptySpace {
     blocks: BlockGrid,
-    /// The block's uniform index, or NaN where the block is not empty.
-    n: Vec<f32>,
-    /// Per empty block, the largest `c` such that every block within
+    /// The block's uniform index, or NaN where the block is not uniform.
+    n: Vec<f64>,
+    /// The uniform block's extinction per channel.
+    sigma: Vec<[f32; 3]>,
+    /// Per uniform block, the largest `c` such that every block within
     /// Chebyshev distance `c` of it (a cube of `2c + 1` blocks a side) is
-    /// empty or outside the grid ([`Self::reach`]); 0 elsewhere.
+    /// uniform or outside the grid ([`Self::reach`]); 0 elsewhere.
     clear: Vec<u8>,
 }
 
 impl EmptySpace {
-    /// The empty space of index channel `channel` of `medium`.
+    /// The uniform and empty space of index channel `channel` of `medium`.
     pub fn new(medium: &Medium, channel: usize) -> Self {
-        let blocks = BlockGrid::new(&medium.geometry);
         let idx = &medium.index[channel];
-        let clear = |i: usize, j: usize, k: usize| -> bool {
-            (1..4).all(|c| idx[[i, j, k, c]] == 0.0)
-                && (0..3).all(|c| {
-                    medium.extinction[[i, j, k, c]] == 0.0 && medium.emission[[i, j, k, c]] == 0.0
-                })
-        };
-        let mut n = vec![f32::NAN; blocks.len()];
-        n.par_iter_mut().enumerate().for_each(|(flat, out)| {
-            let b = blocks.coords(flat);
+        Self::with_index(medium, |blocks, b| {
             let [i0, j0, k0] = blocks.first_voxel(b);
             let n0 = idx[[i0, j0, k0, 0]];
-            // The block and a margin of one cell around it.
-            if blocks.all_around(b, |i, j, k| idx[[i, j, k, 0]] == n0 && clear(i, j, k)) {
-                *out = n0;
-            }
-        });
+            blocks
+                .all_around(b, |i, j, k| {
+                    idx[[i, j, k, 0]] == n0 && (1..4).all(|c| idx[[i, j, k, c]] == 0.0)
+                })
+                .then_some(n0 as f64)
+        })
+    }
+
+    /// The uniform and empty space of `medium` where the index is not the
+    /// voxel grid's: `index(blocks, b)` is the one index light sees
+    /// throughout block `b` and a cell around it, or `None` where it is
+    /// not one constant (sharp interfaces: the region's own index where no
+    /// surface comes near, [`crate::Regions::index_within`]). The extinction
+    /// and emission are the medium's.
+    pub fn with_index(
+        medium: &Medium,
+        index: impl Fn(&BlockGrid, [usize; 3]) -> Option<f64> + Sync,
+    ) -> Self {
+        let blocks = BlockGrid::new(&medium.geometry);
+        let ext = &medium.extinction;
+        let mut n = vec![f64::NAN; blocks.len()];
+        let mut sigma = vec![[0.0f32; 3]; blocks.len()];
+        n.par_iter_mut()
+            .zip(sigma.par_iter_mut())
+            .enumerate()
+            .for_each(|(flat, (out, sig))| {
+                let b = blocks.coords(flat);
+                let Some(n0) = index(&blocks, b) else {
+                    return;
+                };
+                let [i0, j0, k0] = blocks.first_voxel(b);
+                let s0 = [0, 1, 2].map(|c| ext[[i0, j0, k0, c]]);
+                // The block and a margin of one cell around it.
+                let uniform = blocks.all_around(b, |i, j, k| {
+                    (0..3)
+                        .all(|c| ext[[i, j, k, c]] == s0[c] && medium.emission[[i, j, k, c]] == 0.0)
+                });
+                if uniform {
+                    *out = n0;
+                    *sig = s0;
+                }
+            });
         let clear = clearance(&blocks, &n);
-        Self { blocks, n, clear }
+        Self {
+            blocks,
+            n,
+            sigma,
+            clear,
+        }
     }
 
     /// How far a straight line from `p` may run in any direction and stay
-    /// within empty blocks or outside the grid (all of one index:
-    /// neighbouring empty blocks share their margins, and outside the grid
-    /// the index is the nearest edge cell's, which the cube holds), world
-    /// units; 0 where `p` is not in an empty block. The distance from `p`
-    /// to the faces of the cube of empty blocks around its own.
+    /// within uniform blocks of the index and extinction at `p` ([`Self::uniform_at`]), world
+    /// units; 0 where `p` is not in a uniform block. The distance from `p`
+    /// to the faces of the cube of uniform blocks around its own (of one
+    /// index and extinction: neighbouring uniform blocks share their
+    /// margins). Outside the grid the index is the nearest edge cell's,
+    /// which the cube holds, but nothing absorbs: the cube reaches past the
+    /// grid's faces only where its blocks are empty.
     #[inline]
     pub fn reach(&self, p: DVec3) -> f64 {
         let Some((b, u)) = self.blocks.locate(p) else {
@@ -367,18 +408,35 @@ impl EmptySpace {
             return 0.0;
         }
         let c = self.clear[flat] as f64;
+        let empty = self.sigma[flat] == [0.0; 3];
         let edge = 1.0 / self.blocks.inv_edge();
         (0..3)
             .map(|a| {
-                let lo = u[a] - (b[a] as f64 - c);
-                let hi = (b[a] as f64 + c + 1.0) - u[a];
-                lo.min(hi) * edge[a]
+                let (mut lo, mut hi) = (b[a] as f64 - c, b[a] as f64 + c + 1.0);
+                if !empty {
+                    // The grid's faces, in blocks (a last block may be
+                    // cut short; its cells end where the grid does).
+                    lo = lo.max(0.0);
+                    hi = hi.min(self.blocks.extent(a));
+                }
+                (u[a] - lo).min(hi - u[a]) * edge[a]
             })
             .fold(f64::INFINITY, f64::min)
     }
 
-    /// [`Self::reach`]'s table: per block, the cube of empty blocks around
-    /// it as its half-width `c` (0 where not empty).
+    /// The index and extinction per channel around `p` if `p` lies in a
+    /// uniform block inside the grid, else `None`.
+    #[inline(always)]
+    pub fn uniform_at(&self, p: DVec3) -> Option<(f64, DVec3)> {
+        let (b, _) = self.blocks.locate(p)?;
+        let flat = self.blocks.flat(b);
+        let n = self.n[flat];
+        let s = self.sigma[flat];
+        (!n.is_nan()).then(|| (n, DVec3::new(s[0] as f64, s[1] as f64, s[2] as f64)))
+    }
+
+    /// [`Self::reach`]'s table: per block, the cube of uniform blocks around
+    /// it as its half-width `c` (0 where not uniform).
     pub fn clearance(&self) -> &[u8] {
         &self.clear
     }
@@ -393,27 +451,32 @@ impl EmptySpace {
     #[inline(always)]
     pub fn index_at(&self, p: DVec3) -> Option<f64> {
         let (b, _) = self.blocks.locate(p)?;
-        let n = self.n[self.blocks.flat(b)];
-        (!n.is_nan()).then_some(n as f64)
+        let flat = self.blocks.flat(b);
+        let n = self.n[flat];
+        (!n.is_nan() && self.sigma[flat] == [0.0; 3]).then_some(n)
     }
 
     /// Fraction of blocks that are empty.
     pub fn empty_fraction(&self) -> f64 {
-        self.n.iter().filter(|x| !x.is_nan()).count() as f64 / self.n.len() as f64
+        let empty = self.n.iter().zip(&self.sigma);
+        empty
+            .filter(|(x, s)| !x.is_nan() && **s == [0.0; 3])
+            .count() as f64
+            / self.n.len() as f64
     }
 }
 
 /// Per block, the largest `c` such that every block within Chebyshev
-/// distance `c` is empty (`n` not NaN) or outside the grid (where light
+/// distance `c` is uniform (`n` not NaN) or outside the grid (where light
 /// goes straight, in the index of the grid's edge); 0 for a block that is
-/// not empty. One less than the chessboard distance to the nearest block
-/// that is not empty, which two raster passes of the
+/// not uniform. One less than the chessboard distance to the nearest block
+/// that is not uniform, which two raster passes of the
 /// 26-neighbour chamfer give exactly (Rosenfeld and Pfaltz, "Sequential
 /// operations in digital picture processing", 1966,
 /// doi:10.1145/321356.321357).
-fn clearance(blocks: &BlockGrid, n: &[f32]) -> Vec<u8> {
+fn clearance(blocks: &BlockGrid, n: &[f64]) -> Vec<u8> {
     let [bx, by, bz] = blocks.dims.map(|d| d as i64);
-    // Chessboard distance to the nearest block that is not empty.
+    // Chessboard distance to the nearest block that is not uniform.
     let mut d: Vec<u16> = n
         .iter()
         .map(|x| if x.is_nan() { 0 } else { u16::MAX })
@@ -695,13 +758,13 @@ priority = 1
         let blocks = BlockGrid::new(&grid);
         let [bx, by, bz] = blocks.dims.map(|d| d as i64);
         let mut state = 12345u64;
-        let n: Vec<f32> = (0..blocks.len())
+        let n: Vec<f64> = (0..blocks.len())
             .map(|_| {
                 state = state
                     .wrapping_mul(6364136223846793005)
                     .wrapping_add(1442695040888963407);
                 if (state >> 33).is_multiple_of(97) {
-                    f32::NAN
+                    f64::NAN
                 } else {
                     1.0
                 }
@@ -765,6 +828,57 @@ priority = 1
             }
         }
         assert!(some > 100, "{some} long runs");
+    }
+
+    #[test]
+    fn uniform_absorbing_space_holds_one_index_and_extinction() {
+        // An absorbing box with a constant index and extinction, reaching
+        // the grid's faces on two sides, in empty space.
+        let m = medium(
+            "[grid]\nresolution = 48\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n[[object]]\nshape = { type = \"box\", center = [0.4, 0.0, 0.0], size = [1.6, 1.6, 1.6] }\nindex = 1.5\nextinction = [2.0, 1.0, 0.5]\n",
+        );
+        let e = EmptySpace::new(&m, 0);
+        let f = m.field(0);
+        let sigma = DVec3::new(2.0f32 as f64, 1.0, 0.5);
+        let (mut absorbing, mut long) = (0, 0);
+        let mut rng = eikon_rng::SplitMix64::new(7);
+        for _ in 0..4000 {
+            let p = DVec3::from(std::array::from_fn(|_| rng.uniform(-1.0, 1.0)));
+            let d = DVec3::from(rng.direction());
+            let Some((n, s)) = e.uniform_at(p) else {
+                assert_eq!(e.index_at(p), None);
+                assert_eq!(e.reach(p), 0.0);
+                continue;
+            };
+            if s == DVec3::ZERO {
+                assert_eq!(e.index_at(p), Some(n));
+                continue;
+            }
+            // Inside the box's core: its own index and extinction, and
+            // not empty.
+            assert_eq!((n, s), (1.5, sigma), "at {p}");
+            assert_eq!(e.index_at(p), None);
+            absorbing += 1;
+            let r = e.reach(p);
+            if r > 2.0 * m.geometry.voxel_size() {
+                long += 1;
+            }
+            // Along any line within reach: still inside the grid, every
+            // sample the same index (no gradient) and extinction.
+            for k in 0..=64 {
+                let q = p + d * (r * k as f64 / 64.0 * (1.0 - 1e-12));
+                assert!(m.geometry.contains(q), "{p} + {d} * {r} leaves the grid");
+                assert_eq!(e.uniform_at(q), Some((n, s)), "{q}");
+                assert_eq!(f.sample(q), (1.5, DVec3::ZERO), "{q}");
+                // Trilinear weights of equal values, to their rounding.
+                let got = m.sample_rgb(&m.extinction, q);
+                assert!((got - sigma).abs().max_element() < 1e-15, "{q}: {got}");
+            }
+        }
+        assert!(
+            absorbing > 200 && long > 20,
+            "{absorbing} in the core, {long} long"
+        );
     }
 
     #[test]

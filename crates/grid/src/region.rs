@@ -242,6 +242,23 @@ impl<'a> Regions<'a> {
         self
     }
 
+    /// The index of channel `ch` throughout the ball of `radius` around
+    /// `centre`: its region's, where no surface comes within `radius` of
+    /// `centre` (every shape's distance bound says so, as in
+    /// [`Regions::clear_of`]) and the region's index is one constant;
+    /// `None` elsewhere.
+    pub fn index_within(&self, centre: DVec3, radius: f64, ch: usize) -> Option<f64> {
+        let objects = &self.scene.objects;
+        if !objects
+            .iter()
+            .all(|o| o.shape.distance(centre).abs() > radius)
+        {
+            return None;
+        }
+        let r = self.scene.owner(centre);
+        self.uniform(r).then(|| self.index(r, centre, ch).0)
+    }
+
     /// The region of `p` when `p` lies in a block no surface comes near.
     #[inline]
     fn clear_region(&self, p: DVec3) -> Option<Region> {

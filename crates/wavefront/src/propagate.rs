@@ -169,18 +169,22 @@ pub(crate) struct Kin {
     pub depth: u8,
 }
 
-/// Empty space: with every corner and the midpoint of the patch `x` in
-/// empty blocks of one index the step (or a [`Run`] of steps) is a straight
-/// line in a constant index without loss, taken without sampling, and its
-/// tube deposited. `false` (nothing changed) where the patch is not in
-/// empty space, or where a surface lies within the step's reach (sharp
-/// interfaces: the exact step then crosses it).
-fn empty_run(
+/// Uniform space: with every corner and the midpoint of the patch in
+/// uniform blocks of one index and one extinction
+/// ([`EmptySpace::uniform_at`]) the step (or a [`Run`] of steps) is a
+/// straight line through a constant index, losing `exp(-sigma l)` over a
+/// length `l` [Ihrke07 eq 18], taken without sampling, and its tube
+/// deposited with that loss spread along it. The flux is attenuated and the
+/// loss added to `lost`. `false` (nothing changed) where the patch is not
+/// in uniform space, or where a surface lies within the step's reach
+/// (sharp interfaces: the exact step then crosses it).
+fn uniform_run(
     step: &Step,
     sharp: Option<&Sharp>,
     corners: &mut [RayState; 4],
-    flux: &[f64; 3],
+    flux: &mut [f64; 3],
     kin: Kin,
+    lost: &mut Loss,
 ) -> bool {
     let Step {
         empty,
@@ -192,33 +196,43 @@ fn empty_run(
     } = *step;
     let x0 = corners.map(|c| c.x);
     let m0 = (x0[0] + x0[1] + x0[2] + x0[3]) * 0.25;
-    let Some(n) = empty.index_at(m0) else {
+    let Some((n, sigma)) = empty.uniform_at(m0) else {
         return false;
     };
-    if !x0.iter().all(|&x| empty.index_at(x) == Some(n)) {
+    if !x0.iter().all(|&x| empty.uniform_at(x) == Some((n, sigma))) {
         return false;
     }
-    // Each step advances dt / n in space [Ihrke07 eqs 14-15].
+    // Each step advances dt / n in space [Ihrke07 eqs 14-15] and loses
+    // sigma dt / n of optical depth.
     let unit = dt / n;
+    let per_step = sigma * unit;
     let dirs = corners.map(|c| c.v.normalize_or_zero());
     let mut k = 1;
     let rules = run.rules.filter(|_| run.max_steps > 1);
-    if rules.is_some() {
+    let absorbs = sigma != DVec3::ZERO;
+    if rules.is_some() || absorbs {
         let reach = x0
             .iter()
             .map(|&x| empty.reach(x))
             .fold(f64::INFINITY, f64::min);
-        k = ((reach / unit).floor() as usize).clamp(1, run.max_steps);
-        if let (Some(sharp), true) = (sharp, k > 1) {
-            // Empty blocks hold no surface; the exact test makes sure.
-            for c in 0..4 {
-                if let Some((_, hit)) = sharp.regions.next_surface(x0[c], dirs[c], k as f64 * unit)
-                {
-                    if hit.t < unit {
-                        return false;
-                    }
-                    k = k.min((hit.t / unit) as usize).max(1);
+        // Where it absorbs, even one step stays within the uniform cube
+        // (and the grid), or is left to the sampled step, whose loss
+        // follows the extinction it meets.
+        if absorbs && reach < unit {
+            return false;
+        }
+        if rules.is_some() {
+            k = ((reach / unit).floor() as usize).clamp(1, run.max_steps);
+        }
+    }
+    if let Some(sharp) = sharp.filter(|_| k > 1 || absorbs) {
+        // Uniform blocks hold no surface; the exact test makes sure.
+        for c in 0..4 {
+            if let Some((_, hit)) = sharp.regions.next_surface(x0[c], dirs[c], k as f64 * unit) {
+                if hit.t < unit {
+                    return false;
                 }
+                k = k.min((hit.t / unit) as usize).max(1);
             }
         }
     }
@@ -239,10 +253,11 @@ fn empty_run(
             break;
         }
         let kept = rules.is_some_and(|rules| {
+            let depth = per_step * taken as f64;
             let seen = refine::Seen {
                 x: from,
                 v: corners.map(|c| c.v),
-                flux: *flux,
+                flux: std::array::from_fn(|ch| flux[ch] * (-depth[ch]).exp()),
                 flux0: kin.flux0,
                 depth: kin.depth,
             };
@@ -252,9 +267,15 @@ fn empty_run(
             break;
         }
     }
+    let depth = per_step * taken as f64;
     // The run's tube in one pass.
     if let Some(t) = tally {
-        deposit::tube(t, &x0, &from, flux, DVec3::ZERO, group);
+        deposit::tube(t, &x0, &from, flux, depth, group);
+    }
+    for ch in 0..3 {
+        let kept = flux[ch] * (-depth[ch]).exp();
+        lost.absorbed[ch] += flux[ch] - kept;
+        flux[ch] = kept;
     }
     for (s, x) in corners.iter_mut().zip(from) {
         s.x = x;
@@ -361,7 +382,7 @@ pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
         .into_par_iter()
         .for_each(|(a, b, c, d, flux, &flux0, &depth, lost)| {
             let mut corners = [*a, *b, *c, *d];
-            if empty_run(step, None, &mut corners, flux, Kin { flux0, depth }) {
+            if uniform_run(step, None, &mut corners, flux, Kin { flux0, depth }, lost) {
                 [*a, *b, *c, *d] = corners;
                 return;
             }
@@ -770,7 +791,7 @@ fn sharp_patch(
     let x0 = corners.map(|c| c.x);
     let m0 = (x0[0] + x0[1] + x0[2] + x0[3]) * 0.25;
     let mut moved = *corners;
-    if empty_run(step, Some(sharp), &mut moved, flux, kin) {
+    if uniform_run(step, Some(sharp), &mut moved, flux, kin, lost) {
         return Some(moved);
     }
     // Each corner: the step's whole optical path, surface by surface.
