@@ -86,7 +86,7 @@ pub struct Args {
     /// No Fresnel transmission at interfaces ([Ihrke07 eq 18] has none).
     #[arg(long)]
     no_fresnel: bool,
-    /// CPU: no straight runs of several steps through empty space; every
+    /// CPU: no straight runs of several steps through uniform space; every
     /// patch steps one step at a time, as on the GPU (to compare the
     /// backends' volumes).
     #[arg(long)]

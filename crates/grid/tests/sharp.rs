@@ -497,3 +497,50 @@ priority = 1
     assert!(silent * 100 < crossings, "{silent} silent region changes");
     assert!(worst < 1e-9, "{worst}");
 }
+
+/// `Regions::index_within` (the light simulation's uniform blocks with
+/// sharp interfaces) answers only where the whole ball lies in one region
+/// of one constant index: a glass sphere, a torus and a graded (Luneburg)
+/// ball, balls of random centres and radii, each checked against the owner
+/// and index of points sampled through it (the scene's own `owner`, not the
+/// distance bounds the answer comes from).
+#[test]
+fn index_within_answers_only_inside_one_uniform_region() {
+    let scene = parse(&format!(
+        "{}\
+         [[object]]\nshape = {{ type = \"sphere\", center = [-0.4, 0.1, 0.0], radius = 0.35 }}\nindex = 1.5\n\
+         [[object]]\nshape = {{ type = \"torus\", center = [0.45, -0.2, 0.1], major_radius = 0.3, minor_radius = 0.1 }}\nindex = 1.33\n\
+         [[object]]\nshape = {{ type = \"sphere\", center = [0.3, 0.5, -0.3], radius = 0.3 }}\nindex = {{ type = \"luneburg\" }}\n",
+        grid(32)
+    ));
+    let regions = Regions::new(&scene);
+    let mut rng = eikon_rng::SplitMix64::new(11);
+    let (mut answered, mut inside) = (0, 0);
+    for _ in 0..3000 {
+        let c = DVec3::from(std::array::from_fn(|_| rng.uniform(-1.0, 1.0)));
+        let radius = rng.uniform(0.01, 0.3);
+        let Some(n) = regions.index_within(c, radius, 1) else {
+            continue;
+        };
+        answered += 1;
+        let owner = scene.owner(c);
+        inside += owner.is_some() as usize;
+        // Not the graded ball, whose index is not one constant.
+        assert_ne!(owner, Some(2), "{c} r {radius}");
+        for _ in 0..64 {
+            let d = DVec3::from(rng.direction());
+            let p = c + d * radius * rng.unit().cbrt();
+            assert_eq!(scene.owner(p), owner, "{p} in the ball {c} r {radius}");
+            let want = match owner {
+                None => 1.0,
+                Some(0) => 1.5,
+                _ => 1.33,
+            };
+            assert_eq!(n, want, "{c}");
+        }
+    }
+    assert!(
+        answered > 500 && inside > 20,
+        "{answered} answered, {inside} inside objects"
+    );
+}

@@ -160,7 +160,8 @@ pub struct Options {
     /// for its cost: docs/PERFORMANCE.md), it leaves the beam and is
     /// counted as reflected, as smoothed interfaces always do.
     pub reflections: bool,
-    /// On the CPU, let a patch in empty space take up to
+    /// On the CPU, let a patch in uniform space (one index and one
+    /// extinction, empty space included) take up to
     /// [`propagate::MAX_RUN`] steps at once ([`propagate::Run`]), its tube
     /// deposited in one pass (the default). Off, every patch steps one step
     /// at a time, as on the GPU: the two backends then deposit the same
@@ -539,7 +540,7 @@ impl Plan {
     }
 }
 
-/// The straight runs through empty space under `opts` ([`propagate::Run`]):
+/// The straight runs through uniform space under `opts` ([`propagate::Run`]):
 /// none with the paper's deposit, which samples the patches after every
 /// step, or without [`Options::runs`].
 pub(crate) fn plan_run(rules: &refine::Rules, opts: &Options) -> propagate::Run {
@@ -843,7 +844,7 @@ pub fn simulate_light_in(
         while !p.is_empty() && step < max_steps {
             step += 1;
             propagate::propagate(&mut p, &step_of, &mut losses);
-            // Patches that ran through empty space are ahead of the
+            // Patches that ran through uniform space are ahead of the
             // common time: the wavefront has come as far as the farthest.
             let ahead = p.corner[0].iter().map(|c| c.opl).fold(0.0, f64::max);
             reached = reached.max(step).max((ahead / dt).round() as usize);

@@ -134,7 +134,7 @@ pub struct RunOptions {
     /// eikon traced it).
     #[serde(default)]
     pub reflections: bool,
-    /// Straight runs of several steps through empty space taken on the CPU
+    /// Straight runs of several steps through uniform space taken on the CPU
     /// (`Options::runs`; absent: runs as each step's own tube, before they
     /// were deposited in one pass).
     #[serde(default)]

@@ -127,12 +127,14 @@ pub struct Step<'a> {
     pub group: Option<usize>,
     /// Sharp interfaces ([`Sharp`]); `None`: the smoothed index.
     pub sharp: Option<&'a Sharp<'a>>,
-    /// Straight runs of several steps through empty space ([`Run`]).
+    /// Straight runs of several steps through uniform space ([`Run`]).
     pub run: Run,
 }
 
-/// Straight runs through empty space (beyond the paper): where a patch's
-/// corners lie in empty blocks ([`EmptySpace::reach`]) it may take up to
+/// Straight runs through uniform space (beyond the paper): where a patch's
+/// corners lie in blocks of one index and one extinction
+/// ([`EmptySpace::uniform_at`], [`EmptySpace::reach`]; with sharp
+/// interfaces the regions' own index) it may take up to
 /// `max_steps` equal-time steps at once, straight, its tube deposited in one
 /// pass ([`deposit::tube`]), without the index sampling, the
 /// tessellation analysis and the list rebuilding in between. A run stops
@@ -158,7 +160,7 @@ impl Run {
     };
 }
 
-/// Most steps one run through empty space takes ([`Run`]).
+/// Most steps one run through uniform space takes ([`Run`]).
 pub const MAX_RUN: usize = 32;
 
 /// What a run needs to know of a patch besides its corners and flux: its
