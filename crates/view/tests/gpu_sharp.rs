@@ -318,9 +318,9 @@ type = "sky"
     );
 }
 
-// Slow (`-- --ignored` runs it), for CI's time: 64 s from a cold shader
-// cache on lavapipe; it passed at 111.1 dB, steps 1.2% and skips 0.3%
-// apart.
+// Slow (`-- --ignored` runs it), for CI's time: on lavapipe most of it
+// is compiling the kernel from a cold shader cache (its figures:
+// docs/PERFORMANCE.md, "Every shape and grid on the GPU").
 /// The wine glass of `configs/wine-glass.toml` (two solids of revolution:
 /// glass, and wine meeting it by priority; dispersion), small, on a
 /// receiver lit through a light volume.
@@ -419,9 +419,9 @@ colors = [[0.9, 0.55, 0.12], [0.1, 0.18, 0.45]]
     check(gpu, "sharp meshes", text, 40.0, MAX_COUNT_DIFFERENCE);
 }
 
-// Slow (`-- --ignored` runs it), for CI's time; it passed at 59.1 dB
-// (below). The VDB functions themselves are checked in every run
-// (`eikon-grid` `tests/wgsl_sharp.rs`).
+// Slow (`-- --ignored` runs it), for CI's time (docs/PERFORMANCE.md).
+// The VDB functions themselves are checked in every run (`eikon-grid`
+// `tests/wgsl_sharp.rs`).
 /// VDB grids on the GPU: a drop that is the sample glass sphere's index
 /// grid above 1.25 (its surface found cell by cell in the grid), of
 /// constant index, with extinction from the density grid, beside a glass

@@ -803,13 +803,15 @@ pub fn simulate_light_in(
         // With sharp interfaces light sees the regions' own index, which
         // is constant right up to the surfaces, not the smoothed grid's.
         let empty = match regions {
-            Some(r) => eikon_grid::EmptySpace::with_index(medium, |blocks, b| {
-                // The block and a cell around it lie within this of its
+            Some(r) => {
+                // A block and a cell around it lie within this of its
                 // centre.
                 let cells = (eikon_grid::blocks::BLOCK + 2) as f64;
                 let radius = 0.5 * (grid.spacing() * cells).length() * (1.0 + 1e-9);
-                r.index_within(blocks.centre(b), radius, g)
-            }),
+                eikon_grid::EmptySpace::with_index(medium, |blocks, b| {
+                    r.index_within(blocks.centre(b), radius, g)
+                })
+            }
             None => eikon_grid::EmptySpace::new(medium, g),
         };
         start_wavefront(

@@ -306,12 +306,11 @@ fn nested_torn_silhouettes_match_the_cpu(gpu: &Gpu) {
 /// scene's bounds: the account balances within 2e-6 and each category
 /// agrees with the CPU's within 1e-3 of the entered power; median < 1e-2,
 /// within 10% > 98%, within 1% > 70%, aligned > 98%, under 1% of the cells
-/// lit in one volume only. Slow (`-- --ignored` runs it): 139 s on
-/// lavapipe from a cold shader cache, most of it compiling the kernel,
-/// which CI's time does not hold beside the rest; it passed with median
-/// 3.3e-6, imbalance 2.8e-9 and the account within 4.0e-5 of the CPU's.
-/// The shapes' functions are checked one by one in every run
-/// (`eikon-grid` `tests/wgsl_sharp.rs`).
+/// lit in one volume only. Slow (`-- --ignored` runs it): on lavapipe
+/// most of it is compiling the kernel from a cold shader cache, which
+/// CI's time does not hold beside the rest (its figures:
+/// docs/PERFORMANCE.md). The shapes' functions are checked one by one in
+/// every run (`eikon-grid` `tests/wgsl_sharp.rs`).
 fn data_shapes_match_the_cpu(gpu: &Gpu) {
     let (scene, m) = medium(&vase_gem_and_drop(16));
     let sim = GpuSimulator::with_regions(gpu, &m, regions(&scene, &m)).unwrap();
