@@ -866,7 +866,7 @@ fn revolution_normal(profile: &Profile, q: DVec3) -> DVec3 {
 fn mesh_crossing(solid: &MeshSolid, o: DVec3, d: DVec3, lo: f64, hi: f64) -> Option<Crossing> {
     // The BVH takes hits with t < t_max; the crossing may sit on t_max.
     let ray = Ray::segment(o, d, lo, hi.next_up());
-    let hit = solid.bvh().closest_hit(&ray)?;
+    let hit = solid.closest_hit(&ray)?;
     let normal = if solid.smooth() {
         hit.normal
     } else {

@@ -619,20 +619,32 @@ impl Bvh {
 /// reference [`Bvh::closest_hit`] is checked against (same test, same tie
 /// rule, so the same triangle and bit-identical `t`).
 pub fn closest_hit_brute_force(mesh: &Mesh, ray: &Ray) -> Option<Hit> {
+    closest_hit_among(mesh, ray, 0..mesh.triangle_count() as u32)
+}
+
+/// The nearest hit among the listed triangles of `mesh` (ids in any
+/// order, repeats allowed), by [`Bvh::closest_hit`]'s test and tie rule (of
+/// equal `t` the lowest id): where the list holds every triangle the ray
+/// could meet, the same hit, bit for bit. A short segment finds its few
+/// candidates in a grid of buckets faster than a descent of the tree.
+pub fn closest_hit_among(
+    mesh: &Mesh,
+    ray: &Ray,
+    triangles: impl IntoIterator<Item = u32>,
+) -> Option<Hit> {
     let pr = Prepared::new(ray)?;
-    let mut best: Option<(usize, f64, [f64; 3], [DVec3; 3])> = None;
-    for t in 0..mesh.triangle_count() {
-        let corners = mesh.corners(t);
+    let mut best: Option<(u32, f64, [f64; 3], [DVec3; 3])> = None;
+    for t in triangles {
+        let corners = mesh.corners(t as usize);
         if let Some((th, bary)) = pr.hits_triangle(&corners, ray.t_min, ray.t_max) {
-            // Ascending ids: a tie keeps the earlier triangle.
-            if best.is_none_or(|(_, bt, _, _)| th < bt) {
+            if best.is_none_or(|(bt_id, bt, _, _)| th < bt || (th == bt && t < bt_id)) {
                 best = Some((t, th, bary, corners));
             }
         }
     }
     best.map(|(t, th, bary, corners)| {
-        let normals = mesh.triangles()[t].map(|v| mesh.normals()[v as usize]);
-        make_hit(t as u32, th, bary, &corners, &normals)
+        let normals = mesh.triangles()[t as usize].map(|v| mesh.normals()[v as usize]);
+        make_hit(t, th, bary, &corners, &normals)
     })
 }
 
