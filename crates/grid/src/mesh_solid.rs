@@ -45,6 +45,9 @@ pub struct MeshSolid {
     mesh: Arc<Mesh>,
     smooth: bool,
     tris: Vec<[DVec3; 3]>,
+    /// Per triangle, its corners' least and greatest `y` and `z`: a line
+    /// along x outside them misses it ([`Self::crosses_x`]).
+    yz: Vec<[f64; 4]>,
     lo: DVec3,
     hi: DVec3,
     cell: DVec3,
@@ -80,6 +83,13 @@ impl MeshSolid {
         let tris: Vec<[DVec3; 3]> = (0..mesh.triangle_count())
             .map(|t| mesh.corners(t))
             .collect();
+        let yz = tris
+            .iter()
+            .map(|t| {
+                let (a, b) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
+                [a.y, b.y, a.z, b.z]
+            })
+            .collect();
         let (mut lo, mut hi) = mesh.bounds();
         // Pad the box so that rounding at its faces never drops a triangle.
         let pad = (hi - lo).max_element().max(1e-300) * 1e-9;
@@ -96,6 +106,7 @@ impl MeshSolid {
             mesh,
             smooth,
             tris,
+            yz,
             lo,
             hi,
             cell,
@@ -169,9 +180,7 @@ impl MeshSolid {
                     }
                     let (x0, x1) = self.row_span(i);
                     for &t in self.bucket(b) {
-                        if crossing_x(&self.tris[t as usize], y, z)
-                            .is_some_and(|x| x >= x0 && x < x1)
-                        {
+                        if self.crosses_x(t, y, z).is_some_and(|x| x >= x0 && x < x1) {
                             inside = !inside;
                         }
                     }
@@ -179,6 +188,17 @@ impl MeshSolid {
             }
         }
         self.side = side;
+    }
+
+    /// [`crossing_x`] of triangle `t`, after a look at its box: a line
+    /// outside it (strictly: on its edge the tie-break decides) misses.
+    #[inline(always)]
+    fn crosses_x(&self, t: u32, y: f64, z: f64) -> Option<f64> {
+        let [y0, y1, z0, z1] = self.yz[t as usize];
+        if y < y0 || y > y1 || z < z0 || z > z1 {
+            return None;
+        }
+        crossing_x(&self.tris[t as usize], y, z)
     }
 
     /// The `x` range whose crossings bucket column `i` counts: its own,
@@ -319,7 +339,7 @@ impl MeshSolid {
             let (x0, x1) = self.row_span(i);
             let x0 = if i == i0 { f64::NEG_INFINITY } else { x0 };
             for &t in self.bucket([i, j, k]) {
-                if let Some(x) = crossing_x(&self.tris[t as usize], p.y, p.z) {
+                if let Some(x) = self.crosses_x(t, p.y, p.z) {
                     if x > p.x && x >= x0 && x < x1 {
                         inside = !inside;
                     }
