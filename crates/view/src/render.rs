@@ -178,6 +178,45 @@ struct Walk {
     /// The ray's direction where it entered the interface band being
     /// crossed.
     incident: Option<DVec3>,
+    /// The last step's extinction and length, with what they give
+    /// ([`Walk::loss`]).
+    loss: Option<(DVec3, f64, Loss)>,
+}
+
+/// Over one step of length `l` through a constant extinction `sigma`, per
+/// channel: the transmittance `exp(-sigma l)` and the weight of a constant
+/// source, `int_0^l exp(-sigma s) ds = (1 - exp(-sigma l)) / sigma`.
+#[derive(Clone, Copy)]
+struct Loss {
+    transmittance: DVec3,
+    weight: DVec3,
+}
+
+impl Walk {
+    /// [`Loss`] of a step, kept for the next: in a homogeneous absorber
+    /// step after step has the same extinction and length.
+    #[inline]
+    fn loss(&mut self, sigma: DVec3, step: f64) -> Loss {
+        if let Some((s, l, loss)) = self.loss {
+            if s == sigma && l == step {
+                return loss;
+            }
+        }
+        let transmittance = (-sigma * step).exp();
+        let weight = DVec3::from_array([0, 1, 2].map(|c| {
+            if sigma[c] > 1e-12 {
+                (1.0 - transmittance[c]) / sigma[c]
+            } else {
+                step
+            }
+        }));
+        let loss = Loss {
+            transmittance,
+            weight,
+        };
+        self.loss = Some((sigma, step, loss));
+        loss
+    }
 }
 
 /// The colour channels one eye ray carries.
@@ -378,6 +417,7 @@ impl<'a> Renderer<'a> {
             stats: Stats::default(),
             mirrored: None,
             incident: None,
+            loss: None,
         };
         // A ray caught by total internal reflection may circle for long;
         // after this many volume diagonals it is given up as absorbed.
@@ -508,6 +548,7 @@ impl<'a> Renderer<'a> {
             stats: Stats::default(),
             mirrored: None,
             incident: None,
+            loss: None,
         };
         self.finish_sharp(regions, ray, walk, lanes)
     }
@@ -565,12 +606,13 @@ impl<'a> Renderer<'a> {
         let ds = self.opts.step * h;
         let lit = !self.volumes.is_empty();
         let budget = (64.0 * grid.diagonal() / ds) as u64 + 16;
+        // Along a straight piece (a uniform region, no surface met) the
+        // grid's exit is clipped once: where it lies farther than two steps
+        // the step is `ds` whatever its exact distance.
+        let mut piece: Option<(DVec3, f64)> = None;
         while walk.stats.steps + walk.stats.skips < budget {
             let dir = ray.s.v.normalize_or_zero();
-            let exit = grid
-                .clip_line(ray.s.x, dir)
-                .map_or(0.0, |(_, t1)| t1.max(0.0));
-            if exit <= 0.0 || dir == DVec3::ZERO {
+            if dir == DVec3::ZERO {
                 break;
             }
             if walk.alpha.max_element() < self.opts.min_transmittance {
@@ -590,10 +632,22 @@ impl<'a> Renderer<'a> {
             // Long straight steps where nothing needs gathering on the way:
             // a constant index with no scattering (or no light) and no
             // emission, and an extinction that is one constant.
-            let quiet = regions.uniform(ray.region)
+            let straight = regions.uniform(ray.region);
+            let quiet = straight
                 && (here.scatter == DVec3::ZERO || !lit)
                 && here.emission == DVec3::ZERO
                 && m.extinction_grid.is_none();
+            let far = !quiet && piece.is_some_and(|(x, exit)| exit - (x0 - x).length() > 2.0 * ds);
+            let exit = if far {
+                f64::INFINITY
+            } else {
+                let exit = grid.clip_line(x0, dir).map_or(0.0, |(_, t1)| t1.max(0.0));
+                piece = straight.then_some((x0, exit));
+                exit
+            };
+            if exit <= 0.0 {
+                break;
+            }
             let step = if quiet { exit } else { ds.min(exit) };
             let n = regions.index(ray.region, x0, ch).0;
             let st = regions.step(
@@ -629,6 +683,9 @@ impl<'a> Renderer<'a> {
             }
             let tri = grid.trilinear(x0);
             self.absorb_and_emit(&tri, &here, n, dir, st.used, lanes, &mut walk);
+            if st.at_surface || st.event.is_some() {
+                piece = None;
+            }
             if let Some(ev) = st.event.filter(|e| !e.total) {
                 let rho = ev.reflectance;
                 if rho > 0.0 {
@@ -711,18 +768,11 @@ impl<'a> Renderer<'a> {
         // Exact for constant sigma and S over the step:
         // int_0^ds exp(-sigma s) ds = (1 - exp(-sigma ds)) / sigma.
         if sigma.max_element() > 0.0 {
-            let att = (-sigma * step).exp();
+            let loss = w.loss(sigma, step);
             if source != DVec3::ZERO {
-                let weight = DVec3::from_array([0, 1, 2].map(|c| {
-                    if sigma[c] > 1e-12 {
-                        (1.0 - att[c]) / sigma[c]
-                    } else {
-                        step
-                    }
-                }));
-                w.radiance += w.alpha * source * weight;
+                w.radiance += w.alpha * source * loss.weight;
             }
-            w.alpha *= att;
+            w.alpha *= loss.transmittance;
         } else if source != DVec3::ZERO {
             w.radiance += w.alpha * source * step;
         }
