@@ -347,13 +347,11 @@ impl EmptySpace {
         })
     }
 
-    /// The uniform and empty space of `medium` where the index is not the
-    /// voxel grid's: `index(blocks, b)` is the one index light sees
-    /// throughout block `b` and a cell around it, or `None` where it is
-    /// not one constant (sharp interfaces: the region's own index where no
-    /// surface comes near, [`crate::Regions::index_within`]). The extinction
-    /// and emission are the medium's.
-    pub fn with_index(
+    /// The uniform and empty space of `medium` given `index(blocks, b)`,
+    /// the one index light sees throughout block `b` and a cell around it
+    /// (`None` where it is not one constant), and the medium's extinction
+    /// and emission.
+    fn with_index(
         medium: &Medium,
         index: impl Fn(&BlockGrid, [usize; 3]) -> Option<f64> + Sync,
     ) -> Self {

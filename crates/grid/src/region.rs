@@ -242,23 +242,6 @@ impl<'a> Regions<'a> {
         self
     }
 
-    /// The index of channel `ch` throughout the ball of `radius` around
-    /// `centre`: its region's, where no surface comes within `radius` of
-    /// `centre` (every shape's distance bound says so, as in
-    /// [`Regions::clear_of`]) and the region's index is one constant;
-    /// `None` elsewhere.
-    pub fn index_within(&self, centre: DVec3, radius: f64, ch: usize) -> Option<f64> {
-        let objects = &self.scene.objects;
-        if !objects
-            .iter()
-            .all(|o| o.shape.distance(centre).abs() > radius)
-        {
-            return None;
-        }
-        let r = self.scene.owner(centre);
-        self.uniform(r).then(|| self.index(r, centre, ch).0)
-    }
-
     /// The region of `p` when `p` lies in a block no surface comes near.
     #[inline]
     fn clear_region(&self, p: DVec3) -> Option<Region> {
@@ -433,15 +416,19 @@ impl<'a> Regions<'a> {
                 Form::EqualTime => n,
             };
             let len = h / per;
+            // A surface just beyond the step's end (within the crossing
+            // test's `eps`, which the next step's test would skip as its
+            // own start) is crossed now: a step never ends on a surface
+            // without crossing it.
+            let reach = len + 2.0 * self.eps;
             // Far from every surface a short piece crosses none.
-            let clear = self
-                .clear
-                .as_ref()
-                .is_some_and(|c| len <= c.reach && self.clear_region(ray.s.x) == Some(ray.region));
+            let clear = self.clear.as_ref().is_some_and(|c| {
+                reach <= c.reach && self.clear_region(ray.s.x) == Some(ray.region)
+            });
             let hit = match ray.ahead {
                 _ if clear => None,
-                None => self.next_surface(ray.s.x, d, len),
-                Some(free) if len <= free => None,
+                None => self.next_surface(ray.s.x, d, reach),
+                Some(free) if reach <= free => None,
                 Some(_) => {
                     // The straight line on to the grid's edge (its surfaces
                     // beyond are met by the steps after a crossing).
@@ -450,9 +437,9 @@ impl<'a> Regions<'a> {
                         .grid
                         .geometry
                         .clip_line(ray.s.x, d)
-                        .map_or(len, |(_, t1)| t1.max(len));
+                        .map_or(reach, |(_, t1)| t1.max(reach));
                     match self.next_surface(ray.s.x, d, horizon) {
-                        Some(h) if h.1.t <= len => Some(h),
+                        Some(h) if h.1.t <= reach => Some(h),
                         beyond => {
                             ray.ahead = Some(beyond.map_or(horizon, |h| h.1.t));
                             None

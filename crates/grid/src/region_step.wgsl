@@ -110,7 +110,9 @@ fn region_step(ray: ptr<function, RegionRay>, form: u32, integrator: u32, h: f32
     }
     var hit = RegionHit(false, 0u, 0.0, vec3<f32>(0.0));
     if len > 0.0 {
-        hit = region_next_surface(x0, dir, eps, len);
+        // Straight: a surface within eps beyond the end is crossed now, as
+        // `Regions::step` does (a step never ends on a surface uncrossed).
+        hit = region_next_surface(x0, dir, eps, select(len, len + 2.0 * eps, uniform));
     }
     if !hit.ok {
         (*ray).x = x0 + full.x;

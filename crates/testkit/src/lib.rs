@@ -26,7 +26,7 @@ pub mod photon_ref;
 pub mod scenes;
 
 use eikon_gpu::Gpu;
-use eikon_grid::{Light, Medium};
+use eikon_grid::{Light, Medium, Regions};
 use eikon_optics::{Camera, Image};
 use eikon_view::gpu::GpuRenderer;
 use eikon_view::{Renderer, Stats, Surroundings};
@@ -74,6 +74,26 @@ impl Backend<'_> {
         match self {
             Backend::Cpu => eikon_wavefront::simulate_light(light, medium, opts, &|_, _| {}),
             Backend::Gpu(gpu) => GpuSimulator::new(gpu, medium)?.simulate(light, opts, &|_, _| {}),
+        }
+    }
+
+    /// [`Backend::simulate`] with sharp interfaces: light steps through
+    /// `regions` (`eikon_wavefront::simulate_light_in` or
+    /// [`GpuSimulator::with_regions`]).
+    pub fn simulate_sharp(
+        &self,
+        light: &Light,
+        medium: &Medium,
+        regions: Regions,
+        opts: &eikon_wavefront::Options,
+    ) -> Result<(LightVolume, Summary), eikon_wavefront::Error> {
+        match self {
+            Backend::Cpu => {
+                eikon_wavefront::simulate_light_in(light, medium, Some(&regions), opts, &|_, _| {})
+            }
+            Backend::Gpu(gpu) => {
+                GpuSimulator::with_regions(gpu, medium, regions)?.simulate(light, opts, &|_, _| {})
+            }
         }
     }
 

@@ -540,16 +540,17 @@ impl Plan {
     }
 }
 
-/// The straight runs through uniform space under `opts` ([`propagate::Run`]):
-/// none with the paper's deposit, which samples the patches after every
-/// step, or without [`Options::runs`].
-pub(crate) fn plan_run(rules: &refine::Rules, opts: &Options) -> propagate::Run {
+/// The straight runs through uniform space under `opts`, within
+/// `max_steps` ([`propagate::Run`]): none with the paper's deposit, which
+/// samples the patches after every step, or without [`Options::runs`].
+pub(crate) fn plan_run(rules: &refine::Rules, opts: &Options, max_steps: usize) -> propagate::Run {
     if opts.deposit == DepositRule::Paper || !opts.runs {
         return propagate::Run::NONE;
     }
     propagate::Run {
         max_steps: propagate::MAX_RUN,
         rules: Some(*rules),
+        until: max_steps,
     }
 }
 
@@ -800,20 +801,10 @@ pub fn simulate_light_in(
             Some(e) => e,
             None => &field,
         };
-        // With sharp interfaces light sees the regions' own index, which
-        // is constant right up to the surfaces, not the smoothed grid's.
-        let empty = match regions {
-            Some(r) => {
-                // A block and a cell around it lie within this of its
-                // centre.
-                let cells = (eikon_grid::blocks::BLOCK + 2) as f64;
-                let radius = 0.5 * (grid.spacing() * cells).length() * (1.0 + 1e-9);
-                eikon_grid::EmptySpace::with_index(medium, |blocks, b| {
-                    r.index_within(blocks.centre(b), radius, g)
-                })
-            }
-            None => eikon_grid::EmptySpace::new(medium, g),
-        };
+        // Empty space for the smoothed index's runs and the paper's deposit
+        // (with sharp interfaces runs go by the regions themselves,
+        // `propagate::Run`).
+        let empty = eikon_grid::EmptySpace::new(medium, g);
         start_wavefront(
             light,
             medium,
@@ -840,7 +831,7 @@ pub fn simulate_light_in(
             tally: tally.as_ref(),
             group,
             sharp: sharp.as_ref(),
-            run: plan_run(&rules, opts),
+            run: plan_run(&rules, opts, max_steps),
         };
         let (mut step, mut reached) = (0, 0);
         while !p.is_empty() && step < max_steps {

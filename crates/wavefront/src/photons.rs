@@ -555,24 +555,30 @@ impl Tracer<'_> {
         flux: &mut [f64; 3],
         t: &mut Tally,
     ) {
-        let index = RegionIndex {
-            regions,
-            channel: self.channel,
-        };
-        let per_index = |p: DVec3| {
+        // The region's own extinction over its own index, in the region
+        // the piece crosses (its end may lie on the surface).
+        let per_index = |r: eikon_grid::region::Region, p: DVec3| {
             if !self.grid.contains(p) {
                 return DVec3::ZERO;
             }
-            self.medium.sample_rgb(&self.medium.extinction, p) / index.sample(p).0
+            regions.material(r).extinction_at(p) / regions.index(r, p, self.channel).0
         };
         let mut left = self.dt;
         for _ in 0..16 {
             let x0 = ray.s.x;
+            let r0 = ray.region;
             let st = regions.step(ray, Form::EqualTime, self.integrator, left, self.channel);
             left -= st.used;
             // The piece ends on the surface, before any refraction.
             let x1 = st.event.map_or(ray.s.x, |e| e.point);
-            let depth = step_depth(self.grid, x0, x1, per_index(x0), per_index(x1), st.used);
+            let depth = step_depth(
+                self.grid,
+                x0,
+                x1,
+                per_index(r0, x0),
+                per_index(r0, x1),
+                st.used,
+            );
             self.tally.chord(x0, x1, flux, depth, self.group);
             for c in 0..3 {
                 let kept = flux[c] * (-depth[c]).exp();

@@ -134,8 +134,8 @@ pub struct Step<'a> {
 /// Straight runs through uniform space (beyond the paper): where a patch's
 /// corners lie in blocks of one index and one extinction
 /// ([`EmptySpace::uniform_at`], [`EmptySpace::reach`]; with sharp
-/// interfaces the regions' own index) it may take up to
-/// `max_steps` equal-time steps at once, straight, its tube deposited in one
+/// interfaces, in one region whose index and extinction are constants, up
+/// to its surface) it may take up to `max_steps` equal-time steps at once, straight, its tube deposited in one
 /// pass ([`deposit::tube`]), without the index sampling, the
 /// tessellation analysis and the list rebuilding in between. A run stops
 /// short of any surface, and after any step at whose end the tessellation
@@ -150,6 +150,11 @@ pub struct Run {
     pub max_steps: usize,
     /// The tessellation analysis' rules.
     pub rules: Option<refine::Rules>,
+    /// The simulation's step limit: no run takes a patch past it (its own
+    /// clock, the optical path it has come over the step's), and a patch
+    /// that ran ahead to it waits there while the others catch up, as if
+    /// it had come step by step.
+    pub until: usize,
 }
 
 impl Run {
@@ -157,6 +162,7 @@ impl Run {
     pub const NONE: Run = Run {
         max_steps: 1,
         rules: None,
+        until: usize::MAX,
     };
 }
 
@@ -171,15 +177,110 @@ pub(crate) struct Kin {
     pub depth: u8,
 }
 
+/// How far a patch may go straight at once ([`uniform_run`]): the index
+/// and extinction it sees all the way and the number of steps.
+struct Reach {
+    n: f64,
+    sigma: DVec3,
+    steps: usize,
+}
+
+/// [`Reach`] from the blocks of uniform space (smoothed interfaces): the
+/// corners and the midpoint in uniform blocks of one index and extinction,
+/// at most `most` steps, and the run within the cube of such blocks
+/// ([`EmptySpace::reach`]). An absorbing patch whose first step would
+/// leave that cube is left to the sampled step.
+fn block_reach(step: &Step, x0: &[DVec3; 4], most: usize) -> Option<Reach> {
+    let empty = step.empty;
+    let m0 = (x0[0] + x0[1] + x0[2] + x0[3]) * 0.25;
+    let (n, sigma) = empty.uniform_at(m0)?;
+    if !x0.iter().all(|&x| empty.uniform_at(x) == Some((n, sigma))) {
+        return None;
+    }
+    let unit = step.dt / n;
+    let absorbs = sigma != DVec3::ZERO;
+    let mut steps = 1;
+    if most > 1 || absorbs {
+        let reach = x0
+            .iter()
+            .map(|&x| empty.reach(x))
+            .fold(f64::INFINITY, f64::min);
+        if absorbs && reach < unit {
+            return None;
+        }
+        steps = ((reach / unit).floor() as usize).clamp(1, most);
+    }
+    Some(Reach { n, sigma, steps })
+}
+
+/// [`Reach`] with sharp interfaces: the corners and the midpoint in one
+/// region whose index and extinction are constants (its material's, exact
+/// up to its surface), at most `most` steps, none of which takes a corner
+/// to a surface (the exact crossing test along each corner's line) or, where the
+/// region absorbs, out of the grid (nothing absorbs outside it,
+/// [`step_depth`]). A patch whose first step would is left to the exact
+/// step.
+fn region_reach(
+    step: &Step,
+    sharp: &Sharp,
+    x0: &[DVec3; 4],
+    dirs: &[DVec3; 4],
+    most: usize,
+) -> Option<Reach> {
+    let regions = sharp.regions;
+    let m0 = (x0[0] + x0[1] + x0[2] + x0[3]) * 0.25;
+    let r = regions.at(m0);
+    let m = regions.material(r);
+    if !regions.uniform(r) || m.extinction_grid.is_some() {
+        return None;
+    }
+    if !x0.iter().all(|&x| regions.at(x) == r) {
+        return None;
+    }
+    let n = regions.index(r, m0, step.channel).0;
+    let unit = step.dt / n;
+    let grid = &step.medium.geometry;
+    let sigma = m.extinction;
+    let mut steps = most;
+    if sigma != DVec3::ZERO {
+        for (&x, &d) in x0.iter().zip(dirs) {
+            if !grid.contains(x) {
+                return None;
+            }
+            let exit = grid.clip_line(x, d).map_or(0.0, |(_, t1)| t1);
+            if exit < unit {
+                return None;
+            }
+            steps = steps.min((exit / unit) as usize);
+        }
+    }
+    // The crossing test skips a surface at its own start, so it starts a
+    // little behind each corner: a corner on a surface (a step may end on
+    // one) is then seen there, and left to the exact step, which knows
+    // which way it crosses. A run ends short of a surface, never on it.
+    let back = 1e-3 * unit;
+    for (&x, &d) in x0.iter().zip(dirs) {
+        if let Some((_, hit)) = regions.next_surface(x - d * back, d, back + steps as f64 * unit) {
+            let fit = ((hit.t - back) * (1.0 - 1e-9) / unit).floor();
+            if fit < 1.0 {
+                return None;
+            }
+            steps = steps.min(fit as usize);
+        }
+    }
+    Some(Reach { n, sigma, steps })
+}
+
 /// Uniform space: with every corner and the midpoint of the patch in
-/// uniform blocks of one index and one extinction
-/// ([`EmptySpace::uniform_at`]) the step (or a [`Run`] of steps) is a
-/// straight line through a constant index, losing `exp(-sigma l)` over a
-/// length `l` [Ihrke07 eq 18], taken without sampling, and its tube
-/// deposited with that loss spread along it. The flux is attenuated and the
-/// loss added to `lost`. `false` (nothing changed) where the patch is not
-/// in uniform space, or where a surface lies within the step's reach
-/// (sharp interfaces: the exact step then crosses it).
+/// uniform blocks of one index and one extinction ([`block_reach`]; with
+/// sharp interfaces, in one region of a constant index and extinction,
+/// [`region_reach`]) the step (or a [`Run`] of steps) is a straight line
+/// through a constant index, losing `exp(-sigma l)` over a length `l`
+/// [Ihrke07 eq 18], taken without sampling, and its tube deposited with
+/// that loss spread along it. The flux is attenuated and the loss added to
+/// `lost`. `false` (nothing changed) where the patch is not in uniform
+/// space, or where a surface lies within the first step (the exact step
+/// then crosses it).
 fn uniform_run(
     step: &Step,
     sharp: Option<&Sharp>,
@@ -189,55 +290,36 @@ fn uniform_run(
     lost: &mut Loss,
 ) -> bool {
     let Step {
-        empty,
         dt,
         tally,
         group,
         run,
         ..
     } = *step;
+    let rules = run.rules.filter(|_| run.max_steps > 1);
+    let mut most = if rules.is_some() { run.max_steps } else { 1 };
+    if run.until != usize::MAX {
+        let clock = (corners[0].opl / dt).round() as usize;
+        let left = run.until.saturating_sub(clock);
+        if left == 0 {
+            // At the step limit ahead of the others: it waits.
+            return true;
+        }
+        most = most.min(left);
+    }
     let x0 = corners.map(|c| c.x);
-    let m0 = (x0[0] + x0[1] + x0[2] + x0[3]) * 0.25;
-    let Some((n, sigma)) = empty.uniform_at(m0) else {
+    let dirs = corners.map(|c| c.v.normalize_or_zero());
+    let found = match sharp {
+        Some(sharp) => region_reach(step, sharp, &x0, &dirs, most),
+        None => block_reach(step, &x0, most),
+    };
+    let Some(Reach { n, sigma, steps: k }) = found else {
         return false;
     };
-    if !x0.iter().all(|&x| empty.uniform_at(x) == Some((n, sigma))) {
-        return false;
-    }
     // Each step advances dt / n in space [Ihrke07 eqs 14-15] and loses
     // sigma dt / n of optical depth.
     let unit = dt / n;
     let per_step = sigma * unit;
-    let dirs = corners.map(|c| c.v.normalize_or_zero());
-    let mut k = 1;
-    let rules = run.rules.filter(|_| run.max_steps > 1);
-    let absorbs = sigma != DVec3::ZERO;
-    if rules.is_some() || absorbs {
-        let reach = x0
-            .iter()
-            .map(|&x| empty.reach(x))
-            .fold(f64::INFINITY, f64::min);
-        // Where it absorbs, even one step stays within the uniform cube
-        // (and the grid), or is left to the sampled step, whose loss
-        // follows the extinction it meets.
-        if absorbs && reach < unit {
-            return false;
-        }
-        if rules.is_some() {
-            k = ((reach / unit).floor() as usize).clamp(1, run.max_steps);
-        }
-    }
-    if let Some(sharp) = sharp.filter(|_| k > 1 || absorbs) {
-        // Uniform blocks hold no surface; the exact test makes sure.
-        for c in 0..4 {
-            if let Some((_, hit)) = sharp.regions.next_surface(x0[c], dirs[c], k as f64 * unit) {
-                if hit.t < unit {
-                    return false;
-                }
-                k = k.min((hit.t / unit) as usize).max(1);
-            }
-        }
-    }
     for (s, d) in corners.iter_mut().zip(dirs) {
         s.v = d * n;
     }
@@ -791,14 +873,25 @@ fn sharp_patch(
     } = *step;
     let regions = sharp.regions;
     let x0 = corners.map(|c| c.x);
-    let m0 = (x0[0] + x0[1] + x0[2] + x0[3]) * 0.25;
     let mut moved = *corners;
     if uniform_run(step, Some(sharp), &mut moved, flux, kin, lost) {
         return Some(moved);
     }
-    // Each corner: the step's whole optical path, surface by surface.
+    // sigma_t / n of region `r` at `p`: its own extinction (its material's,
+    // exact up to the surface) over its own index; zero outside the bounds.
+    let per_index = |r: Region, p: DVec3| {
+        if !medium.geometry.contains(p) {
+            return DVec3::ZERO;
+        }
+        regions.material(r).extinction_at(p) / regions.index(r, p, channel).0
+    };
+    // Each corner: the step's whole optical path, surface by surface, and
+    // the optical depth [Ihrke07 eq 18] of each piece in the region it
+    // crosses (so a step through a surface is charged for the part on each
+    // side, not half and half); the patch loses the corners' mean.
     let mut first: [Option<Crossed>; 4] = [None; 4];
     let mut kept = 1.0;
+    let mut depth = DVec3::ZERO;
     for (k, s) in moved.iter_mut().enumerate() {
         let mut ray = SharpRay {
             s: *s,
@@ -807,8 +900,19 @@ fn sharp_patch(
         };
         let mut left = dt;
         for _ in 0..MAX_CROSSINGS {
+            let (xa, r) = (ray.s.x, ray.region);
             let st = regions.step(&mut ray, Form::EqualTime, integrator, left, channel);
             left -= st.used;
+            // A crossing leaves the ray on the surface: the piece ends there.
+            let xb = ray.s.x;
+            depth += step_depth(
+                &medium.geometry,
+                xa,
+                xb,
+                per_index(r, xa),
+                per_index(r, xb),
+                st.used,
+            );
             if let Some(ev) = st.event {
                 first[k].get_or_insert(Crossed {
                     surface: ev.surface,
@@ -868,15 +972,11 @@ fn sharp_patch(
         }
     }
     let x1 = moved.map(|c| c.x);
-    let m1 = (x1[0] + x1[1] + x1[2] + x1[3]) * 0.25;
-    let field = RegionIndex { regions, channel };
-    let per_index = |p: DVec3| {
-        if !medium.geometry.contains(p) {
-            return DVec3::ZERO;
-        }
-        medium.sample_rgb(&medium.extinction, p) / field.sample(p).0
-    };
-    let depth = step_depth(&medium.geometry, m0, m1, per_index(m0), per_index(m1), dt);
+    // (The step's light is absorbed before its Fresnel loss: what goes on
+    // is exact, the entry step's absorbed and reflected shares are off by
+    // up to R times its absorption; the GPU's reflections pass reads the
+    // transmitted flux alone.)
+    let depth = depth * 0.25;
     if let Some(t) = tally {
         deposit::tube(t, &x0, &x1, flux, depth, group);
     }

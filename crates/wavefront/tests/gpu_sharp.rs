@@ -139,9 +139,14 @@ power = [1, 1, 1]
 /// A step limit lets every patch that is not trapped so end on both (160
 /// on the ball; the nested scene's light crosses in under 100), and keeps
 /// the tests short; what is left is counted as trapped.
+/// Step by step on the CPU too: runs through uniform space are the CPU's
+/// alone (`propagate::Run`), and what they deposit against the steps they
+/// stand for is `tests/light.rs`'s to check; here both backends take the
+/// same steps.
 fn opts(max_steps: usize) -> Options {
     Options {
         max_steps: Some(max_steps),
+        runs: false,
         ..fluence()
     }
 }

@@ -412,6 +412,7 @@ fn runs_deposit_what_their_steps_do(scene: &str, material: &str, saving: f64) {
     let (runs, calls_runs, absorbed_runs) = volume(propagate::Run {
         max_steps: propagate::MAX_RUN,
         rules: Some(rules),
+        until: usize::MAX,
     });
     // The loss along a run is the product of its steps' (to rounding).
     for (a, b) in absorbed_runs.iter().zip(absorbed_one) {

@@ -1068,13 +1068,13 @@ fn quad_child(q: Quad, part: u32) -> Quad {
     return out;
 }
 
-// sigma_t / n with sharp interfaces: the own index of the region at p
-// (zero outside the bounds).
-fn sharp_extinction_per_index(p: vec3<f32>) -> vec3<f32> {
+// sigma_t / n of region ri at p with sharp interfaces: its own extinction
+// over its own index (zero outside the bounds).
+fn sharp_extinction_per_index(ri: u32, p: vec3<f32>) -> vec3<f32> {
     if !grid_contains(P.grid, p) {
         return vec3<f32>(0.0);
     }
-    return sample_ext(p) / shell_index(p);
+    return region_extinction(ri, p) / region_index(ri, p, P.channel).x;
 }
 
 // What `sharp_patch` did: whether the corners held together, their rays
@@ -1122,12 +1122,18 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
     var came: array<u32, 4>;
     var beyond: array<u32, 4>;
     var kept = 1.0;
+    // The optical depth of each corner's pieces, each in the region it
+    // crosses (`sharp_patch`); the patch loses the corners' mean.
+    var depth = vec3<f32>(0.0);
     for (var k = 0u; k < 4u; k++) {
         var ray = RegionRay(q.x[k], q.v[k], q.opl[k], region_owner(q.x[k]));
         var left = dt;
         for (var s = 0u; s < MAX_CROSSINGS; s++) {
+            let xa = ray.x;
+            let ra = ray.region;
             let st = region_step(&ray, FORM_EQUAL_TIME, P.integrator, left, P.channel, P.sharp_eps);
             left -= st.used;
+            depth += step_depth(P.grid, xa, ray.x, sharp_extinction_per_index(ra, xa), sharp_extinction_per_index(ra, ray.x), st.used);
             if st.c.event {
                 if !has[k] {
                     has[k] = true;
@@ -1202,8 +1208,7 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
             }
         }
     }
-    let m1 = (out.q.x[0] + out.q.x[1] + out.q.x[2] + out.q.x[3]) * 0.25;
-    let depth = step_depth(P.grid, m0, m1, sharp_extinction_per_index(m0), sharp_extinction_per_index(m1), dt);
+    depth *= 0.25;
     if write && P.fluence != 0u {
         tube(Swept(q.x, out.q.x, flux, depth));
     }
