@@ -69,7 +69,7 @@
 
 use crate::deposit::Counters;
 use crate::light::{self, PlaneFrame};
-use crate::propagate::{step_depth, Bounded, RegionIndex};
+use crate::propagate::{region_extinction_per_index, step_depth, Bounded, RegionIndex};
 use crate::{Error, LightVolume, Options, Summary};
 use eikon_grid::interface::{probe_length, Interfaces};
 use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
@@ -555,14 +555,7 @@ impl Tracer<'_> {
         flux: &mut [f64; 3],
         t: &mut Tally,
     ) {
-        // The region's own extinction over its own index, in the region
-        // the piece crosses (its end may lie on the surface).
-        let per_index = |r: eikon_grid::region::Region, p: DVec3| {
-            if !self.grid.contains(p) {
-                return DVec3::ZERO;
-            }
-            regions.material(r).extinction_at(p) / regions.index(r, p, self.channel).0
-        };
+        let per_index = |r, p| region_extinction_per_index(self.grid, regions, r, p, self.channel);
         let mut left = self.dt;
         for _ in 0..16 {
             let x0 = ray.s.x;

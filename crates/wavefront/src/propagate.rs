@@ -79,6 +79,25 @@ fn extinction_per_index(medium: &Medium, field: &Bounded, empty: &EmptySpace, p:
     medium.sample_rgb(&medium.extinction, p) / field.sample(p).0
 }
 
+/// `sigma_t / n` per channel of region `r` at `p` of `grid` with sharp interfaces:
+/// its own extinction (its material's, exact up to its surface) over its
+/// own index, in index channel `ch`; zero outside the bounds (the GPU's
+/// `sharp_extinction_per_index`). The wavefront's and the photons' sharp
+/// steps charge each piece of a step with it, in the region the piece
+/// crosses (its end may lie on the surface).
+pub(crate) fn region_extinction_per_index(
+    grid: &GridGeometry,
+    regions: &Regions,
+    r: Region,
+    p: DVec3,
+    ch: usize,
+) -> DVec3 {
+    if !grid.contains(p) {
+        return DVec3::ZERO;
+    }
+    regions.material(r).extinction_at(p) / regions.index(r, p, ch).0
+}
+
 /// [Ihrke07 eq 18]'s optical depth `int sigma_t / n dt` over one step of `dt`
 /// from `x0` to `x1`, given `sigma_t / n` at both ends (zero outside the
 /// bounds): the trapezoid rule, except that a step crossing the bounds is
@@ -877,14 +896,8 @@ fn sharp_patch(
     if uniform_run(step, Some(sharp), &mut moved, flux, kin, lost) {
         return Some(moved);
     }
-    // sigma_t / n of region `r` at `p`: its own extinction (its material's,
-    // exact up to the surface) over its own index; zero outside the bounds.
-    let per_index = |r: Region, p: DVec3| {
-        if !medium.geometry.contains(p) {
-            return DVec3::ZERO;
-        }
-        regions.material(r).extinction_at(p) / regions.index(r, p, channel).0
-    };
+    let per_index =
+        |r: Region, p: DVec3| region_extinction_per_index(&medium.geometry, regions, r, p, channel);
     // Each corner: the step's whole optical path, surface by surface, and
     // the optical depth [Ihrke07 eq 18] of each piece in the region it
     // crosses (so a step through a surface is charged for the part on each
