@@ -275,18 +275,28 @@ impl LightSample {
     /// it is dark.
     #[inline]
     pub fn at(v: &LightVolume, t: &Trilinear, ch: usize) -> Option<Self> {
+        Self::fluence(v, t).map(|fluence| Self::with_fluence(v, t, fluence, ch))
+    }
+
+    /// The RGB fluence rate of volume `v` at `t`; `None` where it is dark.
+    #[inline]
+    pub fn fluence(v: &LightVolume, t: &Trilinear) -> Option<DVec3> {
         let fluence = t.vec3(v.fluence.as_slice().expect("standard layout"));
-        if fluence.max_element() <= 0.0 {
-            return None;
-        }
+        (fluence.max_element() > 0.0).then_some(fluence)
+    }
+
+    /// [`Self::at`] given the `fluence` read there ([`Self::fluence`]): the
+    /// channels share it, each with its own flux where there are three.
+    #[inline]
+    pub fn with_fluence(v: &LightVolume, t: &Trilinear, fluence: DVec3, ch: usize) -> Self {
         let f = t.vec3(v.flux_of(ch).as_slice().expect("standard layout"));
         let net = f.length();
         let mean_cosine = mean_cosine(fluence.to_array(), net, ch, v.flux.len());
-        Some(Self {
+        Self {
             fluence,
             direction: f.normalize_or_zero(),
             mean_cosine,
-        })
+        }
     }
 
     /// RGB irradiance on a surface whose normal `n` faces the light: the

@@ -741,23 +741,23 @@ impl<'a> Renderer<'a> {
         let sigma = here.sigma;
         let mut source = here.emission;
         if here.scatter.max_element() > 0.0 {
-            source = self.per_channel(lanes, |ch| {
-                let mut source = source;
-                for v in self.volumes {
-                    let Some(light) = LightSample::at(v, tri, ch) else {
-                        continue;
-                    };
+            for v in self.volumes {
+                // One fluence read for every channel; each its own flux.
+                let Some(fluence) = LightSample::fluence(v, tri) else {
+                    continue;
+                };
+                source += self.per_channel(lanes, |ch| {
+                    let light = LightSample::with_fluence(v, tri, fluence, ch);
                     // [Ihrke07 eq 6] with the first angular moment of the
                     // light: HG about the net flux direction with g scaled
                     // by the mean cosine (exact for one ray family, mu =
                     // 1), between the light's direction of travel and the
                     // direction towards the eye.
-                    source += here.scatter
+                    here.scatter
                         * light.fluence
-                        * hg(light.direction.dot(-d), here.g * light.mean_cosine);
-                }
-                source
-            });
+                        * hg(light.direction.dot(-d), here.g * light.mean_cosine)
+                });
+            }
         }
         // The radiance law: L / n^2 is what a ray carries unchanged
         // ([Ihrke07 eq 1] leaves it out), so radiance arising where the index

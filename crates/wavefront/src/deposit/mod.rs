@@ -414,7 +414,7 @@ pub fn tube(
         }
         return;
     };
-    LANES.with_borrow_mut(|lanes| {
+    LANES.with_borrow_mut(|(lanes, tile)| {
         let tube = Tube {
             tally,
             x0,
@@ -425,7 +425,7 @@ pub fn tube(
             axes: axes(x0, x1, tally.inv_spacing),
         };
         tube.lanes(n, lanes);
-        tube.deposit(lanes);
+        tube.deposit(lanes, tile);
     });
 }
 
@@ -473,9 +473,10 @@ fn axes(x0: &[DVec3; 4], x1: &[DVec3; 4], inv: DVec3) -> [usize; 3] {
 }
 
 thread_local! {
-    /// [`tube`]'s sub-patches, kept for the thread's life (no allocation
-    /// per tube).
-    static LANES: std::cell::RefCell<Vec<Lane>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// [`tube`]'s sub-patches and its layer's cells, kept for the thread's
+    /// life (no allocation or clearing per tube).
+    static LANES: std::cell::RefCell<(Vec<Lane>, Box<Tile>)> =
+        std::cell::RefCell::new((Vec::new(), Box::new(Tile::new())));
 }
 
 /// One [`tube`] being deposited.
@@ -575,7 +576,7 @@ impl Tube<'_> {
 
     /// Deposit `lanes` layer by layer along the major axis: a layer's cells
     /// are summed over every sub-patch before they reach the counters.
-    fn deposit(&self, lanes: &[Lane]) {
+    fn deposit(&self, lanes: &[Lane], tile: &mut Tile) {
         let &Tube {
             tally, depth, axes, ..
         } = self;
@@ -587,11 +588,7 @@ impl Tube<'_> {
             let (p, q) = (layer(l, l.lo), layer(l, l.hi));
             (a.min(p).min(q), b.max(p).max(q))
         });
-        let mut batch = Batched {
-            local: Local::new(),
-            counters: tally,
-            group: self.group.unwrap_or(0),
-        };
+        let group = self.group.unwrap_or(0);
         for layer in first..=last {
             for lane in lanes {
                 let Some((ta, tb)) = lane.in_layer(m, layer) else {
@@ -616,13 +613,23 @@ impl Tube<'_> {
                 }
                 cuts[n] = tb;
                 n += 1;
-                cuts[1..n - 1].sort_unstable_by(f64::total_cmp);
+                // The inner cuts in order (two short sorted runs, so an
+                // insertion sort; the GPU's too).
+                for p in 2..n - 1 {
+                    let v = cuts[p];
+                    let mut q = p;
+                    while q > 1 && cuts[q - 1] > v {
+                        cuts[q] = cuts[q - 1];
+                        q -= 1;
+                    }
+                    cuts[q] = v;
+                }
                 for piece in cuts[..n].windows(2) {
-                    lane.deposit(piece[0], piece[1], depth, axes, layer, g, &mut batch);
+                    lane.deposit(piece[0], piece[1], depth, axes, layer, g, tile);
                 }
             }
             // A layer's cells are not met again.
-            batch.local.flush(tally, batch.group);
+            tile.flush(tally, group);
         }
     }
 }
@@ -666,7 +673,7 @@ impl Lane {
         axes: [usize; 3],
         layer: i64,
         g: &GridGeometry,
-        put: &mut Batched,
+        tile: &mut Tile,
     ) {
         let dt = tb - ta;
         if dt <= 0.0 {
@@ -697,7 +704,12 @@ impl Lane {
                 idx[ac] = ic as usize;
                 let base = ((idx[0] * dims[1] + idx[1]) * dims[2] + idx[2]) * 3;
                 let f = fb * fc;
-                put.put(base, fluence.map(|w| w * f), (along * f).to_array());
+                tile.put(
+                    [ib, ic],
+                    base,
+                    fluence.map(|w| w * f),
+                    (along * f).to_array(),
+                );
             }
         }
     }
@@ -708,14 +720,25 @@ impl Lane {
 /// without the cancellation of the difference when `tau` is small.
 #[inline]
 fn attenuated(depth: DVec3, ta: f64, tb: f64) -> [f64; 3] {
-    std::array::from_fn(|c| {
-        let tau = depth[c];
+    let one = |tau: f64| {
         if tau > 0.0 {
             (-tau * ta).exp() * -(-tau * (tb - ta)).exp_m1() / tau
         } else {
             tb - ta
         }
-    })
+    };
+    // Channels of one extinction (grey media, or two alike) share the
+    // exponentials.
+    let r = one(depth.x);
+    let g = if depth.y == depth.x { r } else { one(depth.y) };
+    let b = if depth.z == depth.y {
+        g
+    } else if depth.z == depth.x {
+        r
+    } else {
+        one(depth.z)
+    };
+    [r, g, b]
 }
 
 /// Most cells a swept footprint spans along one axis ([`swept_parts`]).
@@ -798,11 +821,14 @@ pub fn swept_parts(centre: f64, width: f64, sweep: f64) -> SweptParts {
 }
 
 /// `x.floor()` for the cell coordinates of the deposit, without a libm
-/// call (the baseline x86-64 has no rounding instruction); exact for
-/// `|x| < 2^52`, and far outside the grid beyond that.
+/// call (the baseline x86-64 has no rounding instruction) or a conversion
+/// to an integer: adding and taking away `1.5 * 2^52` rounds to the
+/// nearest integer; exact for `|x| < 2^51`, and far outside the grid
+/// beyond that (NaN stays NaN).
 #[inline(always)]
 fn floor(x: f64) -> f64 {
-    let t = x as i64 as f64;
+    const ROUND: f64 = 6_755_399_441_055_744.0;
+    let t = (x + ROUND) - ROUND;
     if t > x {
         t - 1.0
     } else {
@@ -849,7 +875,13 @@ impl Counters {
             }
         }
         for (counter, x) in self.flux[group][base..base + 3].iter().zip(flux) {
-            let units = x.round() as i64;
+            // To the nearest unit, halves away from zero (as `round`, without
+            // its libm call).
+            let units = if x >= 0.0 {
+                (x + 0.5) as i64
+            } else {
+                -((0.5 - x) as i64)
+            };
             if units != 0 {
                 counter.fetch_add(units, Ordering::Relaxed);
             }
@@ -857,63 +889,89 @@ impl Counters {
     }
 }
 
-/// Cells a patch's chords touch in one step, summed before they reach
-/// the shared counters: the chords of one patch mostly cross the same
-/// few cells, so this saves most of the atomic adds.
-struct Local {
-    base: [usize; LOCAL_CELLS],
-    sums: [[f64; 6]; LOCAL_CELLS],
+/// The cells one layer of a [`tube`] touches, summed over its sub-patches
+/// before they reach the shared counters (a cell is met by several
+/// sub-patches and pieces, so this saves most of the atomic adds): a
+/// square of [`TILE`] x [`TILE`] cells of the two minor axes, placed
+/// around the layer's first cell, indexed directly, and for the rare cell
+/// outside it a short list. Each cell is flushed once per layer, in the
+/// order it was first met (deterministic).
+struct Tile {
+    /// The tile's first cell along the two minor axes, once placed.
+    origin: Option<[i64; 2]>,
+    /// Per tile cell, the flat index of its first counter; `usize::MAX`
+    /// where not met in this layer.
+    base: [usize; TILE * TILE],
+    /// Per tile cell, its fluence and flux-vector sums.
+    sums: [[f64; 6]; TILE * TILE],
+    /// The tile cells met, in order.
+    met: [u16; TILE * TILE],
     len: usize,
+    /// Cells outside the tile: their first counters and sums.
+    spill: Vec<(usize, [f64; 6])>,
 }
 
-/// Cells [`Local`] holds before it flushes.
-const LOCAL_CELLS: usize = 32;
+/// Cells along each side of a [`Tile`].
+const TILE: usize = 16;
 
-impl Local {
+impl Tile {
     fn new() -> Self {
         Self {
-            base: [0; LOCAL_CELLS],
-            sums: [[0.0; 6]; LOCAL_CELLS],
+            origin: None,
+            base: [usize::MAX; TILE * TILE],
+            sums: [[0.0; 6]; TILE * TILE],
+            met: [0; TILE * TILE],
             len: 0,
+            spill: Vec::new(),
         }
     }
 
-    fn flush(&mut self, counters: &Counters, group: usize) {
-        for (b, s) in self.base[..self.len].iter().zip(&self.sums[..self.len]) {
-            counters.add(*b, group, [s[0], s[1], s[2]], [s[3], s[4], s[5]]);
-        }
-        self.len = 0;
-    }
-}
-
-/// A [`Local`] on its way to `counters`.
-struct Batched<'a> {
-    local: Local,
-    counters: &'a Counters,
-    group: usize,
-}
-
-impl Put for Batched<'_> {
+    /// Add the amounts of the cell at minor-axis cells `at`, whose first
+    /// counter is `base`.
     #[inline]
-    fn put(&mut self, base: usize, fluence: [f64; 3], flux: [f64; 3]) {
-        let l = &mut self.local;
-        let slot = match l.base[..l.len].iter().rposition(|&b| b == base) {
-            Some(k) => k,
-            None => {
-                if l.len == LOCAL_CELLS {
-                    l.flush(self.counters, self.group);
-                }
-                l.base[l.len] = base;
-                l.sums[l.len] = [0.0; 6];
-                l.len += 1;
-                l.len - 1
+    fn put(&mut self, at: [i64; 2], base: usize, fluence: [f64; 3], flux: [f64; 3]) {
+        let half = (TILE / 2) as i64;
+        let o = *self.origin.get_or_insert([at[0] - half, at[1] - half]);
+        let (db, dc) = ((at[0] - o[0]) as u64, (at[1] - o[1]) as u64);
+        let s = if db < TILE as u64 && dc < TILE as u64 {
+            let k = db as usize * TILE + dc as usize;
+            if self.base[k] == usize::MAX {
+                self.base[k] = base;
+                self.sums[k] = [0.0; 6];
+                self.met[self.len] = k as u16;
+                self.len += 1;
             }
+            &mut self.sums[k]
+        } else {
+            let k = match self.spill.iter().position(|&(b, _)| b == base) {
+                Some(k) => k,
+                None => {
+                    self.spill.push((base, [0.0; 6]));
+                    self.spill.len() - 1
+                }
+            };
+            &mut self.spill[k].1
         };
-        let s = &mut l.sums[slot];
         for c in 0..3 {
             s[c] += fluence[c];
             s[3 + c] += flux[c];
         }
+    }
+
+    /// Round the layer's sums to units, add them to `counters` (flux-vector
+    /// array `group`) and empty the tile for the next layer.
+    fn flush(&mut self, counters: &Counters, group: usize) {
+        for &k in &self.met[..self.len] {
+            let k = k as usize;
+            let s = &self.sums[k];
+            counters.add(self.base[k], group, [s[0], s[1], s[2]], [s[3], s[4], s[5]]);
+            self.base[k] = usize::MAX;
+        }
+        for (b, s) in self.spill.drain(..) {
+            counters.add(b, group, [s[0], s[1], s[2]], [s[3], s[4], s[5]]);
+        }
+        self.len = 0;
+        self.origin = None;
     }
 }
 
@@ -1188,6 +1246,100 @@ mod tests {
                 assert!(
                     (g - w).abs() < 2e-4,
                     "{centre} {width} {sweep}: cell {cell} {g} vs {w}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn floor_is_the_libm_floor_on_cell_coordinates() {
+        let mut rng = eikon_rng::SplitMix64::new(7);
+        let mut xs = vec![
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            2.5,
+            -2.5,
+            1e15 + 0.5,
+            -1e15 - 0.5,
+        ];
+        for k in -300i32..300 {
+            let x = k as f64;
+            xs.extend([x, x.next_up(), x.next_down(), x + 0.5, x - 0.5]);
+        }
+        for _ in 0..100_000 {
+            xs.push((rng.unit() - 0.5) * 2f64.powi((rng.unit() * 50.0) as i32));
+        }
+        for x in xs {
+            assert_eq!(floor(x), x.floor(), "{x}");
+        }
+        assert!(floor(f64::NAN).is_nan());
+    }
+
+    #[test]
+    fn a_layer_tile_adds_each_cell_once_inside_and_outside_it() {
+        // Cells within the tile and beyond it on every side, each met
+        // several times: every cell's counters must hold its rounded sum,
+        // as adding each amount straight to its own counters would.
+        let grid = GridGeometry::new([1, 40, 40], DVec3::ZERO, DVec3::new(1.0, 40.0, 40.0));
+        let t = Counters::new(&grid, 1, [1.0; 3], 1e6);
+        let mut want = vec![[0.0f64; 6]; 40 * 40];
+        let mut tile = Tile::new();
+        let mut rng = eikon_rng::SplitMix64::new(3);
+        for _ in 0..2 {
+            for k in 0..400 {
+                // The first cell places the tile around (20, 20).
+                let at = if k == 0 {
+                    [20, 20]
+                } else {
+                    [(rng.unit() * 40.0) as i64, (rng.unit() * 40.0) as i64]
+                };
+                let cell = (at[0] * 40 + at[1]) as usize;
+                let amounts: [f64; 6] = std::array::from_fn(|c| {
+                    let x = rng.unit() * 1000.0;
+                    if c < 3 {
+                        x
+                    } else {
+                        x - 500.0
+                    }
+                });
+                tile.put(
+                    at,
+                    cell * 3,
+                    [amounts[0], amounts[1], amounts[2]],
+                    [amounts[3], amounts[4], amounts[5]],
+                );
+                for c in 0..6 {
+                    want[cell][c] += amounts[c];
+                }
+            }
+            // Two layers' worth into the same counters: the tile starts
+            // empty again after a flush.
+            tile.flush(&t, 0);
+            assert_eq!((tile.len, tile.spill.len(), tile.origin), (0, 0, None));
+        }
+        let spilled = want.iter().enumerate().filter(|(i, w)| {
+            let (b, c) = ((i / 40) as i64, (i % 40) as i64);
+            w[0] > 0.0 && !((12..28).contains(&b) && (12..28).contains(&c))
+        });
+        assert!(spilled.count() > 100, "cells outside the tile were met");
+        for (cell, w) in want.iter().enumerate() {
+            for c in 0..3 {
+                let got = t.fluence[cell * 3 + c].load(Ordering::Relaxed) as f64;
+                let flux = t.flux[0][cell * 3 + c].load(Ordering::Relaxed) as f64;
+                // Each layer's sum is rounded once: two roundings apart.
+                assert!(
+                    (got - w[c]).abs() <= 1.0,
+                    "cell {cell} fluence {got} vs {}",
+                    w[c]
+                );
+                assert!(
+                    (flux - w[3 + c]).abs() <= 1.0,
+                    "cell {cell} flux {flux} vs {}",
+                    w[3 + c]
                 );
             }
         }
