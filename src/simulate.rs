@@ -271,7 +271,10 @@ pub fn run(args: Args) -> Result<()> {
         return run_frames(&args);
     }
     let scene = args.grid.load(&args.scene)?;
-    let medium = build_medium(&scene)?;
+    let mut medium = build_medium(&scene)?;
+    // Nothing here renders: what only renderers read goes before the
+    // light volumes' counters are allocated.
+    medium.release_render_properties();
     let backend = args.select_backend()?;
     simulate(&args, &scene, &medium, &backend)?;
     Ok(())

@@ -267,16 +267,37 @@ impl Medium {
         self.index.len()
     }
 
+    /// Whether the properties only renderers read (albedo, g, emission)
+    /// are held: not after [`Self::release_render_properties`].
+    pub fn has_render_properties(&self) -> bool {
+        self.g.dim() == self.boundary.dim()
+    }
+
+    /// Panics, saying why, where the render properties were released:
+    /// what a renderer calls before it reads them.
+    pub fn expect_render_properties(&self) {
+        assert!(
+            self.has_render_properties(),
+            "a medium whose render properties were released (Medium::release_render_properties) cannot be rendered"
+        );
+    }
+
+    /// Release the properties only renderers read (albedo, g, emission:
+    /// 28 of the 60 bytes a cell holds without dispersion), for a medium
+    /// that only the light simulation will read (`eikon simulate`). A
+    /// renderer refuses the medium afterwards
+    /// ([`Self::has_render_properties`]).
+    pub fn release_render_properties(&mut self) {
+        self.albedo = Array4::zeros((0, 0, 0, 3));
+        self.g = Array3::zeros((0, 0, 0));
+        self.emission = Array4::zeros((0, 0, 0, 3));
+    }
+
     /// Smallest and largest index over all channels.
     pub fn index_range(&self) -> (f32, f32) {
         self.index
             .iter()
-            .flat_map(|a| {
-                a.slice(s![.., .., .., 0])
-                    .into_iter()
-                    .copied()
-                    .collect::<Vec<_>>()
-            })
+            .flat_map(|a| a.slice(s![.., .., .., 0]).into_iter().copied())
             .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), v| {
                 (lo.min(v), hi.max(v))
             })
@@ -349,8 +370,7 @@ impl EmptySpace {
 
     /// The uniform and empty space of `medium` given `index(blocks, b)`,
     /// the one index light sees throughout block `b` and a cell around it
-    /// (`None` where it is not one constant), and the medium's extinction
-    /// and emission.
+    /// (`None` where it is not one constant), and the medium's extinction.
     fn with_index(
         medium: &Medium,
         index: impl Fn(&BlockGrid, [usize; 3]) -> Option<f64> + Sync,
@@ -370,10 +390,10 @@ impl EmptySpace {
                 let [i0, j0, k0] = blocks.first_voxel(b);
                 let s0 = [0, 1, 2].map(|c| ext[[i0, j0, k0, c]]);
                 // The block and a margin of one cell around it.
-                let uniform = blocks.all_around(b, |i, j, k| {
-                    (0..3)
-                        .all(|c| ext[[i, j, k, c]] == s0[c] && medium.emission[[i, j, k, c]] == 0.0)
-                });
+                // (Emission does not matter to light crossing the block:
+                // the light simulation transports what the lights send.)
+                let uniform =
+                    blocks.all_around(b, |i, j, k| (0..3).all(|c| ext[[i, j, k, c]] == s0[c]));
                 if uniform {
                     *out = n0;
                     *sig = s0;

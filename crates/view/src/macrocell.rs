@@ -51,6 +51,7 @@ pub struct MacroCells {
 impl MacroCells {
     /// The macro-cells of index channel `channel` of `medium`.
     pub fn new(medium: &Medium, channel: usize) -> Self {
+        medium.expect_render_properties();
         let g = &medium.geometry;
         let blocks = BlockGrid::new(g);
         let idx = &medium.index[channel];

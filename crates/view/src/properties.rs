@@ -58,6 +58,7 @@ impl Properties {
     /// Pack `medium`; interface sides are read `probe` world units either
     /// side of each boundary voxel.
     pub fn new(medium: &Medium, probe: f64) -> Self {
+        medium.expect_render_properties();
         let g = medium.geometry.clone();
         let count = g.voxel_count();
         let ext = medium.extinction.as_slice().expect("standard layout");
@@ -182,5 +183,18 @@ emission = [0.1, 0.2, 0.3]
         // Deep inside: sigma_s = albedo sigma_t.
         let s = props.sample(DVec3::new(0.1, 0.0, 0.0));
         assert!((s.scatter - DVec3::new(0.1, 0.4, 1.6)).length() < 1e-5);
+    }
+
+    #[test]
+    #[should_panic(expected = "render properties were released")]
+    fn a_medium_for_the_light_alone_is_refused() {
+        let scene = Scene::parse(
+            "[grid]\nresolution = 8\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n",
+            "test",
+        )
+        .unwrap();
+        let mut m = Medium::build(&scene).unwrap();
+        m.release_render_properties();
+        Properties::new(&m, 0.5);
     }
 }

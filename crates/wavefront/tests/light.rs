@@ -125,6 +125,33 @@ fn volumes_are_identical_whatever_the_thread_count() {
 }
 
 #[test]
+fn the_light_reads_nothing_only_renderers_read() {
+    // `eikon simulate` releases albedo, g and emission before it simulates:
+    // the volumes must be the same bits as with them held. A scene whose
+    // glass scatters and emits, so that they are not all zero.
+    let text = glass_sphere(32, "").replace(
+        "albedo = [0.5, 0.5, 0.5]",
+        "albedo = [0.5, 0.5, 0.5]\nemission = [0.2, 0.1, 0.0]\ng = 0.4",
+    );
+    assert_ne!(text, glass_sphere(32, ""), "the scene was changed");
+    let (scene, m) = medium(&text);
+    assert!(m.emission.iter().any(|&e| e > 0.0) && m.albedo.iter().any(|&a| a > 0.0));
+    let mut light_only = m.clone();
+    light_only.release_render_properties();
+    assert!(m.has_render_properties() && !light_only.has_render_properties());
+    assert!(
+        light_only.albedo.is_empty() && light_only.g.is_empty() && light_only.emission.is_empty()
+    );
+    for l in 0..scene.lights.len() {
+        let (a, sa) = run(&scene, &m, l);
+        let (b, sb) = run(&scene, &light_only, l);
+        assert_eq!(a.fluence, b.fluence, "light {l}");
+        assert_eq!(a.flux, b.flux, "light {l}");
+        assert_eq!(sa, sb, "light {l}");
+    }
+}
+
+#[test]
 fn bad_settings_and_scenes_are_refused() {
     let (scene, m) = medium(&glass_sphere(64, ""));
     for (opts, what) in [
