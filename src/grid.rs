@@ -182,6 +182,9 @@ pub fn light_volume_bytes(scene: &Scene) -> (u128, u128) {
 /// What a command holds at its peak besides the medium.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Needs {
+    /// The medium's render properties are released
+    /// (`Medium::release_render_properties`, `eikon simulate`).
+    pub light_only: bool,
     /// The light volumes of every light (simulate, render).
     pub light_volumes: bool,
     /// The fixed-point counters of one light being simulated.
@@ -204,7 +207,13 @@ pub struct Needs {
 /// The bytes `needs` take for `scene`, item by item.
 fn itemize(scene: &Scene, needs: &Needs) -> Vec<(&'static str, u128)> {
     let (light, counters) = light_volume_bytes(scene);
-    let mut items = vec![("medium", Medium::memory_estimate(scene).resident)];
+    let est = Medium::memory_estimate(scene);
+    let medium = if needs.light_only {
+        est.light
+    } else {
+        est.resident
+    };
+    let mut items = vec![("medium", medium)];
     if needs.light_volumes {
         items.push(("light volumes", light));
     }
@@ -327,6 +336,41 @@ pub fn describe(scene: &Scene) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_medium_for_the_light_alone_counts_without_its_render_properties() {
+        let scene = Scene::parse(
+            "[grid]\nresolution = 12\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\n[[object]]\nshape = { type = \"sphere\", center = [0, 0, 0], radius = 0.5 }\nindex = 1.5\nalbedo = [0.5, 0.5, 0.5]\n",
+            "test",
+        )
+        .unwrap();
+        let bytes = |a: usize| (a * 4) as u128;
+        let mut m = Medium::build(&scene).unwrap();
+        let est = Medium::memory_estimate(&scene);
+        let held = |m: &Medium| {
+            m.index.iter().map(|a| bytes(a.len())).sum::<u128>()
+                + [&m.extinction, &m.albedo, &m.emission]
+                    .iter()
+                    .map(|a| bytes(a.len()))
+                    .sum::<u128>()
+                + bytes(m.g.len())
+                + bytes(m.boundary.len())
+        };
+        assert_eq!(held(&m), est.resident);
+        m.release_render_properties();
+        assert_eq!(held(&m), est.light);
+        let medium = |light_only| {
+            itemize(
+                &scene,
+                &Needs {
+                    light_only,
+                    ..Needs::default()
+                },
+            )[0]
+            .1
+        };
+        assert_eq!((medium(false), medium(true)), (est.resident, est.light));
+    }
 
     #[test]
     fn smoothing_flag_is_checked() {

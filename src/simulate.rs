@@ -488,6 +488,7 @@ pub fn simulate(
     let estimate = crate::grid::check_memory(
         scene,
         &crate::grid::Needs {
+            light_only: !medium.has_render_properties(),
             light_volumes: true,
             counters: true,
             patches: (args.method == SimMethod::Wavefront).then_some(opts.max_patches),

@@ -71,6 +71,10 @@ pub type BuildProgress<'a> = &'a (dyn Fn(&'static str, u64, u64) + Sync);
 pub struct MemoryEstimate {
     /// Kept once built.
     pub resident: u128,
+    /// Kept once the render properties are released
+    /// ([`Medium::release_render_properties`]): what the light simulation
+    /// alone holds.
+    pub light: u128,
     /// Highest use while building.
     pub peak: u128,
 }
@@ -113,11 +117,15 @@ impl Medium {
         let p = 2 * halo(scene.grid.smoothing) as u128;
         let voxels = d[0] * d[1] * d[2];
         let padded = (d[0] + p) * (d[1] + p) * (d[2] + p);
+        // Index and gradient per channel; extinction, albedo, g, emission,
+        // boundary. The light keeps the index, extinction and boundary.
         let resident = voxels * (16 * c + 4 * (3 + 3 + 1 + 3 + 1));
+        let light = voxels * (16 * c + 4 * (3 + 1));
         let raster = padded * 4 * voxelize::stride(c as usize, scene.objects.len()) as u128;
         // The raster, plus one padded scalar field being smoothed.
         MemoryEstimate {
             resident,
+            light,
             peak: resident + raster + padded * 4,
         }
     }
