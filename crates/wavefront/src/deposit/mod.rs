@@ -613,8 +613,8 @@ impl Tube<'_> {
                 }
                 cuts[n] = tb;
                 n += 1;
-                // The inner cuts in order (two short sorted runs, so an
-                // insertion sort; the GPU's too).
+                // The inner cuts in order (at most `2 MAX_CUTS` of them: an
+                // insertion sort, as the GPU's).
                 for p in 2..n - 1 {
                     let v = cuts[p];
                     let mut q = p;
