@@ -402,8 +402,8 @@ const MOST_STEPS_PER_SUBMISSION: usize = 64;
 const INCIDENT_UNIFORM: u32 = 0;
 const INCIDENT_POINT: u32 = 1;
 const INCIDENT_SPOT: u32 = 2;
-/// Cells a thread sums before its atomic adds (`deposit::Local`, smaller
-/// than the CPU's: private memory per thread).
+/// Cells a thread sums before its atomic adds (a list, where the CPU's
+/// `deposit::Tile` holds a layer: private memory per thread is small).
 const LOCAL_CELLS: u32 = 16;
 
 fn declarations() -> String {

@@ -363,7 +363,8 @@ fn propagate_patch(i: u32) -> Swept {
 // ---------------------------------------------------------------------
 // The track-length deposit's counters: the `deposit` module cuts each
 // patch's tube into pieces per cell (`deposit_tube`); they are summed per
-// cell in a small per-thread cache (`deposit::Local`) and added to 64-bit
+// cell in a small per-thread list (the CPU sums a layer's cells in
+// `deposit::Tile`) and added to 64-bit
 // fixed-point counters with two u32 atomics and a carry. Integer addition
 // commutes, so the counters are the same whatever the order.
 
@@ -434,7 +435,8 @@ fn add_units(cell: u32, fl: vec3<f32>, fx: vec3<f32>) {
 }
 
 // The cells one patch's chords reach in one step, summed before they go
-// to the counters (`deposit::Local`).
+// to the counters (a short list searched per amount: private memory per
+// thread is small; the CPU's `deposit::Tile` is indexed directly).
 var<private> local_cell: array<u32, LOCAL_CELLS>;
 var<private> local_fl: array<vec3<f32>, LOCAL_CELLS>;
 var<private> local_fx: array<vec3<f32>, LOCAL_CELLS>;
