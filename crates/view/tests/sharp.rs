@@ -180,8 +180,11 @@ colors = [[1, 1, 1], [1, 1, 1]]
 /// sharp interfaces at 128^3: the plane's pixels darker than half the lit
 /// plane, against the same count from exact ray optics computed here (the
 /// plane's irradiance: the direct light where the line to the light misses
-/// the sphere, plus the light refracted twice through it, with Fresnel and
-/// the glass's extinction, binned on the plane from a dense grid of rays).
+/// the sphere, plus the light it sends on, binned on the plane from a dense
+/// grid of rays: reflected off it, and refracted in and out after any
+/// number of inner reflections, with Fresnel and the glass's extinction).
+/// The light simulation traces the reflected light by default, so the
+/// reference does too.
 /// Pixels that see the sphere itself are left out of both.
 #[test]
 fn the_shadow_under_the_glass_sphere_matches_exact_ray_optics() {
@@ -257,6 +260,19 @@ color = [0, 0, 0]
     let e2 = d.cross(e1);
     let rays = 2400usize;
     let da = (2.0 * r / rays as f64).powi(2); // cross-section per ray
+                                              // A ray leaving the sphere at `p` along `dir` with `power`, binned
+                                              // where it meets the plane (if it goes down to it).
+    let bin = |bins: &mut [f64], p: DVec3, dir: DVec3, power: f64| {
+        // (A NaN direction, from a numerically total reflection, too.)
+        if dir.y.is_nan() || dir.y >= 0.0 {
+            return;
+        }
+        let q = p + dir * ((plane_y - p.y) / dir.y);
+        let (u, v) = (((q.x - lo) / cell) as i64, ((q.z - lo) / cell) as i64);
+        if (0..cells as i64).contains(&u) && (0..cells as i64).contains(&v) {
+            bins[u as usize * cells + v as usize] += power;
+        }
+    };
     for i in 0..rays {
         for j in 0..rays {
             let (a, b) = (
@@ -266,25 +282,28 @@ color = [0, 0, 0]
             if a * a + b * b >= r * r {
                 continue;
             }
+            // The beam's irradiance is 1 W/m^2 across it.
             let p1 = c + e1 * a + e2 * b - d * (r * r - a * a - b * b).sqrt();
             let n1 = (p1 - c) / r;
-            let cos1 = -d.dot(n1);
-            let t1 = refract(d, n1, 1.0, n);
-            let chord = -2.0 * (p1 - c).dot(t1);
-            let p2 = p1 + t1 * chord;
-            let n2 = (p2 - c) / r;
-            let cos2 = t1.dot(n2);
-            let t2 = refract(t1, -n2, n, 1.0);
-            let power = da
-                * (1.0 - fresnel(cos1, 1.0, n))
-                * (1.0 - fresnel(cos2, n, 1.0))
-                * (-sigma * chord).exp();
-            // The beam's irradiance is 1 W/m^2 across it.
-            let t = (plane_y - p2.y) / t2.y;
-            let q = p2 + t2 * t;
-            let (u, v) = (((q.x - lo) / cell) as i64, ((q.z - lo) / cell) as i64);
-            if (0..cells as i64).contains(&u) && (0..cells as i64).contains(&v) {
-                bins[u as usize * cells + v as usize] += power;
+            let r1 = fresnel(-d.dot(n1), 1.0, n);
+            bin(&mut bins, p1, d - n1 * (2.0 * d.dot(n1)), da * r1);
+            // Inside, every hit of the surface lets `1 - R` out and reflects
+            // `R` on (no total reflection: a sphere's inner incidence is
+            // its refraction angle), until what is left is negligible or,
+            // for the few rays that graze it and circle on, 100 times.
+            let (mut p, mut t, mut power) = (p1, refract(d, n1, 1.0, n), da * (1.0 - r1));
+            for _ in 0..100 {
+                if power <= 1e-9 * da {
+                    break;
+                }
+                let chord = -2.0 * (p - c).dot(t);
+                p += t * chord;
+                power *= (-sigma * chord).exp();
+                let n2 = (p - c) / r;
+                let r2 = fresnel(t.dot(n2), n, 1.0);
+                bin(&mut bins, p, refract(t, -n2, n, 1.0), power * (1.0 - r2));
+                t -= n2 * (2.0 * t.dot(n2));
+                power *= r2;
             }
         }
     }

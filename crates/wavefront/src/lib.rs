@@ -156,9 +156,11 @@ pub struct Options {
     /// interfaces and [`Options::reflections`].
     pub fresnel: bool,
     /// Trace the Fresnel-reflected light as patches of its own (sharp
-    /// interfaces; [`propagate::reflection`]). Off (the default for now,
-    /// for its cost: docs/PERFORMANCE.md), it leaves the beam and is
-    /// counted as reflected, as smoothed interfaces always do.
+    /// interfaces; [`propagate::reflection`]): the default, since without
+    /// it the light volumes read low wherever reflected light goes (inside
+    /// a glass ball, by the light its back surface reflects). Off, the
+    /// reflected part leaves the beam and is counted as reflected, as
+    /// smoothed interfaces always do.
     pub reflections: bool,
     /// On the CPU, let a patch in uniform space (one index and one
     /// extinction, empty space included) take up to
@@ -182,9 +184,7 @@ impl Default for Options {
             max_steps: None,
             deposit: DepositRule::Fluence,
             fresnel: true,
-            // Off until its cost comes down (docs/PERFORMANCE.md, "The
-            // Fresnel-reflected light traced").
-            reflections: false,
+            reflections: true,
             runs: true,
         }
     }

@@ -276,11 +276,17 @@ fn region_reach(
     // The crossing test skips a surface at its own start, so it starts a
     // little behind each corner: a corner on a surface (a step may end on
     // one) is then seen there, and left to the exact step, which knows
-    // which way it crosses. A run ends short of a surface, never on it.
+    // which way it crosses. A run ends short of a surface, never on it,
+    // and never within `guard` of it: the next step's crossing test skips
+    // what lies within `eps` of its start, so a run ending there (or a
+    // surface just past the run's reach, rounded out of it) would let the
+    // corner pass through the surface unseen, with no Snell and no Fresnel.
     let back = 1e-3 * unit;
+    let guard = 4.0 * regions.eps();
     for (&x, &d) in x0.iter().zip(dirs) {
-        if let Some((_, hit)) = regions.next_surface(x - d * back, d, back + steps as f64 * unit) {
-            let fit = ((hit.t - back) * (1.0 - 1e-9) / unit).floor();
+        let reach = back + steps as f64 * unit + guard;
+        if let Some((_, hit)) = regions.next_surface(x - d * back, d, reach) {
+            let fit = ((hit.t - back - guard) * (1.0 - 1e-9) / unit).floor();
             if fit < 1.0 {
                 return None;
             }
@@ -791,6 +797,9 @@ pub fn reflection(
                 break;
             }
         }
+        // A corner that crossed at the end of its step is sent back from
+        // the surface itself.
+        regions.settle(&mut ray);
         corners[k] = ray.s;
         hits[k] = p;
     }
@@ -912,9 +921,11 @@ fn sharp_patch(
             ahead: None,
         };
         let mut left = dt;
+        let mut on_surface = false;
         for _ in 0..MAX_CROSSINGS {
             let (xa, r) = (ray.s.x, ray.region);
             let st = regions.step(&mut ray, Form::EqualTime, integrator, left, channel);
+            on_surface = st.at_surface;
             left -= st.used;
             // A crossing leaves the ray on the surface: the piece ends there.
             let xb = ray.s.x;
@@ -940,6 +951,9 @@ fn sharp_patch(
             if !st.at_surface || left <= 0.0 {
                 break;
             }
+        }
+        if on_surface {
+            regions.settle(&mut ray);
         }
         *s = ray.s;
     }

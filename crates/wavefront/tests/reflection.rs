@@ -50,8 +50,8 @@ fn mean(
 /// `R = ((n - 1) / (n + 1))^2 = 0.04` of it is reflected. In front of the
 /// surface the incident and the reflected waves overlap: fluence
 /// `(1 + R) E`, net flux `(1 - R) E` along the incident direction. In the
-/// glass: fluence and net flux `(1 - R) E`. Dropping the reflection (the
-/// default, `reflections = false`) reads `E` in front.
+/// glass: fluence and net flux `(1 - R) E`. Dropping the reflection (`reflections
+/// = false`, `--no-reflections`) reads `E` in front.
 #[test]
 fn a_plane_wave_on_glass_is_reflected_by_fresnel() {
     let text = "[grid]\nresolution = 32\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\
