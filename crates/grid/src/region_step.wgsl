@@ -61,6 +61,23 @@ fn region_step_cross(ray: ptr<function, RegionRay>, out: ptr<function, RegionSte
     (*ray).region = c.region;
 }
 
+// `Regions::settle`: a ray that a step left on a surface (its length ran
+// out where it crossed) moved a few eps on along its direction until the
+// region its position reports is the one it is in, since the next step
+// takes its region from its position and skips what lies within eps of
+// its start.
+fn region_settle(ray: ptr<function, RegionRay>, eps: f32) {
+    let d = normalize_or_zero((*ray).v);
+    var h = 2.0 * eps;
+    for (var i = 0u; i < 4u; i++) {
+        if region_owner((*ray).x) == (*ray).region {
+            return;
+        }
+        (*ray).x += d * h;
+        h *= 8.0;
+    }
+}
+
 // `Regions::step`: advance the ray by at most h (distance in the
 // equal-distance form, optical path in the equal-time form) within its
 // region, stopping at the first surface it meets and crossing it there. A

@@ -174,6 +174,16 @@ fn surface_data(i: u32) -> vec4<u32> {
 }
 ";
 
+/// The `region_step` module's hooks: `index_field` reads the profile of
+/// region `field_region` (channel 0).
+const FIELD_HOOKS: &str = "
+const NONE: u32 = 0xffffffffu;
+var<private> field_region: u32 = NONE;
+fn index_field(p: vec3<f32>) -> vec4<f32> {
+    return region_index(field_region, p, 0u);
+}
+";
+
 /// How closely one shape's WGSL must follow the CPU.
 struct Bounds {
     /// A crossing's parameter, in ulps of (scale + t) over the cosine of
@@ -650,12 +660,7 @@ fn vdb_steps_match_the_cpu(gpu: &Gpu) {
     const H: f64 = 0.04;
     let scene = vdb_shapes();
     let main = format!(
-        "{IO}{TABLE_HOOKS}
-const NONE: u32 = 0xffffffffu;
-var<private> field_region: u32 = NONE;
-fn index_field(p: vec3<f32>) -> vec4<f32> {{
-    return region_index(field_region, p, 0u);
-}}
+        "{IO}{TABLE_HOOKS}{FIELD_HOOKS}
 @compute @workgroup_size(WORKGROUP)
 fn steps(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
     let i = item(id, groups);
@@ -956,8 +961,110 @@ fn next_and_cross(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_wor
     assert!(excused * 100 < cases.len(), "{excused} excused");
 }
 
+/// `Regions::settle` against `region_settle`: rays put on a surface of the
+/// first scene where a line from a random point meets it (not grazing:
+/// |d . n| >= 0.2), heading on across it and in the region beyond, as a
+/// step that crossed at its very end leaves them. Each backend must move
+/// every one (the GPU at most 1%: its point is rounded to f32) into that
+/// region, and no further than a thousandth (the moves are a few `eps`);
+/// the two must end in the same region. Settling must have been needed
+/// for a good share: where the point's owner is still the region before.
+fn settle_matches_the_cpu(gpu: &Gpu) {
+    let scene = scene();
+    let main = format!(
+        "{IO}{TABLE_HOOKS}{FIELD_HOOKS}
+@compute @workgroup_size(WORKGROUP)
+fn settle(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if 2u * i >= arrayLength(&input) {{
+        return;
+    }}
+    let a = input[2u * i];
+    let b = input[2u * i + 1u];
+    var ray = RegionRay(a.xyz, b.xyz, 0.0, u32(b.w));
+    region_settle(&ray, a.w);
+    output[2u * i] = vec4<f32>(ray.x, f32(region_owner(ray.x)));
+    output[2u * i + 1u] = vec4<f32>(ray.v, 0.0);
+}}
+"
+    );
+    let source = compose("", &[&DISPATCH, &STEP_WGSL], &main);
+    let regions = Regions::new(&scene);
+    let gpu_regions = gpu_regions(&scene);
+    let table = gpu_regions.table;
+    let count = table.len() - 1;
+    let slot = |r: Option<usize>| {
+        r.map_or(count, |o| {
+            table.iter().position(|t| t.object as usize == o).unwrap()
+        })
+    };
+    let eps = eikon_grid::region::gpu_eps(&scene.grid.geometry);
+    let mut r = Cases::new(31);
+    let mut cases = Vec::new();
+    while cases.len() < 3000 {
+        let o = r.v(-1.2, 1.2);
+        let d = r.v(-1.0, 1.0);
+        if !(d.length() > 0.1 && d.length() < 1.0) {
+            continue;
+        }
+        let d = eikon_testkit::parity::f32s(d.normalize());
+        let Some((_, c)) = regions.next_surface(o, d, 4.0) else {
+            continue;
+        };
+        let p = o + d * c.t;
+        let beyond = regions.at(p + d * 1e-3);
+        if c.normal.dot(d).abs() < 0.2 || regions.at(p - d * 1e-3) == beyond {
+            continue;
+        }
+        cases.push((p, d, beyond));
+    }
+    let inputs: Vec<[f32; 4]> = cases
+        .iter()
+        .flat_map(|&(p, d, beyond)| [v4(p, eps), v4(d, slot(beyond) as f64)])
+        .collect();
+    let buffer = gpu.storage("regions", &table);
+    let data = gpu.storage("shape data", &gpu_regions.data);
+    let out = gpu
+        .eval(
+            &source,
+            "settle",
+            &inputs,
+            2,
+            &[buffer.as_entire_binding(), data.as_entire_binding()],
+        )
+        .unwrap();
+    let (mut needed, mut gpu_unsettled, mut apart) = (0, 0, 0);
+    for (k, &(p, d, beyond)) in cases.iter().enumerate() {
+        needed += usize::from(regions.at(p) != beyond);
+        let mut ray = regions.ray(p, d, 0);
+        ray.region = beyond;
+        ray.ahead = None;
+        regions.settle(&mut ray);
+        assert!(
+            regions.at(ray.s.x) == beyond && (ray.s.x - p).length() < 1e-3,
+            "CPU: {p} along {d} into {beyond:?} settled at {} in {:?}",
+            ray.s.x,
+            regions.at(ray.s.x)
+        );
+        let g = out[2 * k];
+        let owner = g[3] as usize;
+        if owner != slot(beyond) || (xyz(g) - p).length() >= 1e-3 {
+            gpu_unsettled += 1;
+        }
+        apart += usize::from(owner != slot(regions.at(ray.s.x)));
+    }
+    println!(
+        "settle: {} rays on a surface, {needed} owned by the region before; the GPU left {gpu_unsettled} unsettled, {apart} apart from the CPU",
+        cases.len()
+    );
+    assert!(needed * 10 > cases.len(), "{needed}");
+    assert!(gpu_unsettled * 100 < cases.len(), "{gpu_unsettled}");
+    assert!(apart * 100 < cases.len(), "{apart}");
+}
+
 fn main() {
     Tests::new()
+        .gpu("sharp_settle_matches_the_cpu", settle_matches_the_cpu)
         .gpu(
             "sharp_surfaces_owner_and_index_match_the_cpu",
             surfaces_owner_and_index_match_the_cpu,

@@ -1130,10 +1130,12 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
     for (var k = 0u; k < 4u; k++) {
         var ray = RegionRay(q.x[k], q.v[k], q.opl[k], region_owner(q.x[k]));
         var left = dt;
+        var on_surface = false;
         for (var s = 0u; s < MAX_CROSSINGS; s++) {
             let xa = ray.x;
             let ra = ray.region;
             let st = region_step(&ray, FORM_EQUAL_TIME, P.integrator, left, P.channel, P.sharp_eps);
+            on_surface = st.at_surface;
             left -= st.used;
             depth += step_depth(P.grid, xa, ray.x, sharp_extinction_per_index(ra, xa), sharp_extinction_per_index(ra, ray.x), st.used);
             if st.c.event {
@@ -1151,6 +1153,9 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
             if !st.at_surface || left <= 0.0 {
                 break;
             }
+        }
+        if on_surface {
+            region_settle(&ray, P.sharp_eps);
         }
         out.q.x[k] = ray.x;
         out.q.v[k] = ray.v;
@@ -1302,6 +1307,9 @@ fn patch_reflection(m: Quad, to: u32) -> Reflected {
                 break;
             }
         }
+        // A corner that crossed at the end of its step is sent back from
+        // the surface itself.
+        region_settle(&ray, eps);
         r.x[k] = ray.x;
         r.v[k] = ray.v;
         r.opl[k] = ray.opl;
