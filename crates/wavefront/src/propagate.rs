@@ -636,9 +636,13 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
 
 /// The reflected patch of a patch that has just finished crossing a
 /// surface ([`reflection`]), its tube from the surface deposited and its
-/// flux taken off the tally of reflected light. Its flux is the
-/// transmitted `flux` times `(1 - kept) / kept`: what the Fresnel factors
-/// of its four corners took from the beam.
+/// flux taken off the tally of reflected light. At the surface it carries
+/// the transmitted `flux` times `(1 - kept) / kept` (what the Fresnel
+/// factors of its four corners took from the beam) times
+/// `exp(restored)`: the patch was charged the absorption of the region it
+/// entered since its corners crossed, which the reflected part never
+/// entered ([`Reflection::restored`], given back from the absorbed tally).
+/// On its way back it loses [`Reflection::depth`].
 fn reflected_piece(
     step: &Step,
     sharp: &Sharp,
@@ -660,30 +664,37 @@ fn reflected_piece(
     if start.iter().all(|&x| regions.at(x) == to) {
         return None;
     }
-    let r = reflection(regions, moved, to, step.dt, step.integrator, step.channel)?;
-    // The transmitted patch carries flux * kept: the reflected part is
-    // flux * (1 - kept) / kept.
-    let f = flux.map(|f| f * (1.0 - r.kept) / r.kept);
+    let grid = &step.medium.geometry;
+    let r = reflection(
+        regions,
+        grid,
+        moved,
+        to,
+        step.dt,
+        step.integrator,
+        step.channel,
+    )?;
+    // The transmitted patch carries flux * kept: the reflected part, as
+    // tallied, is flux * (1 - kept) / kept; at the surface, before the
+    // absorption beyond it, that times exp(restored).
+    let tallied = flux.map(|f| f * (1.0 - r.kept) / r.kept);
+    let f: [f64; 3] = std::array::from_fn(|c| tallied[c] * r.restored[c].exp());
     if (0..3).all(|c| f[c] < REFLECT_MIN * flux0[c]) {
         return None;
     }
     if let Some(t) = step.tally {
-        deposit::tube(
-            t,
-            &r.hits,
-            &r.corners.map(|c| c.x),
-            &f,
-            DVec3::ZERO,
-            step.group,
-        );
+        deposit::tube(t, &r.hits, &r.corners.map(|c| c.x), &f, r.depth, step.group);
     }
-    for (l, x) in lost.reflected.iter_mut().zip(f) {
-        *l -= x;
+    let out: [f64; 3] = std::array::from_fn(|c| f[c] * (-r.depth[c]).exp());
+    for c in 0..3 {
+        lost.reflected[c] -= tallied[c];
+        // Given back, then what its way back absorbs.
+        lost.absorbed[c] += (tallied[c] - f[c]) + (f[c] - out[c]);
     }
     lost.reflections += 1;
     Some(Piece {
         corners: r.corners,
-        flux: f,
+        flux: out,
         flux0: [0.0; 3],
         area0: 0.0,
     })
@@ -714,6 +725,13 @@ pub struct Reflection {
     /// The product of the corners' `(1 - R)^(1/4)`: the share of the flux
     /// the surface transmitted.
     pub kept: f64,
+    /// The optical depth [Ihrke07 eq 18] the patch was charged in the
+    /// region it entered since its corners crossed (their mean, as the
+    /// patch is charged): the reflected part never entered it.
+    pub restored: DVec3,
+    /// The optical depth the reflected light loses from the surface to
+    /// its corners (their mean), in the region it came from.
+    pub depth: DVec3,
 }
 
 /// The Fresnel reflection of a patch whose corners `moved` have all
@@ -728,9 +746,11 @@ pub struct Reflection {
 /// finds the same surface with the same region behind it, a different one
 /// from where it is. `to` is the region corner 0 is in. The back-trace
 /// is straight: exact in a region of constant index, to the step's
-/// curvature elsewhere.
+/// curvature elsewhere. The optical depths (extinction in `grid`) are
+/// charged as the steps charge them ([`step_depth`]).
 pub fn reflection(
     regions: &Regions,
+    grid: &GridGeometry,
     moved: &[RayState; 4],
     to: Region,
     dt: f64,
@@ -749,6 +769,8 @@ pub fn reflection(
     let mut kept = 1.0;
     let mut corners = *moved;
     let mut hits = [DVec3::ZERO; 4];
+    let (mut restored, mut depth) = (DVec3::ZERO, DVec3::ZERO);
+    let per_index = |r: Region, p: DVec3| region_extinction_per_index(grid, regions, r, p, ch);
     for k in 0..4 {
         let s = moved[k];
         let d = s.v.normalize_or_zero();
@@ -777,6 +799,7 @@ pub fn reflection(
         kept *= (1.0 - fresnel::reflectance(cos_i, n1, n2)).powf(0.25);
         // The optical path since the crossing (trapezoid in the index).
         let back = 0.5 * (n2 + regions.index(to, s.x, ch).0) * (c.t - 2.0 * eps).max(0.0);
+        restored += step_depth(grid, p, s.x, per_index(to, p), per_index(to, s.x), back);
         let mut ray = SharpRay {
             s: RayState {
                 x: p,
@@ -791,8 +814,11 @@ pub fn reflection(
             if left <= 0.0 {
                 break;
             }
+            let (xa, r) = (ray.s.x, ray.region);
             let st = regions.step(&mut ray, Form::EqualTime, integrator, left, ch);
             left -= st.used;
+            let xb = ray.s.x;
+            depth += step_depth(grid, xa, xb, per_index(r, xa), per_index(r, xb), st.used);
             if !st.at_surface {
                 break;
             }
@@ -811,6 +837,8 @@ pub fn reflection(
         corners: [corners[0], corners[3], corners[2], corners[1]],
         hits: [hits[0], hits[3], hits[2], hits[1]],
         kept,
+        restored: restored * 0.25,
+        depth: depth * 0.25,
     })
 }
 
@@ -1000,9 +1028,10 @@ fn sharp_patch(
     }
     let x1 = moved.map(|c| c.x);
     // (The step's light is absorbed before its Fresnel loss: what goes on
-    // is exact, the entry step's absorbed and reflected shares are off by
-    // up to R times its absorption; the GPU's reflections pass reads the
-    // transmitted flux alone.)
+    // is exact; of the steps since a corner crossed, the reflected share
+    // is charged the absorption beyond the surface. A traced reflection
+    // gets it back (`reflected_piece`); untraced, the absorbed and
+    // reflected tallies stay off by up to R times that absorption.)
     let depth = depth * 0.25;
     if let Some(t) = tally {
         deposit::tube(t, &x0, &x1, flux, depth, group);

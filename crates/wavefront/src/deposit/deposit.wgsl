@@ -8,8 +8,9 @@
 // Hook: `fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>)`,
 // where the pieces go (the light simulator sums them per cell in a small
 // cache before its atomic adds).
-// Needs: the `grid` and `patch` modules; MAX_SUBPATCHES, SUBPATCH_SIZE,
-// SUBPATCH_SLACK, MAX_PARTS, MAX_SWEPT, MAX_CUTS (generated).
+// Needs: the `grid` and `patch` modules; MAX_SUBPATCHES,
+// SUBPATCHES_PER_SIDE, SUBPATCH_SIZE, SUBPATCH_SLACK, MAX_PARTS,
+// MAX_SWEPT, MAX_CUTS (generated).
 
 // What a chord's pieces are worth: fluence units per watt-unit of length
 // per channel, flux-vector units per watt-unit of length, and the
@@ -299,7 +300,9 @@ fn deposit_lane_piece(g: GridGpu, l: DepositLane, ta: f32, tb: f32, depth: vec3<
 fn deposit_tube(g: GridGpu, sc: ChordScales, x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, flux: vec3<f32>, depth: vec3<f32>) {
     let k = deposit_subpatches(x0, x1, g.voxel);
     var whole = k.x > 0u;
-    if whole && f32(max(k.x, k.y)) * SUBPATCH_SIZE > 2.0 {
+    // Over two voxels across (`deposit::wide`).
+    let wide = f32(max(k.x, k.y)) * SUBPATCH_SIZE > 2.0;
+    if whole && wide {
         // Torn: over two voxels across and far from a parallelogram.
         let twist = length(x1[0] - x1[1] + x1[2] - x1[3]);
         whole = !(twist > 0.5 * patch_span(x1[0], x1[1], x1[2], x1[3]));
@@ -311,8 +314,14 @@ fn deposit_tube(g: GridGpu, sc: ChordScales, x0: array<vec3<f32>, 4>, x1: array<
         }
         return;
     }
-    let ns = k.x;
-    let nt = k.y;
+    // Over two voxels across, at most SUBPATCHES_PER_SIDE along a side
+    // (`deposit::tube`).
+    var ns = k.x;
+    var nt = k.y;
+    if wide {
+        ns = min(ns, SUBPATCHES_PER_SIDE);
+        nt = min(nt, SUBPATCHES_PER_SIDE);
+    }
     let share = flux / f32(ns * nt);
     // The axis the tube runs along most (in cells) and the other two.
     let run = ((x1[0] + x1[1] + x1[2] + x1[3]) - (x0[0] + x0[1] + x0[2] + x0[3])) * g.inv_spacing;

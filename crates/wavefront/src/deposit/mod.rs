@@ -306,6 +306,7 @@ impl Counters {
 fn deposit_declarations() -> String {
     Consts::new()
         .u32("MAX_SUBPATCHES", MAX_SUBPATCHES as u32)
+        .u32("SUBPATCHES_PER_SIDE", SUBPATCHES_PER_SIDE as u32)
         .f32("SUBPATCH_SIZE", SUBPATCH_SIZE as f32)
         .f32("SUBPATCH_SLACK", SUBPATCH_SLACK as f32)
         .u32("MAX_PARTS", MAX_PARTS as u32)
@@ -325,11 +326,29 @@ pub static WGSL: Module = Module {
     text: include_str!("deposit.wgsl"),
 };
 
-/// Most sub-patches along one side of a patch (see [`tube`]).
+/// Most sub-patches of [`SUBPATCH_SIZE`] a side of a patch may span for
+/// its tube to be deposited with footprints (a patch over four voxels
+/// across goes along its corner rays instead: see [`tube`]).
 pub const MAX_SUBPATCHES: usize = 8;
 /// Sub-patch size, voxels: a patch is cut into sub-patches no larger than
-/// this, each deposited with its own footprint.
+/// this, each deposited with its own footprint, up to
+/// [`SUBPATCHES_PER_SIDE`] along a side.
 pub const SUBPATCH_SIZE: f64 = 0.5;
+
+/// Most sub-patches along one side of a patch over two voxels across (a
+/// narrower one is cut into sub-patches of at most [`SUBPATCH_SIZE`]).
+/// With the default split size of one voxel, a patch grows past two only
+/// where the tessellation left it whole: too dim to be worth splitting
+/// (the reflected waves), its depth spent, or held while it straddles a
+/// surface (`refine`). Its corner rays then lie over two voxels apart and
+/// its interior is their bilinear interpolation: cutting it finer
+/// resolves that interpolation, not the light, at a cost that grows with
+/// its area (the glass sphere's reflected wave spreads over the volume in
+/// such patches). Below two voxels the cut is unchanged: a patch a step
+/// past the split size carries light the tessellation is still
+/// following (halves there raised the point light's error in vacuum by
+/// 1.6%: docs/PERFORMANCE.md).
+pub const SUBPATCHES_PER_SIDE: usize = 2;
 
 /// Relative slack of [`SUBPATCH_SIZE`]: a patch emitted at a whole number
 /// of sub-patches across is cut into that many whatever the rounding of its
@@ -337,11 +356,13 @@ pub const SUBPATCH_SIZE: f64 = 0.5;
 /// three from one step to the next, and the two backends would disagree).
 pub const SUBPATCH_SLACK: f64 = 1e-4;
 
-/// Sub-patches along the two sides of a patch whose corners sweep from
-/// `x0` to `x1`: enough that none exceeds [`SUBPATCH_SIZE`] voxels on the
-/// longer of each pair of opposite edges, before or after the step; `None`
-/// where that would take more than [`MAX_SUBPATCHES`] (a patch over four
-/// voxels across: see [`tube`]).
+/// Sub-patches of [`SUBPATCH_SIZE`] along the two sides of a patch whose
+/// corners sweep from `x0` to `x1`: enough that none exceeds
+/// [`SUBPATCH_SIZE`] voxels on the longer of each pair of opposite edges,
+/// before or after the step (the patch's size in half voxels; [`tube`]
+/// cuts a patch over two voxels across into at most
+/// [`SUBPATCHES_PER_SIDE`] of them); `None` where that would take more
+/// than [`MAX_SUBPATCHES`] (a patch over four voxels across).
 #[inline]
 pub fn subpatches(x0: &[DVec3; 4], x1: &[DVec3; 4], voxel: f64) -> Option<(usize, usize)> {
     let edge = |p: &[DVec3; 4], a: usize, b: usize| (p[a] - p[b]).length_squared();
@@ -370,8 +391,10 @@ pub fn subpatches(x0: &[DVec3; 4], x1: &[DVec3; 4], voxel: f64) -> Option<(usize
 /// a run of steps through empty space ([`crate::propagate::Run`]) in one
 /// pass.
 ///
-/// The patch is cut into `ns x nt` sub-patches ([`subpatches`]), equal
-/// cells of its bilinear parameters, each carrying an equal share of the
+/// The patch is cut into `ns x nt` sub-patches (half a voxel or smaller,
+/// [`subpatches`]; over two voxels across, at most
+/// [`SUBPATCHES_PER_SIDE`] along a side),
+/// equal cells of its bilinear parameters, each carrying an equal share of the
 /// flux: flux is conserved along ray tubes and the patch was uniform in
 /// these parameters when emitted, so equal parameter cells carry equal
 /// flux wherever the wavefront has since stretched or folded. A sub-patch's
@@ -407,12 +430,17 @@ pub fn tube(
     group: Option<usize>,
 ) {
     let voxel = tally.grid.voxel_size();
-    let Some(n) = subpatches(x0, x1, voxel).filter(|&n| !torn(x1, n)) else {
+    let Some((ns, nt)) = subpatches(x0, x1, voxel).filter(|&n| !torn(x1, n)) else {
         let f = flux.map(|x| x * 0.25);
         for c in 0..4 {
             tally.chord(x0[c], x1[c], &f, depth, group);
         }
         return;
+    };
+    let n = if wide((ns, nt)) {
+        (ns.min(SUBPATCHES_PER_SIDE), nt.min(SUBPATCHES_PER_SIDE))
+    } else {
+        (ns, nt)
     };
     LANES.with_borrow_mut(|(lanes, tile)| {
         let tube = Tube {
@@ -434,9 +462,16 @@ pub fn tube(
 /// its bilinear interior does not follow the rays (`x0 - x1 + x2 - x3` is
 /// zero for a parallelogram).
 #[inline]
-fn torn(x1: &[DVec3; 4], (ns, nt): (usize, usize)) -> bool {
+fn torn(x1: &[DVec3; 4], n: (usize, usize)) -> bool {
     let twist = (x1[0] - x1[1] + x1[2] - x1[3]).length();
-    ns.max(nt) as f64 * SUBPATCH_SIZE > 2.0 && twist > 0.5 * span(x1)
+    wide(n) && twist > 0.5 * span(x1)
+}
+
+/// Whether a patch of `ns x nt` sub-patches of [`SUBPATCH_SIZE`] is over
+/// two voxels across.
+#[inline]
+fn wide((ns, nt): (usize, usize)) -> bool {
+    ns.max(nt) as f64 * SUBPATCH_SIZE > 2.0
 }
 
 /// The point of a patch at bilinear parameters `(s, t)`.

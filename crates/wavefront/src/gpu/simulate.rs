@@ -88,7 +88,9 @@
 //! piece after the list: pass 0 finds that it reflects, pass 1 writes the
 //! reflection, found again from the patch as pass 0 stored it, deposits
 //! its tube from the surface and tallies its flux as traced (the
-//! `E_TRACED` energy, taken off `E_REFLECTED`). New corners (splits,
+//! `E_TRACED` energy, taken off `E_REFLECTED`, and `E_RESTORED`, the
+//! absorption beyond the surface it gets back, taken off `E_ABSORBED`).
+//! New corners (splits,
 //! pieces) take the own index of the region where they lie, and a patch
 //! whose corners lie in different regions is not split (`refine::Hold`),
 //! as on the CPU. Crossings are found to `eikon_grid::region::gpu_eps` (a
@@ -305,7 +307,7 @@ const SHARP_PIECES: u32 = 3;
 
 /// Energy categories of the tallies, each 64-bit fixed point per channel
 /// (two words): words `2 (3 category + channel)`.
-const ENERGY: [&str; 7] = [
+const ENERGY: [&str; 8] = [
     "E_ABSORBED",
     "E_EXITED",
     "E_CULLED",
@@ -314,6 +316,10 @@ const ENERGY: [&str; 7] = [
     "E_TORN",
     // Reflected light traced on as patches (taken off `E_REFLECTED`).
     "E_TRACED",
+    // Absorption a traced reflection gets back: the patch was charged it
+    // beyond the surface, which the reflected part never crossed (taken
+    // off `E_ABSORBED`; `propagate::reflected_piece`).
+    "E_RESTORED",
 ];
 /// Stats words after the energies: counts.
 const S_EXITED: usize = 6 * ENERGY.len();
@@ -2199,7 +2205,7 @@ impl<'a> GpuSimulator<'a> {
             (s[w] as f64 + s[w + 1] as f64 * 4294967296.0) / scale
         };
         for c in 0..3 {
-            summary.absorbed_power[c] += energy(0, c);
+            summary.absorbed_power[c] += energy(0, c) - energy(7, c);
             summary.exited_power[c] += energy(1, c);
             summary.culled_power[c] += energy(2, c);
             summary.reflected_power[c] += energy(3, c) - energy(6, c);

@@ -1243,6 +1243,11 @@ struct Reflected {
     hits: array<vec3<f32>, 4>,
     // The product of the corners' (1 - R)^(1/4).
     kept: f32,
+    // The optical depth the patch was charged beyond the surface since its
+    // corners crossed, and the one the reflected light loses on its way
+    // back (the corners' means; `propagate::Reflection`).
+    restored: vec3<f32>,
+    depth: vec3<f32>,
 }
 
 // `propagate::reflection`: the reflection of the patch m whose corners
@@ -1261,6 +1266,8 @@ fn patch_reflection(m: Quad, to: u32) -> Reflected {
     var kept = 1.0;
     var r: Quad;
     var hits: array<vec3<f32>, 4>;
+    var restored = vec3<f32>(0.0);
+    var depth = vec3<f32>(0.0);
     // Every corner must have arrived: checked for all four before any is
     // followed back (the search for the surface is what costs).
     for (var k = 1u; k < 4u; k++) {
@@ -1295,14 +1302,18 @@ fn patch_reflection(m: Quad, to: u32) -> Reflected {
         let cos_i = dot(vi / n1, along);
         kept *= pow(max(1.0 - fresnel_reflectance(cos_i, n1, n2), 0.0), 0.25);
         let back = 0.5 * (n2 + region_index(to, m.x[k], P.channel).x) * max(hit.t - 2.0 * eps, 0.0);
+        restored += step_depth(P.grid, p, m.x[k], sharp_extinction_per_index(to, p), sharp_extinction_per_index(to, m.x[k]), back);
         var ray = RegionRay(p, vi - along * (2.0 * dot(vi, along)), m.opl[k] - back, behind);
         var left = back;
         for (var s = 0u; s < MAX_CROSSINGS; s++) {
             if left <= 0.0 {
                 break;
             }
+            let xa = ray.x;
+            let ra = ray.region;
             let st = region_step(&ray, FORM_EQUAL_TIME, P.integrator, left, P.channel, eps);
             left -= st.used;
+            depth += step_depth(P.grid, xa, ray.x, sharp_extinction_per_index(ra, xa), sharp_extinction_per_index(ra, ray.x), st.used);
             if !st.at_surface {
                 break;
             }
@@ -1320,6 +1331,8 @@ fn patch_reflection(m: Quad, to: u32) -> Reflected {
     }
     out.ok = true;
     out.kept = kept;
+    out.restored = restored * 0.25;
+    out.depth = depth * 0.25;
     let order = array<u32, 4>(0u, 3u, 2u, 1u);
     for (var c = 0u; c < 4u; c++) {
         out.q.x[c] = r.x[order[c]];
@@ -1330,9 +1343,16 @@ fn patch_reflection(m: Quad, to: u32) -> Reflected {
     return out;
 }
 
-// The reflected flux of a patch whose transmitted part carries `flux`.
-fn reflected_flux(flux: vec3<f32>, r: Reflected) -> vec3<f32> {
+// The reflected flux, as tallied, of a patch whose transmitted part
+// carries `flux`.
+fn tallied_reflection(flux: vec3<f32>, r: Reflected) -> vec3<f32> {
     return flux * ((1.0 - r.kept) / r.kept);
+}
+
+// The reflected flux at the surface: the tallied one with the absorption
+// beyond the surface given back (`propagate::reflected_piece`).
+fn reflected_flux(flux: vec3<f32>, r: Reflected) -> vec3<f32> {
+    return tallied_reflection(flux, r) * exp(r.restored);
 }
 
 // The reflection of the patch at `moved` (carrying `flux`, emitted with
@@ -1346,14 +1366,22 @@ fn traced_reflection_of(moved: Quad, to: u32, flux: vec3<f32>, flux0: vec3<f32>)
     return r;
 }
 
-// Pass 1: deposit the reflection's tube from the surface, and take its
-// flux off the reflected light's tally.
-fn traced_reflection(r: Reflected, flux: vec3<f32>) {
+// Pass 1: deposit the reflection's tube from the surface (the patch's
+// transmitted part carrying `transmitted`), take its flux off the
+// reflected light's tally and what it gets back off the absorbed; the flux
+// it goes on with.
+fn traced_reflection(r: Reflected, transmitted: vec3<f32>) -> vec3<f32> {
+    let tallied = tallied_reflection(transmitted, r);
+    let f = reflected_flux(transmitted, r);
     if P.fluence != 0u {
-        tube(Swept(r.hits, r.q.x, flux, vec3<f32>(0.0)));
+        tube(Swept(r.hits, r.q.x, f, r.depth));
     }
-    add_energy3(E_TRACED, flux);
+    let out = f * exp(-r.depth);
+    add_energy3(E_TRACED, tallied);
+    add_energy3(E_RESTORED, f - tallied);
+    add_energy3(E_ABSORBED, f - out);
     atomicAdd(&wg_stats[S_REFLECTIONS], 1u);
+    return out;
 }
 
 // [Ihrke07 eq 17]'s irradiance of a patch: flux over its area.
@@ -1596,8 +1624,7 @@ fn sharp_work(k: u32, pass_id: u32) {
         case SHARP_REFLECTIONS: {
             var fl = vec3<f32>(0.0);
             if r.ok {
-                fl = reflected_flux(a.xyz, r);
-                traced_reflection(r, fl);
+                fl = traced_reflection(r, a.xyz);
             }
             let slot = P.n_old + hp_rank(P.pieces_base, P.n_old, i);
             write_patch(slot, r.q, fl, f0.xyz, a.w, f0.w);
