@@ -346,8 +346,8 @@ pub const SUBPATCH_SIZE: f64 = 0.5;
 /// its area (the glass sphere's reflected wave spreads over the volume in
 /// such patches). Below two voxels the cut is unchanged: a patch a step
 /// past the split size carries light the tessellation is still
-/// following (halves there raised the point light's error in vacuum by
-/// 1.6%: docs/PERFORMANCE.md).
+/// following (halves there raised the point light's error in vacuum:
+/// docs/PERFORMANCE.md).
 pub const SUBPATCHES_PER_SIDE: usize = 2;
 
 /// Relative slack of [`SUBPATCH_SIZE`]: a patch emitted at a whole number
