@@ -11,7 +11,7 @@
 //! prints the largest errors.
 
 use eikon_gpu::{Gpu, DISPATCH};
-use eikon_grid::region::{gpu_regions, refract, RegionGpu, STEP_WGSL, WGSL as REGION};
+use eikon_grid::region::{gpu_regions, refract, GpuRegions, RegionGpu, STEP_WGSL, WGSL as REGION};
 use eikon_grid::{Regions, Scene};
 use eikon_shader::compose;
 use eikon_testkit::parity::{v4, xyz, Cases, IO};
@@ -184,6 +184,28 @@ fn index_field(p: vec3<f32>) -> vec4<f32> {
 }
 ";
 
+/// Run `entry` of `source` over `inputs` (`per_input` outputs each) with
+/// the regions' table and shape data bound, as every kernel here reads
+/// them.
+fn eval_with(
+    gpu: &Gpu,
+    regions: &GpuRegions,
+    (source, entry): (&str, &str),
+    inputs: &[[f32; 4]],
+    per_input: usize,
+) -> Vec<[f32; 4]> {
+    let table = gpu.storage("regions", &regions.table);
+    let data = gpu.storage("shape data", &regions.data);
+    gpu.eval(
+        source,
+        entry,
+        inputs,
+        per_input,
+        &[table.as_entire_binding(), data.as_entire_binding()],
+    )
+    .unwrap()
+}
+
 /// How closely one shape's WGSL must follow the CPU.
 struct Bounds {
     /// A crossing's parameter, in ulps of (scale + t) over the cosine of
@@ -259,10 +281,8 @@ fn surfaces(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
     let source = compose("", &[&DISPATCH, &REGION], &main);
     let regions = Regions::new(scene);
     let gpu_regions = gpu_regions(scene);
-    let table: Vec<RegionGpu> = gpu_regions.table;
+    let table: &[RegionGpu] = &gpu_regions.table;
     let count = table.len() - 1;
-    let buffer = gpu.storage("regions", &table);
-    let data = gpu.storage("shape data", &gpu_regions.data);
     let mut r = Cases::new(seed);
     struct Case {
         o: DVec3,
@@ -313,15 +333,7 @@ fn surfaces(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroup
             [v4(c.o, c.k as f64), v4(c.d, c.hi), v4(q, c.lo)]
         })
         .collect();
-    let out = gpu
-        .eval(
-            &source,
-            "surfaces",
-            &inputs,
-            4,
-            &[buffer.as_entire_binding(), data.as_entire_binding()],
-        )
-        .unwrap();
+    let out = eval_with(gpu, &gpu_regions, (&source, "surfaces"), &inputs, 4);
     const ULP: f64 = 6e-8;
     let scale = 3.0;
     let mut per_shape: Vec<(String, usize, f64, f64)> = table[..count]
@@ -590,23 +602,13 @@ fn ext(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) gr
     );
     let source = compose("", &[&DISPATCH, &REGION], &main);
     let gpu_regions = gpu_regions(&scene);
-    let table = gpu_regions.table;
-    let buffer = gpu.storage("regions", &table);
-    let data = gpu.storage("shape data", &gpu_regions.data);
+    let table = &gpu_regions.table;
     let mut r = Cases::new(14);
     let cases: Vec<(DVec3, usize)> = (0..4000)
         .map(|j| (r.v(-0.5, 0.5) + DVec3::new(0.0, 0.15, 0.0), j % table.len()))
         .collect();
     let inputs: Vec<[f32; 4]> = cases.iter().map(|&(p, k)| v4(p, k as f64)).collect();
-    let out = gpu
-        .eval(
-            &source,
-            "ext",
-            &inputs,
-            2,
-            &[buffer.as_entire_binding(), data.as_entire_binding()],
-        )
-        .unwrap();
+    let out = eval_with(gpu, &gpu_regions, (&source, "ext"), &inputs, 2);
     let regions = Regions::new(&scene);
     let (mut worst, mut worst_g) = (0f64, 0f64);
     let (mut graded, mut bent) = (0, 0);
@@ -684,10 +686,8 @@ fn steps(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
     let source = compose("", &[&DISPATCH, &STEP_WGSL], &main);
     let regions = Regions::new(&scene);
     let gpu_regions = gpu_regions(&scene);
-    let table = gpu_regions.table;
+    let table = &gpu_regions.table;
     let count = table.len() - 1;
-    let buffer = gpu.storage("regions", &table);
-    let data = gpu.storage("shape data", &gpu_regions.data);
     let eps = eikon_grid::region::gpu_eps(&scene.grid.geometry);
     let mut r = Cases::new(26);
     let cases: Vec<(DVec3, DVec3)> = (0..4000)
@@ -710,15 +710,7 @@ fn steps(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
         .iter()
         .flat_map(|&(o, d)| [v4(o, eps), v4(d, 0.0)])
         .collect();
-    let out = gpu
-        .eval(
-            &source,
-            "steps",
-            &inputs,
-            2,
-            &[buffer.as_entire_binding(), data.as_entire_binding()],
-        )
-        .unwrap();
+    let out = eval_with(gpu, &gpu_regions, (&source, "steps"), &inputs, 2);
     let (mut apart, mut crossed, mut worst) = (0, 0, 0f64);
     let mut errors = Vec::new();
     for (k, &(o, d)) in cases.iter().enumerate() {
@@ -812,10 +804,8 @@ fn next_and_cross(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_wor
     let source = compose("", &[&DISPATCH, &REGION], &main);
     let regions = Regions::new(scene);
     let gpu_regions = gpu_regions(scene);
-    let table: Vec<RegionGpu> = gpu_regions.table;
+    let table: &[RegionGpu] = &gpu_regions.table;
     let count = table.len() - 1;
-    let buffer = gpu.storage("regions", &table);
-    let data = gpu.storage("shape data", &gpu_regions.data);
     // The GPU renderer's tolerance for a 3-unit scene (`sharp_eps`).
     let eps = 4e-6 * 1.6;
     let mut r = Cases::new(seed);
@@ -836,15 +826,7 @@ fn next_and_cross(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_wor
         .iter()
         .flat_map(|&(o, d, t)| [v4(o, eps), v4(d, t)])
         .collect();
-    let out = gpu
-        .eval(
-            &source,
-            "next_and_cross",
-            &inputs,
-            4,
-            &[buffer.as_entire_binding(), data.as_entire_binding()],
-        )
-        .unwrap();
+    let out = eval_with(gpu, &gpu_regions, (&source, "next_and_cross"), &inputs, 4);
     const ULP: f64 = 6e-8;
     let (mut compared, mut excused, mut events, mut total) = (0, 0, 0, 0);
     let (mut max_t, mut max_v, mut max_r) = (0f64, 0f64, 0f64);
@@ -991,7 +973,7 @@ fn settle(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups)
     let source = compose("", &[&DISPATCH, &STEP_WGSL], &main);
     let regions = Regions::new(&scene);
     let gpu_regions = gpu_regions(&scene);
-    let table = gpu_regions.table;
+    let table = &gpu_regions.table;
     let count = table.len() - 1;
     let slot = |r: Option<usize>| {
         r.map_or(count, |o| {
@@ -1022,17 +1004,7 @@ fn settle(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups)
         .iter()
         .flat_map(|&(p, d, beyond)| [v4(p, eps), v4(d, slot(beyond) as f64)])
         .collect();
-    let buffer = gpu.storage("regions", &table);
-    let data = gpu.storage("shape data", &gpu_regions.data);
-    let out = gpu
-        .eval(
-            &source,
-            "settle",
-            &inputs,
-            2,
-            &[buffer.as_entire_binding(), data.as_entire_binding()],
-        )
-        .unwrap();
+    let out = eval_with(gpu, &gpu_regions, (&source, "settle"), &inputs, 2);
     let (mut needed, mut gpu_unsettled, mut apart) = (0, 0, 0);
     for (k, &(p, d, beyond)) in cases.iter().enumerate() {
         needed += usize::from(regions.at(p) != beyond);
