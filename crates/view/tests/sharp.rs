@@ -259,9 +259,10 @@ color = [0, 0, 0]
     let e1 = d.cross(DVec3::X).normalize();
     let e2 = d.cross(e1);
     let rays = 2400usize;
-    let da = (2.0 * r / rays as f64).powi(2); // cross-section per ray
-                                              // A ray leaving the sphere at `p` along `dir` with `power`, binned
-                                              // where it meets the plane (if it goes down to it).
+    // The cross-section per ray.
+    let da = (2.0 * r / rays as f64).powi(2);
+    // A ray leaving the sphere at `p` along `dir` with `power`, binned
+    // where it meets the plane (if it goes down to it).
     let bin = |bins: &mut [f64], p: DVec3, dir: DVec3, power: f64| {
         // (A NaN direction, from a numerically total reflection, too.)
         if dir.y.is_nan() || dir.y >= 0.0 {

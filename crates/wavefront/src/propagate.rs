@@ -688,8 +688,8 @@ fn reflected_piece(
     let out: [f64; 3] = std::array::from_fn(|c| f[c] * (-r.depth[c]).exp());
     for c in 0..3 {
         lost.reflected[c] -= tallied[c];
-        // Given back, then what its way back absorbs.
-        lost.absorbed[c] += (tallied[c] - f[c]) + (f[c] - out[c]);
+        // `f - tallied` given back, then `f - out` absorbed on its way back.
+        lost.absorbed[c] += tallied[c] - out[c];
     }
     lost.reflections += 1;
     Some(Piece {

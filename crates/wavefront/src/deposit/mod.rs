@@ -393,9 +393,8 @@ pub fn subpatches(x0: &[DVec3; 4], x1: &[DVec3; 4], voxel: f64) -> Option<(usize
 ///
 /// The patch is cut into `ns x nt` sub-patches (half a voxel or smaller,
 /// [`subpatches`]; over two voxels across, at most
-/// [`SUBPATCHES_PER_SIDE`] along a side),
-/// equal cells of its bilinear parameters, each carrying an equal share of the
-/// flux: flux is conserved along ray tubes and the patch was uniform in
+/// [`SUBPATCHES_PER_SIDE`] along a side), equal cells of its bilinear
+/// parameters, each carrying an equal share of the flux: flux is conserved along ray tubes and the patch was uniform in
 /// these parameters when emitted, so equal parameter cells carry equal
 /// flux wherever the wavefront has since stretched or folded. A sub-patch's
 /// centre moves along a line from before to after, and its edges change
