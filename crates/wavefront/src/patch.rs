@@ -42,6 +42,12 @@ pub struct Patches {
     pub flux0: Vec<[f64; 3]>,
     /// Area when emitted (the patch's share of it after tessellation).
     pub area0: Vec<f64>,
+    /// While the patch straddles a sharp interface, the share of its flux
+    /// the surface has let through so far: the product of the Fresnel
+    /// factors its corners (or, for a piece of a torn patch, its
+    /// ancestor's) took since the crossing began, what its reflection is
+    /// made of (`propagate::reflected_piece`). 1 between crossings.
+    pub kept: Vec<f64>,
     /// RGB differential irradiance, W/m^2, set by the irradiance step.
     pub irradiance: Vec<[f64; 3]>,
     /// Times the patch's ancestors were tessellated (0 when emitted).
@@ -58,7 +64,7 @@ impl Patches {
         * 2
         * (4 * std::mem::size_of::<RayState>()
             + 3 * std::mem::size_of::<[f64; 3]>()
-            + std::mem::size_of::<f64>()
+            + 2 * std::mem::size_of::<f64>()
             + std::mem::size_of::<u8>());
 
     /// Number of patches.
@@ -77,6 +83,7 @@ impl Patches {
         self.flux.clear();
         self.flux0.clear();
         self.area0.clear();
+        self.kept.clear();
         self.irradiance.clear();
         self.depth.clear();
     }
@@ -90,6 +97,7 @@ impl Patches {
         self.flux.push(flux);
         self.flux0.push(flux);
         self.area0.push(area);
+        self.kept.push(1.0);
         self.irradiance.push(flux.map(|f| f / area));
         self.depth.push(0);
     }

@@ -538,6 +538,8 @@ struct Piece {
     flux: [f64; 3],
     flux0: [f64; 3],
     area0: f64,
+    /// [`Patches::kept`].
+    kept: f64,
 }
 
 /// [`propagate`] with sharp interfaces (see [`Sharp`]). A patch split
@@ -556,24 +558,29 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
         patches.flux.par_iter_mut(),
         patches.flux0.par_iter_mut(),
         patches.area0.par_iter_mut(),
+        patches.kept.par_iter_mut(),
         patches.depth.par_iter_mut(),
         losses.par_iter_mut(),
     )
         .into_par_iter()
         .enumerate()
-        .filter_map(|(i, (a, b, c, d, flux, flux0, area0, depth, lost))| {
+        .filter_map(|(i, (a, b, c, d, flux, flux0, area0, kept, depth, lost))| {
             let corners = [*a, *b, *c, *d];
             let kin = Kin {
                 flux0: *flux0,
                 depth: *depth,
             };
-            if let Some(moved) = sharp_patch(step, sharp, &corners, flux, kin, lost) {
+            let before = *kept;
+            if let Some(moved) = sharp_patch(step, sharp, &corners, flux, kept, kin, lost) {
                 [*a, *b, *c, *d] = moved;
+                let through = *kept;
+                *kept = crossing_kept(sharp.regions, &moved, through);
+                if through == 1.0 || !sharp.reflections {
+                    return None;
+                }
                 let start = corners.map(|c| c.x);
-                let piece = sharp
-                    .reflections
-                    .then(|| reflected_piece(step, sharp, &start, &moved, (flux, flux0), lost))
-                    .flatten()?;
+                let piece =
+                    reflected_piece(step, sharp, &start, &moved, (flux, flux0), through, lost)?;
                 return Some((
                     i,
                     vec![Piece {
@@ -596,6 +603,7 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
                     depth: depth.saturating_add(1),
                 },
                 *area0,
+                before,
                 1,
                 &mut pieces,
                 lost,
@@ -612,6 +620,7 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
             *flux = p.flux;
             *flux0 = p.flux0;
             *area0 = p.area0;
+            *kept = p.kept;
             Some((i, pieces))
         })
         .collect();
@@ -625,6 +634,7 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
             patches.flux.push(p.flux);
             patches.flux0.push(p.flux0);
             patches.area0.push(p.area0);
+            patches.kept.push(p.kept);
             patches
                 .irradiance
                 .push(p.flux.map(|f| if ar > 0.0 { f / ar } else { 0.0 }));
@@ -637,8 +647,9 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
 /// The reflected patch of a patch that has just finished crossing a
 /// surface ([`reflection`]), its tube from the surface deposited and its
 /// flux taken off the tally of reflected light. At the surface it carries
-/// the transmitted `flux` times `(1 - kept) / kept` (what the Fresnel
-/// factors of its four corners took from the beam) times
+/// the transmitted `flux` times `(1 - kept) / kept` (`kept`: what the
+/// surface let through of the patch, [`Patches::kept`]; the rest is what
+/// the Fresnel factors took from the beam and tallied as reflected) times
 /// `exp(restored)`: the patch was charged the absorption of the region it
 /// entered since its corners crossed, which the reflected part never
 /// entered ([`Reflection::restored`], given back from the absorbed tally).
@@ -649,6 +660,7 @@ fn reflected_piece(
     start: &[DVec3; 4],
     moved: &[RayState; 4],
     (flux, flux0): (&[f64; 3], &[f64; 3]),
+    kept: f64,
     lost: &mut Loss,
 ) -> Option<Piece> {
     if !sharp.fresnel {
@@ -656,11 +668,8 @@ fn reflected_piece(
     }
     let regions = sharp.regions;
     let to = regions.at(moved[0].x);
-    // A patch is not split while it straddles a surface (`refine::Hold`),
-    // so its flux took the Fresnel factors of these four corners, over
-    // this step and the ones before. (A torn patch's pieces inherit factors
-    // of their parent's corners instead: they do not reflect, and what
-    // they reflect stays counted as reflected.)
+    // Only a patch that began the step across a surface has just finished
+    // crossing it.
     if start.iter().all(|&x| regions.at(x) == to) {
         return None;
     }
@@ -676,8 +685,11 @@ fn reflected_piece(
     )?;
     // The transmitted patch carries flux * kept: the reflected part, as
     // tallied, is flux * (1 - kept) / kept; at the surface, before the
-    // absorption beyond it, that times exp(restored).
-    let tallied = flux.map(|f| f * (1.0 - r.kept) / r.kept);
+    // absorption beyond it, that times exp(restored). `kept` is what the
+    // factors took from this patch (or from the patch it is a piece of),
+    // not `r.kept` of its corners' way back: the two differ where a torn
+    // patch's pieces crossed at corners of their own.
+    let tallied = flux.map(|f| f * (1.0 - kept) / kept);
     let f: [f64; 3] = std::array::from_fn(|c| tallied[c] * r.restored[c].exp());
     if (0..3).all(|c| f[c] < REFLECT_MIN * flux0[c]) {
         return None;
@@ -697,6 +709,7 @@ fn reflected_piece(
         flux: out,
         flux0: [0.0; 3],
         area0: 0.0,
+        kept: 1.0,
     })
 }
 
@@ -853,6 +866,7 @@ fn split_and_trace(
     flux: [f64; 3],
     kin: Kin,
     area0: f64,
+    kept: f64,
     level: u32,
     out: &mut Vec<Piece>,
     lost: &mut Loss,
@@ -885,12 +899,16 @@ fn split_and_trace(
             flux0: flux0.map(|v| v * share),
             depth: kin.depth,
         };
-        match sharp_patch(step, sharp, &child, &mut f, part, lost) {
+        // A piece carries its parent's share of the flux through the
+        // surface it straddles (its own corners take this step's factors).
+        let mut through = kept;
+        match sharp_patch(step, sharp, &child, &mut f, &mut through, part, lost) {
             Some(moved) => out.push(Piece {
                 corners: moved,
                 flux: f,
                 flux0: part.flux0,
                 area0: area0 * share,
+                kept: crossing_kept(sharp.regions, &moved, through),
             }),
             None => split_and_trace(
                 step,
@@ -899,6 +917,7 @@ fn split_and_trace(
                 f,
                 part,
                 area0 * share,
+                kept,
                 level + 1,
                 out,
                 lost,
@@ -915,6 +934,7 @@ fn sharp_patch(
     sharp: &Sharp,
     corners: &[RayState; 4],
     flux: &mut [f64; 3],
+    kept: &mut f64,
     kin: Kin,
     lost: &mut Loss,
 ) -> Option<[RayState; 4]> {
@@ -940,7 +960,7 @@ fn sharp_patch(
     // crosses (so a step through a surface is charged for the part on each
     // side, not half and half); the patch loses the corners' mean.
     let mut first: [Option<Crossed>; 4] = [None; 4];
-    let mut kept = 1.0;
+    let mut factor = 1.0;
     let mut depth = DVec3::ZERO;
     for (k, s) in moved.iter_mut().enumerate() {
         let mut ray = SharpRay {
@@ -973,7 +993,7 @@ fn sharp_patch(
                     to: ev.to,
                 });
                 if !ev.total {
-                    kept *= (1.0 - ev.reflectance).powf(0.25);
+                    factor *= (1.0 - ev.reflectance).powf(0.25);
                 }
             }
             if !st.at_surface || left <= 0.0 {
@@ -1041,14 +1061,28 @@ fn sharp_patch(
         lost.absorbed[ch] += flux[ch] - k;
         flux[ch] = k;
     }
-    if sharp.fresnel && kept < 1.0 {
+    if sharp.fresnel && factor < 1.0 {
         for (f, r) in flux.iter_mut().zip(lost.reflected.iter_mut()) {
-            let k = *f * kept;
+            let k = *f * factor;
             *r += *f - k;
             *f = k;
         }
+        *kept *= factor;
     }
     Some(moved)
+}
+
+/// [`Patches::kept`] of a patch at `moved` after a step that left it
+/// with `through`: back to 1 once its corners are in one region (any
+/// crossing is over: its reflection, traced or not, has been accounted).
+fn crossing_kept(regions: &Regions, moved: &[RayState; 4], through: f64) -> f64 {
+    if through < 1.0 {
+        let r = regions.at(moved[0].x);
+        if moved[1..].iter().all(|c| regions.at(c.x) == r) {
+            return 1.0;
+        }
+    }
+    through
 }
 
 /// The first surface a corner crossed in a step.

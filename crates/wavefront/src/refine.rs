@@ -387,6 +387,8 @@ fn rebuild<F: IndexField + ?Sized>(
     next.flux0.resize(total, [0.0; 3]);
     next.area0.clear();
     next.area0.resize(total, 0.0);
+    next.kept.clear();
+    next.kept.resize(total, 1.0);
     next.irradiance.clear();
     next.irradiance.resize(total, [0.0; 3]);
     next.depth.clear();
@@ -402,6 +404,7 @@ fn rebuild<F: IndexField + ?Sized>(
         next.flux.par_iter_mut(),
         next.flux0.par_iter_mut(),
         next.area0.par_iter_mut(),
+        next.kept.par_iter_mut(),
         next.irradiance.par_iter_mut(),
         next.depth.par_iter_mut(),
         scratch.source.par_iter(),
@@ -409,8 +412,11 @@ fn rebuild<F: IndexField + ?Sized>(
     )
         .into_par_iter()
         .for_each(
-            |(a, b, c, d, flux, flux0, area0, irr, depth, &src, &part)| {
+            |(a, b, c, d, flux, flux0, area0, kept, irr, depth, &src, &part)| {
                 let i = src as usize;
+                // A child keeps its parent's share of the flux through a
+                // surface it straddles.
+                *kept = p.kept[i];
                 let parent = [0, 1, 2, 3].map(|k| p.corner[k][i]);
                 if counts[i] == 1 {
                     [*a, *b, *c, *d] = parent;

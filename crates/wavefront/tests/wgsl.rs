@@ -234,7 +234,7 @@ fn subpatches_and_swept_footprints_match_the_cpu(gpu: &Gpu) {
     let main = format!(
         "{IO}
 // Input: a tube's corners before (4) and after (4), the voxel in w of the
-// first: its sub-patches.
+// first: its sub-patches, and how the deposit cuts it.
 @compute @workgroup_size(WORKGROUP)
 fn subpatches(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
     let i = item(id, groups);
@@ -248,7 +248,8 @@ fn subpatches(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgro
         x1[c] = input[8u * i + 4u + c].xyz;
     }}
     let k = deposit_subpatches(x0, x1, input[8u * i].w);
-    output[8u * i] = vec4<f32>(f32(k.x), f32(k.y), 0.0, 0.0);
+    let c = deposit_cut(x0, x1, input[8u * i].w);
+    output[8u * i] = vec4<f32>(f32(k.x), f32(k.y), f32(c.x), f32(c.y));
 }}
 
 // Input (centre, width, sweep): the swept footprint's first cell, count
@@ -278,7 +279,8 @@ fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>) {{}}
     let mut tubes = Vec::new();
     let mut inputs = Vec::new();
     for k in 0..3000 {
-        let size = [0.05, 0.3, 1.2, 2.5][k % 4];
+        // Sides of 0.2, 1.2, 1.6, 2.4, 4.8 and 10 voxels.
+        let size = [0.05, 0.3, 1.2, 2.5, 0.4, 0.6][k % 6];
         let o = r.v(-1.0, 1.0);
         let x0: [DVec3; 4] = [0.0, 1.0, 1.0, 0.0]
             .into_iter()
@@ -299,26 +301,42 @@ fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>) {{}}
     }
     let out = gpu.eval(&source, "subpatches", &inputs, 1, &[]).unwrap();
     let mut checked = 0;
+    let mut capped = 0;
     for (k, (x0, x1)) in tubes.iter().enumerate() {
         let got = (out[8 * k][0] as usize, out[8 * k][1] as usize);
         let want = deposit::subpatches(x0, x1, voxel).unwrap_or((0, 0));
-        // A side within f32 rounding of a sub-patch boundary may round
-        // either way; every other case must agree exactly.
+        let got_cut = (out[8 * k][2] as usize, out[8 * k][3] as usize);
+        let want_cut = deposit::cut(x0, x1, voxel).unwrap_or((0, 0));
+        // A side within f32 rounding of a sub-patch boundary (over the
+        // step, or before it) may round either way, and so may a twist
+        // within rounding of the torn threshold; every other case must
+        // agree exactly.
+        let whole = |u: f64| (u - u.round()).abs() < 1e-4;
         let near = |a: usize, b: usize, c: usize, d: usize| {
-            let l = (x0[a] - x0[b]).length().max((x0[c] - x0[d]).length());
-            let l = l
+            let l0 = (x0[a] - x0[b]).length().max((x0[c] - x0[d]).length());
+            let l = l0
                 .max((x1[a] - x1[b]).length())
                 .max((x1[c] - x1[d]).length());
-            let u = l / (deposit::SUBPATCH_SIZE * voxel);
-            (u - u.round()).abs() < 1e-4
+            let unit = deposit::SUBPATCH_SIZE * voxel;
+            whole(l / unit) || whole(l0 / unit)
         };
-        if near(1, 0, 2, 3) || near(3, 0, 2, 1) {
+        let twist = (x1[0] - x1[1] + x1[2] - x1[3]).length();
+        let span = eikon_wavefront::patch::span(x1);
+        if near(1, 0, 2, 3) || near(3, 0, 2, 1) || (twist - 0.5 * span).abs() < 1e-4 * span {
             continue;
         }
         assert_eq!(got, want, "tube {k}");
+        assert_eq!(got_cut, want_cut, "tube {k}: the cut");
+        if want_cut != want && want_cut != (0, 0) {
+            capped += 1;
+        }
         checked += 1;
     }
     assert!(checked > 2900, "{checked}");
+    assert!(
+        capped > 500,
+        "patches cut coarser than their sub-patches: {capped}"
+    );
 
     let cases: Vec<(f64, f64, f64)> = (0..4000)
         .map(|k| {

@@ -9,7 +9,7 @@
 // where the pieces go (the light simulator sums them per cell in a small
 // cache before its atomic adds).
 // Needs: the `grid` and `patch` modules; MAX_SUBPATCHES,
-// SUBPATCHES_PER_SIDE, SUBPATCH_SIZE, SUBPATCH_SLACK, MAX_PARTS,
+// SUBPATCHES_PER_SIDE, WHOLE_SUBPATCHES, SUBPATCH_SIZE, SUBPATCH_SLACK, MAX_PARTS,
 // MAX_SWEPT, MAX_CUTS (generated).
 
 // What a chord's pieces are worth: fluence units per watt-unit of length
@@ -134,6 +134,28 @@ fn deposit_subpatches(x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, voxel: f
         return vec2<u32>(0u);
     }
     return vec2<u32>(u32(ks), u32(kt));
+}
+
+// `deposit::cut`: how `deposit_tube` cuts a patch sweeping from x0 to
+// x1, (ns, nt) sub-patches, or (0, 0) for along its four corner rays.
+fn deposit_cut(x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, voxel: f32) -> vec2<u32> {
+    let k = deposit_subpatches(x0, x1, voxel);
+    if k.x == 0u {
+        return k;
+    }
+    // Over two voxels across (`deposit::wide`).
+    let wide = f32(max(k.x, k.y)) * SUBPATCH_SIZE > 2.0;
+    // Torn: over two voxels across and far from a parallelogram.
+    if wide && length(x1[0] - x1[1] + x1[2] - x1[3]) > 0.5 * patch_span(x1[0], x1[1], x1[2], x1[3]) {
+        return vec2<u32>(0u);
+    }
+    // Left whole by the tessellation: over one voxel across before the
+    // step (`deposit::left_whole`).
+    let k0 = deposit_subpatches(x0, x0, voxel);
+    if wide || k0.x == 0u || max(k0.x, k0.y) > WHOLE_SUBPATCHES {
+        return min(k, vec2<u32>(SUBPATCHES_PER_SIDE));
+    }
+    return k;
 }
 
 // `deposit::swept_parts`: a box footprint of `width` cells whose centre
@@ -298,30 +320,16 @@ fn deposit_lane_piece(g: GridGpu, l: DepositLane, ta: f32, tb: f32, depth: vec3<
 // followed layer by layer along the major axis and cut where its centre
 // crosses a face of the minor axes.
 fn deposit_tube(g: GridGpu, sc: ChordScales, x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, flux: vec3<f32>, depth: vec3<f32>) {
-    let k = deposit_subpatches(x0, x1, g.voxel);
-    var whole = k.x > 0u;
-    // Over two voxels across (`deposit::wide`).
-    let wide = f32(max(k.x, k.y)) * SUBPATCH_SIZE > 2.0;
-    if whole && wide {
-        // Torn: over two voxels across and far from a parallelogram.
-        let twist = length(x1[0] - x1[1] + x1[2] - x1[3]);
-        whole = !(twist > 0.5 * patch_span(x1[0], x1[1], x1[2], x1[3]));
-    }
-    if !whole {
+    let k = deposit_cut(x0, x1, g.voxel);
+    if k.x == 0u {
         // Along its four corner rays, a quarter each.
         for (var c = 0u; c < 4u; c++) {
             deposit_chord(g, sc, x0[c], x1[c], flux * 0.25, depth);
         }
         return;
     }
-    // Over two voxels across, at most SUBPATCHES_PER_SIDE along a side
-    // (`deposit::tube`).
-    var ns = k.x;
-    var nt = k.y;
-    if wide {
-        ns = min(ns, SUBPATCHES_PER_SIDE);
-        nt = min(nt, SUBPATCHES_PER_SIDE);
-    }
+    let ns = k.x;
+    let nt = k.y;
     let share = flux / f32(ns * nt);
     // The axis the tube runs along most (in cells) and the other two.
     let run = ((x1[0] + x1[1] + x1[2] + x1[3]) - (x0[0] + x0[1] + x0[2] + x0[3])) * g.inv_spacing;

@@ -307,6 +307,7 @@ fn deposit_declarations() -> String {
     Consts::new()
         .u32("MAX_SUBPATCHES", MAX_SUBPATCHES as u32)
         .u32("SUBPATCHES_PER_SIDE", SUBPATCHES_PER_SIDE as u32)
+        .u32("WHOLE_SUBPATCHES", WHOLE_SUBPATCHES as u32)
         .f32("SUBPATCH_SIZE", SUBPATCH_SIZE as f32)
         .f32("SUBPATCH_SLACK", SUBPATCH_SLACK as f32)
         .u32("MAX_PARTS", MAX_PARTS as u32)
@@ -335,19 +336,19 @@ pub const MAX_SUBPATCHES: usize = 8;
 /// [`SUBPATCHES_PER_SIDE`] along a side.
 pub const SUBPATCH_SIZE: f64 = 0.5;
 
-/// Most sub-patches along one side of a patch over two voxels across (a
-/// narrower one is cut into sub-patches of at most [`SUBPATCH_SIZE`]).
-/// With the default split size of one voxel, a patch grows past two only
-/// where the tessellation left it whole: too dim to be worth splitting
-/// (the reflected waves), its depth spent, or held while it straddles a
-/// surface (`refine`). Its corner rays then lie over two voxels apart and
-/// its interior is their bilinear interpolation: cutting it finer
-/// resolves that interpolation, not the light, at a cost that grows with
-/// its area (the glass sphere's reflected wave spreads over the volume in
-/// such patches). Below two voxels the cut is unchanged: a patch a step
-/// past the split size carries light the tessellation is still
-/// following (halves there raised the point light's error in vacuum:
-/// docs/PERFORMANCE.md).
+/// Most sub-patches along one side of a patch the tessellation left whole
+/// ([`left_whole`]) or over two voxels across (a patch it follows is cut
+/// into sub-patches of at most [`SUBPATCH_SIZE`]). With the default split
+/// size of one voxel, a patch begins a step past it only where the
+/// tessellation left it whole: too dim to be worth splitting (the
+/// reflected waves), its depth spent, or held while it straddles a
+/// surface (`refine`). Its corner rays then lie over a voxel apart and its
+/// interior is their bilinear interpolation: cutting it finer resolves
+/// that interpolation, not the light, at a cost that grows with its area
+/// (the glass sphere's reflected wave spreads over the volume in such
+/// patches). A patch the tessellation follows that grows past one voxel
+/// within the step keeps the fine cut: halves there raised the point
+/// light's error in vacuum (docs/PERFORMANCE.md).
 pub const SUBPATCHES_PER_SIDE: usize = 2;
 
 /// Relative slack of [`SUBPATCH_SIZE`]: a patch emitted at a whole number
@@ -392,8 +393,8 @@ pub fn subpatches(x0: &[DVec3; 4], x1: &[DVec3; 4], voxel: f64) -> Option<(usize
 /// pass.
 ///
 /// The patch is cut into `ns x nt` sub-patches (half a voxel or smaller,
-/// [`subpatches`]; over two voxels across, at most
-/// [`SUBPATCHES_PER_SIDE`] along a side), equal cells of its bilinear
+/// [`subpatches`]; over two voxels across or left whole by the
+/// tessellation, at most [`SUBPATCHES_PER_SIDE`] along a side), equal cells of its bilinear
 /// parameters, each carrying an equal share of the flux: flux is conserved along ray tubes and the patch was uniform in
 /// these parameters when emitted, so equal parameter cells carry equal
 /// flux wherever the wavefront has since stretched or folded. A sub-patch's
@@ -428,18 +429,12 @@ pub fn tube(
     depth: DVec3,
     group: Option<usize>,
 ) {
-    let voxel = tally.grid.voxel_size();
-    let Some((ns, nt)) = subpatches(x0, x1, voxel).filter(|&n| !torn(x1, n)) else {
+    let Some(n) = cut(x0, x1, tally.grid.voxel_size()) else {
         let f = flux.map(|x| x * 0.25);
         for c in 0..4 {
             tally.chord(x0[c], x1[c], &f, depth, group);
         }
         return;
-    };
-    let n = if wide((ns, nt)) {
-        (ns.min(SUBPATCHES_PER_SIDE), nt.min(SUBPATCHES_PER_SIDE))
-    } else {
-        (ns, nt)
     };
     LANES.with_borrow_mut(|(lanes, tile)| {
         let tube = Tube {
@@ -454,6 +449,21 @@ pub fn tube(
         tube.lanes(n, lanes);
         tube.deposit(lanes, tile);
     });
+}
+
+/// How [`tube`] cuts the patch whose corners sweep from `x0` to `x1`:
+/// into `ns x nt` sub-patches ([`subpatches`], at most
+/// [`SUBPATCHES_PER_SIDE`] along a side where it is over two voxels
+/// across or [`left_whole`]), or `None` where it goes along its four
+/// corner rays (over [`MAX_SUBPATCHES`], or [`torn`]).
+#[inline]
+pub fn cut(x0: &[DVec3; 4], x1: &[DVec3; 4], voxel: f64) -> Option<(usize, usize)> {
+    let (ns, nt) = subpatches(x0, x1, voxel).filter(|&n| !torn(x1, n))?;
+    Some(if wide((ns, nt)) || left_whole(x0, voxel) {
+        (ns.min(SUBPATCHES_PER_SIDE), nt.min(SUBPATCHES_PER_SIDE))
+    } else {
+        (ns, nt)
+    })
 }
 
 /// Whether a patch cut into `ns x nt` sub-patches that ends a step at `x1`
@@ -472,6 +482,22 @@ fn torn(x1: &[DVec3; 4], n: (usize, usize)) -> bool {
 fn wide((ns, nt): (usize, usize)) -> bool {
     ns.max(nt) as f64 * SUBPATCH_SIZE > 2.0
 }
+
+/// Whether a patch that starts a step at `x0` was left whole by the
+/// tessellation: over one voxel (the default split size) along a side
+/// before the step. A patch the tessellation follows begins every step
+/// (or run of steps) at most the split size across, as `refine` left it;
+/// one already past it is too dim to be worth splitting, held while it
+/// straddles a surface, or its depth is spent, and its corner rays lie
+/// over a voxel apart (its interior is their interpolation).
+#[inline]
+fn left_whole(x0: &[DVec3; 4], voxel: f64) -> bool {
+    subpatches(x0, x0, voxel).is_none_or(|(s, t)| s.max(t) > WHOLE_SUBPATCHES)
+}
+
+/// Sub-patches of [`SUBPATCH_SIZE`] along a side of a patch one voxel
+/// across ([`left_whole`]).
+pub const WHOLE_SUBPATCHES: usize = (1.0 / SUBPATCH_SIZE) as usize;
 
 /// The point of a patch at bilinear parameters `(s, t)`.
 #[inline]
@@ -1111,6 +1137,25 @@ mod tests {
             c + u * h + v * h,
             c - u * h + v * h,
         ]
+    }
+
+    #[test]
+    fn a_patch_the_tessellation_left_whole_is_cut_coarser() {
+        let voxel = 0.1;
+        let sq = |side: f64, z: f64| square(DVec3::new(0.0, 0.0, z), DVec3::Z, side * voxel);
+        // Sub-patches of at most half a voxel over the step, while the
+        // patch began it at most one voxel across (as `refine` leaves a
+        // patch it follows).
+        assert_eq!(cut(&sq(0.4, 0.0), &sq(0.45, 0.1), voxel), Some((1, 1)));
+        assert_eq!(cut(&sq(1.0, 0.0), &sq(1.0, 0.1), voxel), Some((2, 2)));
+        assert_eq!(cut(&sq(0.9, 0.0), &sq(1.4, 0.1), voxel), Some((3, 3)));
+        assert_eq!(cut(&sq(0.9, 0.0), &sq(1.9, 0.1), voxel), Some((4, 4)));
+        // Over a voxel before the step: left whole, in halves.
+        assert_eq!(cut(&sq(1.2, 0.0), &sq(1.4, 0.1), voxel), Some((2, 2)));
+        assert_eq!(cut(&sq(1.9, 0.0), &sq(1.6, 0.1), voxel), Some((2, 2)));
+        // Over two voxels after it, in halves; over four, along its corners.
+        assert_eq!(cut(&sq(0.9, 0.0), &sq(2.6, 0.1), voxel), Some((2, 2)));
+        assert_eq!(cut(&sq(0.9, 0.0), &sq(4.2, 0.1), voxel), None);
     }
 
     /// The length of the segment `a`-`b` in each unit cell of a grid from

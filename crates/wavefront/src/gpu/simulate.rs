@@ -517,7 +517,7 @@ pub fn source() -> String {
 
 /// Bytes per patch of a list's arrays (see [`PatchSet`]): four corner
 /// positions with their optical path lengths, four gradients, and the
-/// flux, initial flux and irradiance (with area and depth).
+/// flux, initial flux and irradiance (with area, depth and `Patches::kept`).
 const POS_BYTES: u64 = 64;
 const VEL_BYTES: u64 = 64;
 const AUX_BYTES: u64 = 48;
@@ -1651,7 +1651,7 @@ impl<'a> GpuSimulator<'a> {
             let (f, f0, e) = (p.flux[i], p.flux0[i], p.irradiance[i]);
             aux.extend([f[0], f[1], f[2], p.area0[i]].map(|v| v as f32));
             aux.extend([f0[0], f0[1], f0[2], p.depth[i] as f64].map(|v| v as f32));
-            aux.extend([e[0], e[1], e[2], 0.0].map(|v| v as f32));
+            aux.extend([e[0], e[1], e[2], p.kept[i]].map(|v| v as f32));
         }
         gpu.queue
             .write_buffer(&sets[0].pos, 0, bytemuck::cast_slice(&pos));

@@ -20,7 +20,9 @@
 //   vel[4 i + c] = (corner c eikonal gradient v, |v| = n; 0)
 //   aux[3 i + 0] = (RGB flux, W; area0)
 //   aux[3 i + 1] = (RGB flux0; tessellation depth)
-//   aux[3 i + 2] = (RGB differential irradiance, W/m^2; 0)
+//   aux[3 i + 2] = (RGB differential irradiance, W/m^2; the share of its
+//                   flux the surface it straddles has let through so far,
+//                   1 between crossings: `Patches::kept`)
 // The medium: the index channel (n, grad(n^2 / 2)) and the RGB extinction
 // as 3D textures; with Fresnel, the interface sides of the index channel
 // and the boundary indicator as a third, (n_lo, n_hi, delta, 0) per cell
@@ -355,7 +357,7 @@ fn propagate_patch(i: u32) -> Swept {
         if ar > 0.0 {
             e = flux.xyz / ar;
         }
-        aux[3u * i + 2u] = vec4<f32>(e, 0.0);
+        aux[3u * i + 2u] = vec4<f32>(e, aux[3u * i + 2u].w);
     }
     return out;
 }
@@ -681,7 +683,8 @@ fn rebuild_slot(k: u32) {
     if ar > 0.0 {
         e = fl / ar;
     }
-    daux[3u * k + 2u] = vec4<f32>(e, 0.0);
+    // A child keeps its parent's share through a surface it straddles.
+    daux[3u * k + 2u] = vec4<f32>(e, aux[3u * i + 2u].w);
 }
 
 // ---------------------------------------------------------------------
@@ -1085,6 +1088,8 @@ struct Tried {
     ok: bool,
     q: Quad,
     flux: vec3<f32>,
+    // The Fresnel factor the step took from the flux (1 without).
+    kept: f32,
 }
 
 // `propagate::sharp_patch`: one step of the patch q carrying `flux`; with
@@ -1092,7 +1097,7 @@ struct Tried {
 // done) when its corners part ways.
 fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
     let dt = P.dt;
-    var out = Tried(true, q, flux);
+    var out = Tried(true, q, flux, 1.0);
     let m0 = (q.x[0] + q.x[1] + q.x[2] + q.x[3]) * 0.25;
     let ne = empty_at(m0);
     if ne >= 0.0 {
@@ -1230,8 +1235,26 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
             add_energy3(E_REFLECTED, through - t);
         }
         out.flux = t;
+        out.kept = kept;
     }
     return out;
+}
+
+// `propagate::crossing_kept`: a patch's share through the surface it
+// straddles after a step that left it with `through`, back to 1 once its
+// corners are in one region.
+fn crossing_kept(q: Quad, through: f32) -> f32 {
+    if through < 1.0 {
+        let r = region_owner(q.x[0]);
+        var one = true;
+        for (var c = 1u; c < 4u; c++) {
+            one = one && region_owner(q.x[c]) == r;
+        }
+        if one {
+            return 1.0;
+        }
+    }
+    return through;
 }
 
 // Where a patch's Fresnel reflection is (`propagate::reflection`).
@@ -1356,10 +1379,13 @@ fn reflected_flux(flux: vec3<f32>, r: Reflected) -> vec3<f32> {
 }
 
 // The reflection of the patch at `moved` (carrying `flux`, emitted with
-// `flux0`), if it is traced: not below REFLECT_MIN of what the patch was
-// emitted with (`propagate::reflected_piece`).
-fn traced_reflection_of(moved: Quad, to: u32, flux: vec3<f32>, flux0: vec3<f32>) -> Reflected {
+// `flux0`, the surface having let `kept` of it through), if it is traced:
+// not below REFLECT_MIN of what the patch was emitted with
+// (`propagate::reflected_piece`). Its flux is made of `kept`, what the
+// Fresnel factors took from the patch, not of its corners' way back.
+fn traced_reflection_of(moved: Quad, to: u32, flux: vec3<f32>, flux0: vec3<f32>, kept: f32) -> Reflected {
     var r = patch_reflection(moved, to);
+    r.kept = kept;
     if r.ok && all(reflected_flux(flux, r) < REFLECT_MIN * flux0) {
         r.ok = false;
     }
@@ -1385,21 +1411,21 @@ fn traced_reflection(r: Reflected, transmitted: vec3<f32>) -> vec3<f32> {
 }
 
 // [Ihrke07 eq 17]'s irradiance of a patch: flux over its area.
-fn quad_irradiance(q: Quad, flux: vec3<f32>) -> vec4<f32> {
+fn quad_irradiance(q: Quad, flux: vec3<f32>) -> vec3<f32> {
     let ar = patch_area(q.x[0], q.x[1], q.x[2], q.x[3]);
     var e = vec3<f32>(0.0);
     if ar > 0.0 {
         e = flux / ar;
     }
-    return vec4<f32>(e, 0.0);
+    return e;
 }
 
 // Write patch `slot` of the live list.
-fn write_patch(slot: u32, q: Quad, flux: vec3<f32>, flux0: vec3<f32>, area0: f32, depth: f32) {
+fn write_patch(slot: u32, q: Quad, flux: vec3<f32>, flux0: vec3<f32>, area0: f32, depth: f32, kept: f32) {
     store_quad(slot, q);
     aux[3u * slot] = vec4<f32>(flux, area0);
     aux[3u * slot + 1u] = vec4<f32>(flux0, depth);
-    aux[3u * slot + 2u] = quad_irradiance(q, flux);
+    aux[3u * slot + 2u] = vec4<f32>(quad_irradiance(q, flux), kept);
 }
 
 // Quarter `part` of q with its share of q's flux (`split_and_trace`: in
@@ -1554,16 +1580,20 @@ fn sharp_work(k: u32, pass_id: u32) {
     let a = aux[3u * i];
     let f0 = aux[3u * i + 1u];
     let nd = patch_node(i, e.y);
-    var t = Tried(true, nd.q, nd.flux.xyz);
+    var t = Tried(true, nd.q, nd.flux.xyz, 1.0);
     if pass_id != SHARP_REFLECTIONS {
         t = sharp_patch(nd.q, nd.flux.xyz, pass_id != SHARP_LEVEL);
     }
+    // The share of the flux the surface it straddles has let through
+    // (`Patches::kept`): the patch's (a torn patch's slot keeps it, for
+    // its pieces) times this step's factor; pass 1 reads what pass 0
+    // stored.
+    let through = aux[3u * i + 2u].w * t.kept;
     // The patch as it reflects: as pass 0 stores it (and pass 1 reads it).
     var moved = t.q;
     if pass_id == SHARP_PATCHES && t.ok {
         store_quad(i, t.q);
         aux[3u * i] = vec4<f32>(t.flux, a.w);
-        aux[3u * i + 2u] = quad_irradiance(t.q, t.flux);
         moved = load_quad(i);
     }
     var r: Reflected;
@@ -1571,7 +1601,7 @@ fn sharp_work(k: u32, pass_id: u32) {
     var look = pass_id == SHARP_REFLECTIONS;
     // Pass 0: only a patch that has just crossed a surface reflects
     // (`propagate::reflected_piece`).
-    let may = pass_id == SHARP_PATCHES && t.ok && P.reflections != 0u;
+    let may = pass_id == SHARP_PATCHES && t.ok && P.reflections != 0u && through < 1.0;
     var to = 0u;
     if look || may {
         to = region_owner(moved.x[0]);
@@ -1582,7 +1612,15 @@ fn sharp_work(k: u32, pass_id: u32) {
         }
     }
     if look {
-        r = traced_reflection_of(moved, to, t.flux, f0.xyz);
+        r = traced_reflection_of(moved, to, t.flux, f0.xyz, through);
+    }
+    if pass_id == SHARP_PATCHES && t.ok {
+        // A patch that reflects keeps its share for pass 1, which resets it.
+        var kept = through;
+        if !r.ok {
+            kept = crossing_kept(moved, through);
+        }
+        aux[3u * i + 2u] = vec4<f32>(quad_irradiance(t.q, t.flux), kept);
     }
     switch pass_id {
         case SHARP_PATCHES: {
@@ -1626,8 +1664,10 @@ fn sharp_work(k: u32, pass_id: u32) {
             if r.ok {
                 fl = traced_reflection(r, a.xyz);
             }
+            // Its crossing is over: the patch's corners are in one region.
+            aux[3u * i + 2u].w = 1.0;
             let slot = P.n_old + hp_rank(P.pieces_base, P.n_old, i);
-            write_patch(slot, r.q, fl, f0.xyz, a.w, f0.w);
+            write_patch(slot, r.q, fl, f0.xyz, a.w, f0.w, 1.0);
         }
         default: {
             let r = k - first_piece_of(i, pieces_total());
@@ -1641,7 +1681,7 @@ fn sharp_work(k: u32, pass_id: u32) {
                 atomicAdd(&wg_stats[S_TORN], 1u);
                 flux = vec3<f32>(0.0);
             }
-            write_patch(slot, t.q, flux, nd.flux0, nd.flux.w, f0.w + 1.0);
+            write_patch(slot, t.q, flux, nd.flux0, nd.flux.w, f0.w + 1.0, crossing_kept(t.q, through));
         }
     }
 }
