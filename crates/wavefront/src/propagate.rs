@@ -575,6 +575,7 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
                 [*a, *b, *c, *d] = moved;
                 let through = *kept;
                 *kept = crossing_kept(sharp.regions, &moved, through);
+                // (Below 1 only with Fresnel: nothing was taken else.)
                 if through == 1.0 || !sharp.reflections {
                     return None;
                 }
@@ -663,9 +664,6 @@ fn reflected_piece(
     kept: f64,
     lost: &mut Loss,
 ) -> Option<Piece> {
-    if !sharp.fresnel {
-        return None;
-    }
     let regions = sharp.regions;
     let to = regions.at(moved[0].x);
     // Only a patch that began the step across a surface has just finished
@@ -687,8 +685,8 @@ fn reflected_piece(
     // tallied, is flux * (1 - kept) / kept; at the surface, before the
     // absorption beyond it, that times exp(restored). `kept` is what the
     // factors took from this patch (or from the patch it is a piece of),
-    // not `r.kept` of its corners' way back: the two differ where a torn
-    // patch's pieces crossed at corners of their own.
+    // not the factors of its corners' way back: the two differ where a
+    // torn patch's pieces crossed at corners of their own.
     let tallied = flux.map(|f| f * (1.0 - kept) / kept);
     let f: [f64; 3] = std::array::from_fn(|c| tallied[c] * r.restored[c].exp());
     if (0..3).all(|c| f[c] < REFLECT_MIN * flux0[c]) {
@@ -735,9 +733,6 @@ pub struct Reflection {
     pub corners: [RayState; 4],
     /// Where each (in that order) left the surface.
     pub hits: [DVec3; 4],
-    /// The product of the corners' `(1 - R)^(1/4)`: the share of the flux
-    /// the surface transmitted.
-    pub kept: f64,
     /// The optical depth [Ihrke07 eq 18] the patch was charged in the
     /// region it entered since its corners crossed (their mean, as the
     /// patch is charged): the reflected part never entered it.
@@ -779,7 +774,10 @@ pub fn reflection(
     let eps = regions.eps();
     let mut surface = None;
     let mut from = None;
-    let mut kept = 1.0;
+    // Some corner meets the surface with R > 0 and none with R = 1: there
+    // is a reflection (its flux is what the patch's own factors took,
+    // `Patches::kept`).
+    let mut reflects = false;
     let mut corners = *moved;
     let mut hits = [DVec3::ZERO; 4];
     let (mut restored, mut depth) = (DVec3::ZERO, DVec3::ZERO);
@@ -809,7 +807,11 @@ pub fn reflection(
         // Snell's law backwards: the incident gradient (|v| = n1).
         let vi = -refract(-d * n2, -along, n1)?;
         let cos_i = (vi / n1).dot(along);
-        kept *= (1.0 - fresnel::reflectance(cos_i, n1, n2)).powf(0.25);
+        let r = fresnel::reflectance(cos_i, n1, n2);
+        if r >= 1.0 || r.is_nan() {
+            return None;
+        }
+        reflects |= r > 0.0;
         // The optical path since the crossing (trapezoid in the index).
         let back = 0.5 * (n2 + regions.index(to, s.x, ch).0) * (c.t - 2.0 * eps).max(0.0);
         restored += step_depth(grid, p, s.x, per_index(to, p), per_index(to, s.x), back);
@@ -842,14 +844,13 @@ pub fn reflection(
         corners[k] = ray.s;
         hits[k] = p;
     }
-    if !(kept > 0.0 && kept < 1.0) {
+    if !reflects {
         return None;
     }
     // A mirror image reverses the corners' winding: 0 3 2 1 restores it.
     Some(Reflection {
         corners: [corners[0], corners[3], corners[2], corners[1]],
         hits: [hits[0], hits[3], hits[2], hits[1]],
-        kept,
         restored: restored * 0.25,
         depth: depth * 0.25,
     })

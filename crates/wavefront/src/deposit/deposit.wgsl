@@ -123,23 +123,33 @@ fn deposit_edge2(p: array<vec3<f32>, 4>, a: u32, b: u32) -> f32 {
     return dot(d, d);
 }
 
+// `deposit::sides2`: the squared lengths of the longer of each pair of
+// opposite edges, along s and along t.
+fn deposit_sides2(p: array<vec3<f32>, 4>) -> vec2<f32> {
+    return vec2<f32>(max(deposit_edge2(p, 1u, 0u), deposit_edge2(p, 2u, 3u)), max(deposit_edge2(p, 3u, 0u), deposit_edge2(p, 2u, 1u)));
+}
+
+// `deposit::counts`: sub-patches along sides of squared lengths l2, (0, 0)
+// where that would take more than MAX_SUBPATCHES.
+fn deposit_counts(l2: vec2<f32>, voxel: f32) -> vec2<u32> {
+    let k = max(ceil(sqrt(l2) / (SUBPATCH_SIZE * voxel) * (1.0 - SUBPATCH_SLACK)), vec2<f32>(1.0));
+    if !(k.x <= f32(MAX_SUBPATCHES) && k.y <= f32(MAX_SUBPATCHES)) {
+        return vec2<u32>(0u);
+    }
+    return vec2<u32>(k);
+}
+
 // `deposit::subpatches`: sub-patches along the two sides, (0, 0) where that
 // would take more than MAX_SUBPATCHES.
 fn deposit_subpatches(x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, voxel: f32) -> vec2<u32> {
-    let ls = sqrt(max(max(deposit_edge2(x0, 1u, 0u), deposit_edge2(x0, 2u, 3u)), max(deposit_edge2(x1, 1u, 0u), deposit_edge2(x1, 2u, 3u))));
-    let lt = sqrt(max(max(deposit_edge2(x0, 3u, 0u), deposit_edge2(x0, 2u, 1u)), max(deposit_edge2(x1, 3u, 0u), deposit_edge2(x1, 2u, 1u))));
-    let ks = max(ceil(ls / (SUBPATCH_SIZE * voxel) * (1.0 - SUBPATCH_SLACK)), 1.0);
-    let kt = max(ceil(lt / (SUBPATCH_SIZE * voxel) * (1.0 - SUBPATCH_SLACK)), 1.0);
-    if !(ks <= f32(MAX_SUBPATCHES) && kt <= f32(MAX_SUBPATCHES)) {
-        return vec2<u32>(0u);
-    }
-    return vec2<u32>(u32(ks), u32(kt));
+    return deposit_counts(max(deposit_sides2(x0), deposit_sides2(x1)), voxel);
 }
 
 // `deposit::cut`: how `deposit_tube` cuts a patch sweeping from x0 to
 // x1, (ns, nt) sub-patches, or (0, 0) for along its four corner rays.
 fn deposit_cut(x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, voxel: f32) -> vec2<u32> {
-    let k = deposit_subpatches(x0, x1, voxel);
+    let start = deposit_sides2(x0);
+    let k = deposit_counts(max(start, deposit_sides2(x1)), voxel);
     if k.x == 0u {
         return k;
     }
@@ -151,7 +161,7 @@ fn deposit_cut(x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, voxel: f32) -> 
     }
     // Left whole by the tessellation: over one voxel across before the
     // step (`deposit::left_whole`).
-    let k0 = deposit_subpatches(x0, x0, voxel);
+    let k0 = deposit_counts(start, voxel);
     if wide || k0.x == 0u || max(k0.x, k0.y) > WHOLE_SUBPATCHES {
         return min(k, vec2<u32>(SUBPATCHES_PER_SIDE));
     }

@@ -366,24 +366,34 @@ pub const SUBPATCH_SLACK: f64 = 1e-4;
 /// than [`MAX_SUBPATCHES`] (a patch over four voxels across).
 #[inline]
 pub fn subpatches(x0: &[DVec3; 4], x1: &[DVec3; 4], voxel: f64) -> Option<(usize, usize)> {
-    let edge = |p: &[DVec3; 4], a: usize, b: usize| (p[a] - p[b]).length_squared();
-    let ls = edge(x0, 1, 0)
-        .max(edge(x0, 2, 3))
-        .max(edge(x1, 1, 0))
-        .max(edge(x1, 2, 3))
-        .sqrt();
-    let lt = edge(x0, 3, 0)
-        .max(edge(x0, 2, 1))
-        .max(edge(x1, 3, 0))
-        .max(edge(x1, 2, 1))
-        .sqrt();
-    let count = |l: f64| {
-        let k = (l / (SUBPATCH_SIZE * voxel) * (1.0 - SUBPATCH_SLACK))
+    counts(longer(sides2(x0), sides2(x1)), voxel)
+}
+
+/// The squared lengths of the longer of each pair of opposite edges of the
+/// quad `p`: along `s` (edges 0-1 and 3-2), along `t` (0-3 and 1-2).
+#[inline]
+fn sides2(p: &[DVec3; 4]) -> (f64, f64) {
+    let edge = |a: usize, b: usize| (p[a] - p[b]).length_squared();
+    (edge(1, 0).max(edge(2, 3)), edge(3, 0).max(edge(2, 1)))
+}
+
+/// The longer of two pairs of sides.
+#[inline]
+fn longer(a: (f64, f64), b: (f64, f64)) -> (f64, f64) {
+    (a.0.max(b.0), a.1.max(b.1))
+}
+
+/// Sub-patches of [`SUBPATCH_SIZE`] along sides of squared lengths
+/// `(ls2, lt2)` ([`sides2`]); `None` over [`MAX_SUBPATCHES`].
+#[inline]
+fn counts((ls2, lt2): (f64, f64), voxel: f64) -> Option<(usize, usize)> {
+    let count = |l2: f64| {
+        let k = (l2.sqrt() / (SUBPATCH_SIZE * voxel) * (1.0 - SUBPATCH_SLACK))
             .ceil()
             .max(1.0);
         (k <= MAX_SUBPATCHES as f64).then_some(k as usize)
     };
-    Some((count(ls)?, count(lt)?))
+    Some((count(ls2)?, count(lt2)?))
 }
 
 /// Deposit the tube a patch sweeps along straight corner paths, corners
@@ -458,8 +468,9 @@ pub fn tube(
 /// corner rays (over [`MAX_SUBPATCHES`], or [`torn`]).
 #[inline]
 pub fn cut(x0: &[DVec3; 4], x1: &[DVec3; 4], voxel: f64) -> Option<(usize, usize)> {
-    let (ns, nt) = subpatches(x0, x1, voxel).filter(|&n| !torn(x1, n))?;
-    Some(if wide((ns, nt)) || left_whole(x0, voxel) {
+    let start = sides2(x0);
+    let (ns, nt) = counts(longer(start, sides2(x1)), voxel).filter(|&n| !torn(x1, n))?;
+    Some(if wide((ns, nt)) || left_whole(start, voxel) {
         (ns.min(SUBPATCHES_PER_SIDE), nt.min(SUBPATCHES_PER_SIDE))
     } else {
         (ns, nt)
@@ -483,16 +494,16 @@ fn wide((ns, nt): (usize, usize)) -> bool {
     ns.max(nt) as f64 * SUBPATCH_SIZE > 2.0
 }
 
-/// Whether a patch that starts a step at `x0` was left whole by the
-/// tessellation: over one voxel (the default split size) along a side
-/// before the step. A patch the tessellation follows begins every step
+/// Whether a patch whose sides are `start` ([`sides2`]) when a step
+/// begins was left whole by the tessellation: over one voxel (the default
+/// split size) along a side before the step. A patch the tessellation follows begins every step
 /// (or run of steps) at most the split size across, as `refine` left it;
 /// one already past it is too dim to be worth splitting, held while it
 /// straddles a surface, or its depth is spent, and its corner rays lie
 /// over a voxel apart (its interior is their interpolation).
 #[inline]
-fn left_whole(x0: &[DVec3; 4], voxel: f64) -> bool {
-    subpatches(x0, x0, voxel).is_none_or(|(s, t)| s.max(t) > WHOLE_SUBPATCHES)
+fn left_whole(start: (f64, f64), voxel: f64) -> bool {
+    counts(start, voxel).is_none_or(|(s, t)| s.max(t) > WHOLE_SUBPATCHES)
 }
 
 /// Sub-patches of [`SUBPATCH_SIZE`] along a side of a patch one voxel

@@ -1264,7 +1264,8 @@ struct Reflected {
     // keeps the orientation), and where each left the surface.
     q: Quad,
     hits: array<vec3<f32>, 4>,
-    // The product of the corners' (1 - R)^(1/4).
+    // The share of the patch's flux the surface let through
+    // (`Patches::kept`), set by `traced_reflection_of`.
     kept: f32,
     // The optical depth the patch was charged beyond the surface since its
     // corners crossed, and the one the reflected light loses on its way
@@ -1286,7 +1287,8 @@ fn patch_reflection(m: Quad, to: u32) -> Reflected {
     let reach = quad_span(m) * REACH_SPANS + P.dt;
     var surface = NONE;
     var came = NONE;
-    var kept = 1.0;
+    // Some corner meets the surface with R > 0 and none with R = 1.
+    var reflects = false;
     var r: Quad;
     var hits: array<vec3<f32>, 4>;
     var restored = vec3<f32>(0.0);
@@ -1323,7 +1325,11 @@ fn patch_reflection(m: Quad, to: u32) -> Reflected {
         }
         let vi = -back_in.xyz;
         let cos_i = dot(vi / n1, along);
-        kept *= pow(max(1.0 - fresnel_reflectance(cos_i, n1, n2), 0.0), 0.25);
+        let rho = fresnel_reflectance(cos_i, n1, n2);
+        if !(rho < 1.0) {
+            return out;
+        }
+        reflects = reflects || rho > 0.0;
         let back = 0.5 * (n2 + region_index(to, m.x[k], P.channel).x) * max(hit.t - 2.0 * eps, 0.0);
         restored += step_depth(P.grid, p, m.x[k], sharp_extinction_per_index(to, p), sharp_extinction_per_index(to, m.x[k]), back);
         var ray = RegionRay(p, vi - along * (2.0 * dot(vi, along)), m.opl[k] - back, behind);
@@ -1349,11 +1355,10 @@ fn patch_reflection(m: Quad, to: u32) -> Reflected {
         r.opl[k] = ray.opl;
         hits[k] = p;
     }
-    if !(kept > 0.0 && kept < 1.0) {
+    if !reflects {
         return out;
     }
     out.ok = true;
-    out.kept = kept;
     out.restored = restored * 0.25;
     out.depth = depth * 0.25;
     let order = array<u32, 4>(0u, 3u, 2u, 1u);
