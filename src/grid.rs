@@ -185,6 +185,10 @@ pub struct Needs {
     /// The medium's render properties are released
     /// (`Medium::release_render_properties`, `eikon simulate`).
     pub light_only: bool,
+    /// The medium holds its surfaces alone
+    /// (`Medium::build_surfaces_within`: `eikon simulate` with sharp
+    /// interfaces on the CPU).
+    pub surfaces_only: bool,
     /// The light volumes of every light (simulate, render).
     pub light_volumes: bool,
     /// The fixed-point counters of one light being simulated.
@@ -208,7 +212,9 @@ pub struct Needs {
 fn itemize(scene: &Scene, needs: &Needs) -> Vec<(&'static str, u128)> {
     let (light, counters) = light_volume_bytes(scene);
     let est = Medium::memory_estimate(scene);
-    let medium = if needs.light_only {
+    let medium = if needs.surfaces_only {
+        est.surfaces
+    } else if needs.light_only {
         est.light
     } else {
         est.resident
@@ -279,7 +285,12 @@ pub fn check_memory(scene: &Scene, needs: &Needs) -> Result<u128> {
             format_bytes(limit)
         );
     }
-    Ok(total.max(Medium::memory_estimate(scene).peak))
+    let est = Medium::memory_estimate(scene);
+    Ok(total.max(if needs.surfaces_only {
+        est.surfaces_peak
+    } else {
+        est.peak
+    }))
 }
 
 /// The most memory this process has held resident (Linux `VmHWM`), to
@@ -323,8 +334,18 @@ pub fn describe(scene: &Scene) -> String {
     let [nx, ny, nz] = g.geometry.dims;
     let mem = Medium::memory_estimate(scene);
     let (light, counters) = light_volume_bytes(scene);
+    // What `eikon simulate` builds for the wavefront on the CPU.
+    let surfaces = if g.interfaces == eikon_grid::Interfaces::Sharp {
+        format!(
+            "; to simulate on the CPU, the surfaces alone: {}, {} peak",
+            format_bytes(mem.surfaces),
+            format_bytes(mem.surfaces_peak)
+        )
+    } else {
+        String::new()
+    };
     format!(
-        "grid {nx} x {ny} x {nz} voxels, smoothing {} voxel: medium {} ({} peak while building), light volumes {} (+{} while simulating one light)",
+        "grid {nx} x {ny} x {nz} voxels, smoothing {} voxel: medium {} ({} peak while building{surfaces}), light volumes {} (+{} while simulating one light)",
         g.smoothing,
         format_bytes(mem.resident),
         format_bytes(mem.peak),
@@ -338,7 +359,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_medium_for_the_light_alone_counts_without_its_render_properties() {
+    fn a_medium_for_the_light_alone_counts_without_its_render_properties_or_its_voxel_fields() {
         let scene = Scene::parse(
             "[grid]\nresolution = 12\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\n[[object]]\nshape = { type = \"sphere\", center = [0, 0, 0], radius = 0.5 }\nindex = 1.5\nalbedo = [0.5, 0.5, 0.5]\n",
             "test",
@@ -359,17 +380,27 @@ mod tests {
         assert_eq!(held(&m), est.resident);
         m.release_render_properties();
         assert_eq!(held(&m), est.light);
-        let medium = |light_only| {
+        let lean = Medium::build_surfaces_within(&scene, u128::MAX, &|_, _, _| {}).unwrap();
+        assert_eq!(held(&lean), est.surfaces);
+        let medium = |light_only, surfaces_only| {
             itemize(
                 &scene,
                 &Needs {
                     light_only,
+                    surfaces_only,
                     ..Needs::default()
                 },
             )[0]
             .1
         };
-        assert_eq!((medium(false), medium(true)), (est.resident, est.light));
+        assert_eq!(
+            (
+                medium(false, false),
+                medium(true, false),
+                medium(true, true)
+            ),
+            (est.resident, est.light, est.surfaces)
+        );
     }
 
     #[test]

@@ -105,6 +105,24 @@ pub fn copy_atomic(from: &Path, to: &Path) -> Result<()> {
 /// Build a scene's medium with a progress bar on stderr (drawn only when
 /// stderr is a terminal).
 pub fn build_medium(scene: &eikon_grid::Scene) -> Result<eikon_grid::Medium> {
+    build_with_bar(scene, eikon_grid::Medium::build_within)
+}
+
+/// [`build_medium`] of the surfaces alone
+/// ([`eikon_grid::Medium::build_surfaces_within`]): what a light simulation
+/// with sharp interfaces reads on the CPU.
+pub fn build_surfaces(scene: &eikon_grid::Scene) -> Result<eikon_grid::Medium> {
+    build_with_bar(scene, eikon_grid::Medium::build_surfaces_within)
+}
+
+fn build_with_bar(
+    scene: &eikon_grid::Scene,
+    build: impl FnOnce(
+        &eikon_grid::Scene,
+        u128,
+        eikon_grid::BuildProgress,
+    ) -> eikon_grid::Result<eikon_grid::Medium>,
+) -> Result<eikon_grid::Medium> {
     let bar = indicatif::ProgressBar::new(1);
     bar.set_style(
         indicatif::ProgressStyle::with_template("{msg:>20} [{bar:40}] {pos}/{len} ({elapsed})")
@@ -112,7 +130,7 @@ pub fn build_medium(scene: &eikon_grid::Scene) -> Result<eikon_grid::Medium> {
             .progress_chars("=> "),
     );
     let limit = crate::grid::memory_limit();
-    let medium = eikon_grid::Medium::build_within(scene, limit, &|stage, done, total| {
+    let medium = build(scene, limit, &|stage, done, total| {
         bar.set_message(stage);
         bar.set_length(total);
         bar.set_position(done);

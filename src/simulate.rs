@@ -1,7 +1,7 @@
 //! `eikon simulate`: the light volumes of every light of a scene.
 
 use crate::backend::{Backend, BackendFlag};
-use crate::output::build_medium;
+use crate::output::{build_medium, build_surfaces};
 use anyhow::{bail, Result};
 use clap::ValueEnum;
 use eikon_grid::{ray, Medium, Scene};
@@ -272,16 +272,34 @@ pub fn run(args: Args) -> Result<()> {
         return run_frames(&args);
     }
     let scene = args.grid.load(&args.scene)?;
-    let mut medium = build_medium(&scene)?;
-    // Nothing here renders: what only renderers read goes before the
-    // light volumes' counters are allocated.
-    medium.release_render_properties();
     let backend = args.select_backend()?;
+    // Nothing here renders. With sharp interfaces the wavefront on the
+    // CPU reads each region's index and extinction from the scene: of the
+    // voxels it needs only the boundary indicator. Else what only
+    // renderers read goes before the light volumes' counters are
+    // allocated.
+    let medium = if args.reads_surfaces_alone(&scene, &backend)? {
+        build_surfaces(&scene)?
+    } else {
+        let mut medium = build_medium(&scene)?;
+        medium.release_render_properties();
+        medium
+    };
     simulate(&args, &scene, &medium, &backend)?;
     Ok(())
 }
 
 impl Args {
+    /// Whether the simulation reads the medium's surfaces alone
+    /// (`Medium::build_surfaces_within`): the wavefront with sharp
+    /// interfaces and the fluence deposit, on the CPU.
+    fn reads_surfaces_alone(&self, scene: &Scene, backend: &Backend) -> Result<bool> {
+        Ok(self.method == SimMethod::Wavefront
+            && matches!(backend, Backend::Cpu)
+            && scene.grid.interfaces == eikon_grid::Interfaces::Sharp
+            && self.options()?.deposit == DepositRule::Fluence)
+    }
+
     fn select_backend(&self) -> Result<Backend> {
         let gpu_asked = self.backend.backend == Some(crate::backend::BackendArg::Gpu);
         if self.method == SimMethod::Photons {
@@ -490,10 +508,12 @@ pub fn simulate(
         scene,
         &crate::grid::Needs {
             light_only: !medium.has_render_properties(),
+            surfaces_only: !medium.has_voxel_fields(),
             light_volumes: true,
             counters: true,
             patches: (args.method == SimMethod::Wavefront).then_some(opts.max_patches),
-            interfaces: opts.fresnel,
+            // (Sharp interfaces on the CPU know both sides exactly.)
+            interfaces: opts.fresnel && medium.has_voxel_fields(),
             photons: args.method == SimMethod::Photons,
             gpu: (args.method == SimMethod::Wavefront)
                 .then(|| {

@@ -59,6 +59,8 @@ pub struct Medium {
     pub emission: Array4<f32>,
     /// Discrete Dirac delta of the material boundaries (per world unit).
     pub boundary: Array3<f32>,
+    /// Smallest and largest index over all channels ([`Self::index_range`]).
+    index_bounds: (f32, f32),
 }
 
 /// Progress callback of [`Medium::build_with_progress`]: `(stage, done,
@@ -77,6 +79,11 @@ pub struct MemoryEstimate {
     pub light: u128,
     /// Highest use while building.
     pub peak: u128,
+    /// Kept by a medium of the surfaces alone
+    /// ([`Medium::build_surfaces_within`]).
+    pub surfaces: u128,
+    /// Highest use while building that.
+    pub surfaces_peak: u128,
 }
 
 /// Bytes the operating system reports available (`MemAvailable`), if known.
@@ -122,11 +129,15 @@ impl Medium {
         let resident = voxels * (16 * c + 4 * (3 + 3 + 1 + 3 + 1));
         let light = voxels * (16 * c + 4 * (3 + 1));
         let raster = padded * 4 * voxelize::stride(c as usize, scene.objects.len()) as u128;
+        // The boundary indicator alone.
+        let surfaces = voxels * 4;
         // The raster, plus one padded scalar field being smoothed.
         MemoryEstimate {
             resident,
             light,
             peak: resident + raster + padded * 4,
+            surfaces,
+            surfaces_peak: surfaces + raster + padded * 4,
         }
     }
 
@@ -146,47 +157,15 @@ impl Medium {
     /// more than `avail` bytes (instead of the memory the system reports).
     pub fn build_within(scene: &Scene, avail: u128, progress: BuildProgress) -> Result<Medium> {
         let est = Self::memory_estimate(scene);
-        if est.peak > avail {
-            return Err(scene.error_at(
-                "grid.resolution",
-                format!(
-                    "{:?} voxels need {} to build ({} resident) but only {} of memory is available (or allowed by --max-memory); lower the resolution",
-                    scene.grid.geometry.dims,
-                    format_bytes(est.peak),
-                    format_bytes(est.resident),
-                    format_bytes(avail)
-                ),
-            ));
-        }
+        let built = Build::new(scene, (est.peak, est.resident), avail, progress)?;
+        let (raster, pad) = (&built.raster, built.pad);
         let geom = &scene.grid.geometry;
         let sigma = scene.grid.smoothing;
-        let pad = halo(sigma);
-        let spacing = geom.spacing();
-        let padded_dims = geom.dims.map(|d| d + 2 * pad);
-        let padded = GridGeometry::new(
-            padded_dims,
-            geom.min - spacing * pad as f64,
-            geom.max + spacing * pad as f64,
-        );
-        let raster = voxelize::rasterize(scene, &padded, progress);
         let [nx, ny, nz] = geom.dims;
-        let h = spacing.to_array();
-
-        let extract = |offset: usize| -> Array3<f32> {
-            let st = raster.stride;
-            Array3::from_shape_fn(padded_dims, |(i, j, k)| {
-                raster.data[((i * padded_dims[1] + j) * padded_dims[2] + k) * st + offset]
-            })
-        };
-        let crop = |a: &Array3<f32>| -> Array3<f32> {
-            a.slice(s![pad..pad + nx, pad..pad + ny, pad..pad + nz])
-                .to_owned()
-        };
+        let h = geom.spacing().to_array();
         let crop3 = |base: usize| -> Array4<f32> {
-            let st = raster.stride;
             Array4::from_shape_fn((nx, ny, nz, 3), |(i, j, k, a)| {
-                let idx = ((i + pad) * padded_dims[1] + j + pad) * padded_dims[2] + k + pad;
-                raster.data[idx * st + base + a]
+                built.at([i, j, k], base + a)
             })
         };
 
@@ -194,7 +173,7 @@ impl Medium {
         let mut index = Vec::with_capacity(raster.channels);
         for c in 0..raster.channels {
             progress("index and gradient", c as u64, raster.channels as u64);
-            let mut n = extract(c);
+            let mut n = built.extract(c);
             smooth::gaussian(&mut n, sigma);
             let nv = n.view();
             let mut out = Array4::<f32>::zeros((nx, ny, nz, 4));
@@ -216,29 +195,16 @@ impl Medium {
                 });
             index.push(out);
         }
+        check_index(scene, index.iter().map(|a| a.slice(s![.., .., .., 0])))?;
+        let index_bounds = range(
+            index
+                .iter()
+                .flat_map(|a| a.slice(s![.., .., .., 0]).into_iter().copied()),
+        );
 
-        // Boundary indicator: half the summed gradient magnitudes of every
-        // material's smoothed coverage. Across an interface between two
-        // materials each coverage goes 0 -> 1 or 1 -> 0, so the sum
-        // integrates to exactly one along the normal ([Ihrke07 eq 2]'s delta).
-        let mut boundary = Array3::<f32>::zeros((nx, ny, nz));
-        let materials = scene.objects.len() as u64 + 1;
-        for m in 0..=scene.objects.len() {
-            progress("boundary indicator", m as u64, materials);
-            let mut cov = extract(raster.at(Raster::COV) + m);
-            if cov.iter().all(|&x| x == cov[[0, 0, 0]]) {
-                continue;
-            }
-            smooth::gaussian(&mut cov, sigma);
-            let cv = cov.view();
-            boundary.indexed_iter_mut().for_each(|((i, j, k), b)| {
-                let g = smooth::isotropic_gradient(&cv, i + pad, j + pad, k + pad, h, |c| c);
-                *b += 0.5 * (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt() as f32;
-            });
-        }
-
-        let g = crop(&extract(raster.at(Raster::G)));
-        let medium = Medium {
+        let boundary = built.boundary(scene, progress);
+        let g = built.crop(&built.extract(raster.at(Raster::G)));
+        Ok(Medium {
             geometry: geom.clone(),
             smoothing: sigma,
             index,
@@ -247,27 +213,69 @@ impl Medium {
             g,
             emission: crop3(raster.at(Raster::EMI)),
             boundary,
-        };
-        medium.check_index(scene)?;
-        Ok(medium)
+            index_bounds,
+        })
     }
 
-    /// Every index sample must be finite and positive.
-    fn check_index(&self, scene: &Scene) -> Result<()> {
-        for (c, a) in self.index.iter().enumerate() {
-            if let Some(((i, j, k, _), v)) = a
-                .slice(s![.., .., .., 0])
-                .indexed_iter()
-                .map(|((i, j, k), v)| ((i, j, k, 0), *v))
+    /// The medium a light simulation with sharp interfaces reads on the
+    /// CPU: the boundary indicator ([`crate::region::Regions::clear_of`])
+    /// and the index range, nothing else. Its rays and patches read each
+    /// region's index and extinction exactly from the scene, so the
+    /// smoothed index, its gradient and the voxel extinction (most of what a
+    /// cell holds, and most of the build's time) are not made; nor are the
+    /// render properties. [`Self::has_voxel_fields`] is false: whatever
+    /// samples them refuses it. Refuses, before allocating, a grid whose
+    /// build would not fit in `avail` bytes.
+    pub fn build_surfaces_within(
+        scene: &Scene,
+        avail: u128,
+        progress: BuildProgress,
+    ) -> Result<Medium> {
+        let est = Self::memory_estimate(scene);
+        let built = Build::new(scene, (est.surfaces_peak, est.surfaces), avail, progress)?;
+        let raster = &built.raster;
+        let [nx, ny, nz] = scene.grid.geometry.dims;
+        // The index as rasterized (each cell the mean of its sub-samples):
+        // the smoothed field's values are weighted means of these, so their
+        // range holds its range, and equals it wherever each material has
+        // a cell of its own.
+        let built = &built;
+        let raw = move |c: usize| {
+            (0..nx).flat_map(move |i| {
+                (0..ny).flat_map(move |j| (0..nz).map(move |k| built.at([i, j, k], c)))
+            })
+        };
+        for c in 0..raster.channels {
+            if let Some((at, v)) = raw(c)
+                .enumerate()
                 .find(|(_, v)| !(v.is_finite() && *v > 0.0))
             {
-                return Err(scene.error_at(
-                    "object",
-                    format!("voxelized index of channel {c} is {v} at voxel ({i}, {j}, {k}); it must be finite and > 0"),
-                ));
+                let (i, j, k) = (at / (ny * nz), at / nz % ny, at % nz);
+                return Err(bad_index(scene, c, v, (i, j, k)));
             }
         }
-        Ok(())
+        let index_bounds = range((0..raster.channels).flat_map(raw));
+        let boundary = built.boundary(scene, progress);
+        Ok(Medium {
+            geometry: scene.grid.geometry.clone(),
+            smoothing: scene.grid.smoothing,
+            index: (0..raster.channels)
+                .map(|_| Array4::zeros((0, 0, 0, 4)))
+                .collect(),
+            extinction: Array4::zeros((0, 0, 0, 3)),
+            albedo: Array4::zeros((0, 0, 0, 3)),
+            g: Array3::zeros((0, 0, 0)),
+            emission: Array4::zeros((0, 0, 0, 3)),
+            boundary,
+            index_bounds,
+        })
+    }
+
+    /// Whether the voxel index, its gradient and the extinction are held:
+    /// not in a medium of the surfaces alone
+    /// ([`Self::build_surfaces_within`]).
+    pub fn has_voxel_fields(&self) -> bool {
+        self.extinction.len() == self.geometry.voxel_count() * 3
     }
 
     /// Number of index channels (1, or 3 with dispersion).
@@ -303,12 +311,7 @@ impl Medium {
 
     /// Smallest and largest index over all channels.
     pub fn index_range(&self) -> (f32, f32) {
-        self.index
-            .iter()
-            .flat_map(|a| a.slice(s![.., .., .., 0]).into_iter().copied())
-            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), v| {
-                (lo.min(v), hi.max(v))
-            })
+        self.index_bounds
     }
 
     /// Trilinear sample at world point `p` of an RGB field of this medium
@@ -330,11 +333,158 @@ impl Medium {
     }
 
     /// The index field of `channel` for ray tracing (trilinear sampling).
+    /// Panics on a medium of the surfaces alone, which holds none
+    /// ([`Self::has_voxel_fields`]).
     pub fn field(&self, channel: usize) -> VoxelField<'_> {
         let data = self.index[channel]
             .as_slice()
             .expect("index arrays are contiguous");
         VoxelField::new(data, &self.geometry)
+    }
+}
+
+/// Refuse, naming the resolution, a build that needs `peak` bytes where
+/// `avail` are available.
+fn check_fits(scene: &Scene, peak: u128, resident: u128, avail: u128) -> Result<()> {
+    if peak > avail {
+        return Err(scene.error_at(
+            "grid.resolution",
+            format!(
+                "{:?} voxels need {} to build ({} resident) but only {} of memory is available (or allowed by --max-memory); lower the resolution",
+                scene.grid.geometry.dims,
+                format_bytes(peak),
+                format_bytes(resident),
+                format_bytes(avail)
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Every index sample must be finite and positive.
+fn check_index<'a>(
+    scene: &Scene,
+    channels: impl Iterator<Item = ndarray::ArrayView3<'a, f32>>,
+) -> Result<()> {
+    for (c, a) in channels.enumerate() {
+        if let Some((at, v)) = a
+            .indexed_iter()
+            .find(|(_, v)| !(v.is_finite() && **v > 0.0))
+        {
+            return Err(bad_index(scene, c, *v, at));
+        }
+    }
+    Ok(())
+}
+
+fn bad_index(
+    scene: &Scene,
+    c: usize,
+    v: f32,
+    (i, j, k): (usize, usize, usize),
+) -> crate::error::Error {
+    scene.error_at(
+        "object",
+        format!("voxelized index of channel {c} is {v} at voxel ({i}, {j}, {k}); it must be finite and > 0"),
+    )
+}
+
+/// Smallest and largest of `values`.
+fn range(values: impl Iterator<Item = f32>) -> (f32, f32) {
+    values.fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), v| {
+        (lo.min(v), hi.max(v))
+    })
+}
+
+/// A scene rasterized on its grid padded by the smoothing's halo: what
+/// both builds start from.
+struct Build {
+    raster: Raster,
+    pad: usize,
+    padded_dims: [usize; 3],
+    dims: [usize; 3],
+    sigma: f64,
+    h: [f64; 3],
+}
+
+impl Build {
+    /// Rasterize `scene`, once it is known that the build's `(peak,
+    /// resident)` bytes fit in `avail`.
+    fn new(
+        scene: &Scene,
+        (peak, resident): (u128, u128),
+        avail: u128,
+        progress: BuildProgress,
+    ) -> Result<Self> {
+        check_fits(scene, peak, resident, avail)?;
+        Ok(Self::rasterize(scene, progress))
+    }
+
+    fn rasterize(scene: &Scene, progress: BuildProgress) -> Self {
+        let geom = &scene.grid.geometry;
+        let sigma = scene.grid.smoothing;
+        let pad = halo(sigma);
+        let spacing = geom.spacing();
+        let padded_dims = geom.dims.map(|d| d + 2 * pad);
+        let padded = GridGeometry::new(
+            padded_dims,
+            geom.min - spacing * pad as f64,
+            geom.max + spacing * pad as f64,
+        );
+        Self {
+            raster: voxelize::rasterize(scene, &padded, progress),
+            pad,
+            padded_dims,
+            dims: geom.dims,
+            sigma,
+            h: spacing.to_array(),
+        }
+    }
+
+    /// The raster's value at `offset` in the grid's cell `(i, j, k)`.
+    #[inline]
+    fn at(&self, [i, j, k]: [usize; 3], offset: usize) -> f32 {
+        let (p, pd) = (self.pad, self.padded_dims);
+        let idx = ((i + p) * pd[1] + j + p) * pd[2] + k + p;
+        self.raster.data[idx * self.raster.stride + offset]
+    }
+
+    /// One scalar of the raster (at `offset` in a cell), padded.
+    fn extract(&self, offset: usize) -> Array3<f32> {
+        let (st, pd) = (self.raster.stride, self.padded_dims);
+        Array3::from_shape_fn(pd, |(i, j, k)| {
+            self.raster.data[((i * pd[1] + j) * pd[2] + k) * st + offset]
+        })
+    }
+
+    /// A padded scalar cut to the grid.
+    fn crop(&self, a: &Array3<f32>) -> Array3<f32> {
+        let (p, [nx, ny, nz]) = (self.pad, self.dims);
+        a.slice(s![p..p + nx, p..p + ny, p..p + nz]).to_owned()
+    }
+
+    /// Boundary indicator: half the summed gradient magnitudes of every
+    /// material's smoothed coverage. Across an interface between two
+    /// materials each coverage goes 0 -> 1 or 1 -> 0, so the sum
+    /// integrates to exactly one along the normal ([Ihrke07 eq 2]'s delta).
+    fn boundary(&self, scene: &Scene, progress: BuildProgress) -> Array3<f32> {
+        let mut boundary = Array3::<f32>::zeros(self.dims);
+        let materials = scene.objects.len() as u64 + 1;
+        let (pad, h) = (self.pad, self.h);
+        for m in 0..=scene.objects.len() {
+            progress("boundary indicator", m as u64, materials);
+            let mut cov = self.extract(self.raster.at(Raster::COV) + m);
+            if cov.iter().all(|&x| x == cov[[0, 0, 0]]) {
+                continue;
+            }
+            smooth::gaussian(&mut cov, self.sigma);
+            let cv = cov.view();
+            boundary.indexed_iter_mut().for_each(|((i, j, k), b)| {
+                let g = smooth::isotropic_gradient(&cv, i + pad, j + pad, k + pad, h, |c| c);
+                *b += 0.5 * (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt() as f32;
+            });
+        }
+        boundary
     }
 }
 
@@ -364,6 +514,9 @@ pub struct EmptySpace {
 impl EmptySpace {
     /// The uniform and empty space of index channel `channel` of `medium`.
     pub fn new(medium: &Medium, channel: usize) -> Self {
+        if !medium.has_voxel_fields() {
+            return Self::unknown(&medium.geometry);
+        }
         let idx = &medium.index[channel];
         Self::with_index(medium, |blocks, b| {
             let [i0, j0, k0] = blocks.first_voxel(b);
@@ -413,6 +566,20 @@ impl EmptySpace {
             n,
             sigma,
             clear,
+        }
+    }
+
+    /// No block known to be uniform: what a medium without voxel fields
+    /// ([`Medium::has_voxel_fields`]) has, and what a light simulation with
+    /// sharp interfaces (which goes by the regions themselves) needs.
+    pub fn unknown(grid: &GridGeometry) -> Self {
+        let blocks = BlockGrid::new(grid);
+        let n = vec![f64::NAN; blocks.len()];
+        Self {
+            clear: clearance(&blocks, &n),
+            sigma: vec![[0.0; 3]; blocks.len()],
+            n,
+            blocks,
         }
     }
 

@@ -31,7 +31,7 @@ pub mod vdb;
 mod voxelize;
 
 pub use error::{Error, Location, Result};
-pub use field::{AnalyticField, EmptySpace, Medium, MemoryEstimate, VoxelField};
+pub use field::{AnalyticField, BuildProgress, EmptySpace, Medium, MemoryEstimate, VoxelField};
 pub use geometry::{GridGeometry, Trilinear};
 pub use mesh_solid::MeshSolid;
 pub use object::{GridExtinction, GridIndex, IndexProfile, Material, Object};

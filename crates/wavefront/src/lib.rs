@@ -214,6 +214,11 @@ pub enum Error {
     /// (`light[i].power`).
     #[error("{0}")]
     NotFinite(String),
+    /// What was asked reads the medium's voxel index or extinction, which
+    /// a medium of the surfaces alone does not hold
+    /// ([`Medium::build_surfaces_within`]).
+    #[error("{0} reads the voxel index and extinction, which a medium of the surfaces alone (Medium::build_surfaces_within) does not hold")]
+    NeedsVoxelFields(&'static str),
 }
 
 impl Options {
@@ -460,7 +465,8 @@ pub fn check_scene(scene: &Scene, medium: &Medium, opts: &Options) -> Result<(),
         if !medium.geometry.contains(position) {
             continue;
         }
-        let ext = medium.sample_rgb(&medium.extinction, position);
+        let regions = (!medium.has_voxel_fields()).then(|| eikon_grid::Regions::new(scene));
+        let ext = extinction_at(medium, regions.as_ref(), position);
         if (0..3).all(|c| (-ext[c] * h).exp() < opts.threshold) {
             return Err(scene
                 .error_at(
@@ -473,6 +479,20 @@ pub fn check_scene(scene: &Scene, medium: &Medium, opts: &Options) -> Result<(),
         }
     }
     Ok(())
+}
+
+/// The extinction at `p`: the medium's voxels where it holds them, else
+/// (a medium of the surfaces alone, [`Medium::has_voxel_fields`]) the
+/// material of the region of `regions` there.
+fn extinction_at(
+    medium: &Medium,
+    regions: Option<&eikon_grid::Regions>,
+    p: glam::DVec3,
+) -> glam::DVec3 {
+    match regions {
+        Some(r) if !medium.has_voxel_fields() => r.material(r.at(p)).extinction_at(p),
+        _ => medium.sample_rgb(&medium.extinction, p),
+    }
 }
 
 /// Farthest a point or spot light may be from the volume's centre, in
@@ -629,6 +649,7 @@ pub(crate) fn start_wavefront<F: eikon_grid::IndexField + ?Sized>(
     tally: Option<&Counters>,
     summary: &mut Summary,
     hold: Option<refine::Hold>,
+    regions: Option<&eikon_grid::Regions>,
 ) {
     let grid = &medium.geometry;
     let h = grid.voxel_size();
@@ -641,7 +662,7 @@ pub(crate) fn start_wavefront<F: eikon_grid::IndexField + ?Sized>(
     // it.
     if let Light::Point { position, .. } | Light::Spot { position, .. } = light {
         if grid.contains(*position) {
-            let sigma = medium.sample_rgb(&medium.extinction, *position);
+            let sigma = extinction_at(medium, regions, *position);
             let depth = sigma * light::INNER_RADIUS_VOXELS * h;
             let kept = (-depth).exp();
             if let Some(t) = tally {
@@ -753,6 +774,14 @@ pub fn simulate_light_in(
     let grid = &medium.geometry;
     let groups = medium.channels();
     let paper = opts.deposit == DepositRule::Paper;
+    if !medium.has_voxel_fields() {
+        if regions.is_none() {
+            return Err(Error::NeedsVoxelFields("the smoothed index"));
+        }
+        if paper {
+            return Err(Error::NeedsVoxelFields("the paper's deposit"));
+        }
+    }
     let mut paper_volume = paper.then(|| deposit::paper::PaperVolume::new(grid, groups));
     let Plan {
         mut rules,
@@ -791,20 +820,25 @@ pub fn simulate_light_in(
     for g in 0..groups {
         let (mask, group) = group(g, groups);
         rules.incident = refine::Incident::new(light, mask);
-        let field = propagate::Bounded::new(medium, g);
+        // The voxel index, which sharp interfaces do not read.
+        let field = (regions.is_none() || paper).then(|| propagate::Bounded::new(medium, g));
         let exact = regions.map(|regions| propagate::RegionIndex {
             regions,
             channel: g,
         });
         // What emission and new corners read the index from.
-        let shell: &dyn eikon_grid::IndexField = match &exact {
-            Some(e) => e,
-            None => &field,
+        let shell: &dyn eikon_grid::IndexField = match (&exact, &field) {
+            (Some(e), _) => e,
+            (None, Some(f)) => f,
+            (None, None) => unreachable!("the smoothed index has its field"),
         };
         // Empty space for the smoothed index's runs and the paper's deposit
         // (with sharp interfaces runs go by the regions themselves,
-        // `propagate::Run`).
-        let empty = eikon_grid::EmptySpace::new(medium, g);
+        // `propagate::Run`, and none is needed).
+        let empty = match field {
+            Some(_) => eikon_grid::EmptySpace::new(medium, g),
+            None => eikon_grid::EmptySpace::unknown(grid),
+        };
         start_wavefront(
             light,
             medium,
@@ -816,13 +850,14 @@ pub fn simulate_light_in(
             tally.as_ref(),
             &mut summary,
             hold,
+            regions,
         );
         if let Some(v) = paper_volume.as_mut() {
             v.deposit(&p, medium, &empty, group);
         }
         let step_of = propagate::Step {
             medium,
-            field: &field,
+            field: field.as_ref(),
             empty: &empty,
             integrator: opts.integrator,
             dt,
@@ -874,6 +909,9 @@ pub fn simulate_light_in(
             add(&mut summary.trapped_power, f);
         }
     }
+    // The wavefront's lists keep their peak capacity: gone before the
+    // volume's arrays are made beside the counters.
+    drop((p, next, scratch, losses));
     let volume = match (tally, paper_volume) {
         (Some(t), _) => t.into_volume(),
         (None, Some(v)) => v.into_volume(),

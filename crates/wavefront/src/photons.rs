@@ -146,6 +146,9 @@ pub fn simulate_photons_in(
             message: "need at least one photon".into(),
         });
     }
+    if !medium.has_voxel_fields() {
+        return Err(Error::NeedsVoxelFields("the photon tracer"));
+    }
     let grid = &medium.geometry;
     let h = grid.voxel_size();
     let dt = opts.step * h;

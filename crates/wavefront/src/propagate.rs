@@ -126,8 +126,9 @@ pub fn step_depth(
 pub struct Step<'a> {
     /// The medium (extinction, boundary indicator).
     pub medium: &'a Medium,
-    /// The index field of the wavefront's channel.
-    pub field: &'a Bounded<'a>,
+    /// The index field of the wavefront's channel; `None` with sharp
+    /// interfaces, which read each region's own index ([`Sharp`]).
+    pub field: Option<&'a Bounded<'a>>,
     /// Its empty blocks.
     pub empty: &'a EmptySpace,
     /// Integrator.
@@ -475,6 +476,7 @@ pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
         sharp: _,
         run: _,
     } = step;
+    let field = field.expect("the smoothed index steps through its voxel field");
     losses.clear();
     losses.resize(patches.len(), Loss::default());
     let [c0, c1, c2, c3] = &mut patches.corner;

@@ -231,7 +231,7 @@ fn wavefront_drift(text: &str, length: f64, step: f64) -> (f64, f64, usize) {
     let mut losses = Vec::new();
     let step_of = propagate::Step {
         medium: &m,
-        field: &field,
+        field: Some(&field),
         empty: &empty,
         integrator: eikon_grid::Integrator::Rk4,
         dt,
@@ -384,7 +384,7 @@ fn runs_deposit_what_their_steps_do(scene: &str, material: &str, saving: f64) {
         light::emit(&scene.lights[0], g, &field, h, [1.0; 3], &mut p);
         let step_of = propagate::Step {
             medium: &m,
-            field: &field,
+            field: Some(&field),
             empty: &empty,
             integrator: eikon_grid::Integrator::Rk4,
             dt: 0.5 * h,

@@ -947,6 +947,11 @@ impl<'a> GpuSimulator<'a> {
         limit: u64,
         regions: Option<Regions<'a>>,
     ) -> Result<Self, GpuError> {
+        if !medium.has_voxel_fields() {
+            return Err(GpuError::Unsupported(
+                crate::Error::NeedsVoxelFields("the GPU simulator").to_string(),
+            ));
+        }
         let gpu_regions = regions.as_ref().map(|r| gpu_regions(r.scene()));
         let binding_limit = Self::check_limits(gpu, medium, limit)?;
         if let Some(r) = &gpu_regions {
@@ -1395,6 +1400,7 @@ impl<'a> GpuSimulator<'a> {
                 tally.as_ref(),
                 &mut summary,
                 hold,
+                self.regions.as_ref(),
             );
             if p.is_empty() {
                 directions.push(Array4::zeros((grid.dims[0], grid.dims[1], grid.dims[2], 3)));
