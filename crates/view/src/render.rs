@@ -648,8 +648,21 @@ impl<'a> Renderer<'a> {
             if exit <= 0.0 {
                 break;
             }
-            let step = if quiet { exit } else { ds.min(exit) };
             let n = regions.index(ray.region, x0, ch).0;
+            if far && straight && m.extinction_grid.is_none() {
+                let (origin, edge) = piece.expect("a far edge is a straight piece's");
+                if self.gather_straight(
+                    regions,
+                    &mut ray,
+                    &mut walk,
+                    (origin, edge),
+                    (&here, n),
+                    lanes,
+                ) {
+                    continue;
+                }
+            }
+            let step = if quiet { exit } else { ds.min(exit) };
             let st = regions.step(
                 &mut ray,
                 Form::EqualDistance,
@@ -711,6 +724,52 @@ impl<'a> Renderer<'a> {
         Traced::Done(walk.radiance, walk.stats)
     }
 
+    /// The steps [`Self::trace_sharp`] takes along a straight piece (from
+    /// `origin`, the grid's edge `edge` on) through a uniform region that
+    /// gathers light, while nothing but where the light volumes are read
+    /// changes from one to the next: no surface within the ray's look
+    /// ahead, the grid's edge and the receiver beyond the step, the ray
+    /// still bright. Each is the general step's gather over `ds`, then the
+    /// move. `false` where not one step was taken (the general step goes
+    /// on).
+    fn gather_straight(
+        &self,
+        regions: &Regions,
+        ray: &mut SharpRay,
+        walk: &mut Walk,
+        (origin, edge): (DVec3, f64),
+        (here, n): (&Sample, f64),
+        lanes: Lanes,
+    ) -> bool {
+        let grid = &self.medium.geometry;
+        let ds = self.opts.step * grid.voxel_size();
+        let budget = (64.0 * grid.diagonal() / ds) as u64 + 16;
+        // What the general step asks to pass no surface ([`Regions::step`]).
+        let reach = ds + 2.0 * regions.eps();
+        let dir = ray.s.v.normalize_or_zero();
+        let mut taken = false;
+        while let Some(free) = ray.ahead {
+            let x0 = ray.s.x;
+            if reach > free
+                || edge - (x0 - origin).length() <= 2.0 * ds
+                || walk.stats.steps + walk.stats.skips >= budget
+                || walk.alpha.max_element() < self.opts.min_transmittance
+                || self.surroundings.receiver_hit(x0, dir, ds).is_some()
+            {
+                break;
+            }
+            let tri = grid.trilinear(x0);
+            self.absorb_and_emit(&tri, here, n, dir, ds, lanes, walk);
+            ray.s.x = x0 + dir * ds;
+            ray.s.v = dir * n;
+            ray.s.opl += n * ds;
+            ray.ahead = Some(free - ds);
+            walk.stats.steps += 1;
+            taken = true;
+        }
+        taken
+    }
+
     /// `f` for the ray's channels: `f(c)` for one channel `c`; for all
     /// three, channel `c` of `f(c)` for each (one call where the light
     /// volumes hold one flux direction for every channel, so that nothing
@@ -746,6 +805,13 @@ impl<'a> Renderer<'a> {
                 let Some(fluence) = LightSample::fluence(v, tri) else {
                     continue;
                 };
+                if here.g == 0.0 {
+                    // Isotropic: the phase function is `1 / (4 pi)` (HG at
+                    // g = 0) whatever the light's direction, which need
+                    // not be read.
+                    source += here.scatter * fluence * hg(1.0, 0.0);
+                    continue;
+                }
                 source += self.per_channel(lanes, |ch| {
                     let light = LightSample::with_fluence(v, tri, fluence, ch);
                     // [Ihrke07 eq 6] with the first angular moment of the
