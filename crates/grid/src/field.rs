@@ -479,10 +479,17 @@ impl Build {
             }
             smooth::gaussian(&mut cov, self.sigma);
             let cv = cov.view();
-            boundary.indexed_iter_mut().for_each(|((i, j, k), b)| {
-                let g = smooth::isotropic_gradient(&cv, i + pad, j + pad, k + pad, h, |c| c);
-                *b += 0.5 * (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt() as f32;
-            });
+            boundary
+                .axis_iter_mut(Axis(0))
+                .into_par_iter()
+                .enumerate()
+                .for_each(|(i, mut plane)| {
+                    plane.indexed_iter_mut().for_each(|((j, k), b)| {
+                        let g =
+                            smooth::isotropic_gradient(&cv, i + pad, j + pad, k + pad, h, |c| c);
+                        *b += 0.5 * (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt() as f32;
+                    });
+                });
         }
         boundary
     }
