@@ -356,11 +356,20 @@ struct Walk {
 fn absorb_and_emit(t: Tri, sigma: vec3<f32>, emission: vec3<f32>, scatter: vec3<f32>, g: f32, n: f32, d: vec3<f32>, stp: f32, ch: u32, w: ptr<function, Walk>) {
     var source = emission;
     if max3(scatter) > 0.0 && PASS.lit != 0u {
-        let s = light_at(ch, t);
-        if max3(s.fluence) > 0.0 {
-            // [Ihrke07 eq 6] with the light's first angular moment: HG about
-            // the net flux direction, g scaled by the mean cosine.
-            source += scatter * s.fluence * hg(dot(s.dir, -d), g * s.mu);
+        if g == 0.0 {
+            // Isotropic: HG is 1 / (4 pi) whatever the light's direction,
+            // which is not read (render.rs).
+            let fluence = tri_sum(flu, t).xyz;
+            if max3(fluence) > 0.0 {
+                source += scatter * fluence * hg(1.0, 0.0);
+            }
+        } else {
+            let s = light_at(ch, t);
+            if max3(s.fluence) > 0.0 {
+                // [Ihrke07 eq 6] with the light's first angular moment: HG
+                // about the net flux direction, g scaled by the mean cosine.
+                source += scatter * s.fluence * hg(dot(s.dir, -d), g * s.mu);
+            }
         }
     }
     // The radiance law (render.rs): radiance arising where the index is n
