@@ -35,7 +35,7 @@ use crate::scene::Scene;
 use crate::smooth;
 use crate::voxelize::{self, Raster};
 use glam::{DVec3, Vec4};
-use ndarray::{s, Array3, Array4, Axis};
+use ndarray::{s, Array3, Array4, ArrayView3, ArrayView4, Axis};
 use rayon::prelude::*;
 
 /// A scene voxelized onto its grid.
@@ -163,11 +163,6 @@ impl Medium {
         let sigma = scene.grid.smoothing;
         let [nx, ny, nz] = geom.dims;
         let h = geom.spacing().to_array();
-        let crop3 = |base: usize| -> Array4<f32> {
-            Array4::from_shape_fn((nx, ny, nz, 3), |(i, j, k, a)| {
-                built.at([i, j, k], base + a)
-            })
-        };
 
         // Index fields: smooth, then n and the gradient of n^2 / 2.
         let mut index = Vec::with_capacity(raster.channels);
@@ -203,15 +198,14 @@ impl Medium {
         );
 
         let boundary = built.boundary(scene, progress);
-        let g = built.crop(&built.extract(raster.at(Raster::G)));
         Ok(Medium {
             geometry: geom.clone(),
             smoothing: sigma,
             index,
-            extinction: crop3(raster.at(Raster::EXT)),
-            albedo: crop3(raster.at(Raster::ALB)),
-            g,
-            emission: crop3(raster.at(Raster::EMI)),
+            extinction: built.cells3(raster.at(Raster::EXT)),
+            albedo: built.cells3(raster.at(Raster::ALB)),
+            g: built.cells(raster.at(Raster::G)).to_owned(),
+            emission: built.cells3(raster.at(Raster::EMI)),
             boundary,
             index_bounds,
         })
@@ -234,27 +228,13 @@ impl Medium {
         let est = Self::memory_estimate(scene);
         let built = Build::new(scene, (est.surfaces_peak, est.surfaces), avail, progress)?;
         let raster = &built.raster;
-        let [nx, ny, nz] = scene.grid.geometry.dims;
         // The index as rasterized (each cell the mean of its sub-samples):
         // the smoothed field's values are weighted means of these, so their
         // range holds its range, and equals it wherever each material has
         // a cell of its own.
-        let built = &built;
-        let raw = move |c: usize| {
-            (0..nx).flat_map(move |i| {
-                (0..ny).flat_map(move |j| (0..nz).map(move |k| built.at([i, j, k], c)))
-            })
-        };
-        for c in 0..raster.channels {
-            if let Some((at, v)) = raw(c)
-                .enumerate()
-                .find(|(_, v)| !(v.is_finite() && *v > 0.0))
-            {
-                let (i, j, k) = (at / (ny * nz), at / nz % ny, at % nz);
-                return Err(bad_index(scene, c, v, (i, j, k)));
-            }
-        }
-        let index_bounds = range((0..raster.channels).flat_map(raw));
+        let raw: Vec<_> = (0..raster.channels).map(|c| built.cells(c)).collect();
+        check_index(scene, raw.iter().map(|a| a.view()))?;
+        let index_bounds = range(raw.iter().flat_map(|a| a.iter().copied()));
         let boundary = built.boundary(scene, progress);
         Ok(Medium {
             geometry: scene.grid.geometry.clone(),
@@ -367,26 +347,17 @@ fn check_index<'a>(
     channels: impl Iterator<Item = ndarray::ArrayView3<'a, f32>>,
 ) -> Result<()> {
     for (c, a) in channels.enumerate() {
-        if let Some((at, v)) = a
+        if let Some(((i, j, k), v)) = a
             .indexed_iter()
             .find(|(_, v)| !(v.is_finite() && **v > 0.0))
         {
-            return Err(bad_index(scene, c, *v, at));
+            return Err(scene.error_at(
+                "object",
+                format!("voxelized index of channel {c} is {v} at voxel ({i}, {j}, {k}); it must be finite and > 0"),
+            ));
         }
     }
     Ok(())
-}
-
-fn bad_index(
-    scene: &Scene,
-    c: usize,
-    v: f32,
-    (i, j, k): (usize, usize, usize),
-) -> crate::error::Error {
-    scene.error_at(
-        "object",
-        format!("voxelized index of channel {c} is {v} at voxel ({i}, {j}, {k}); it must be finite and > 0"),
-    )
 }
 
 /// Smallest and largest of `values`.
@@ -441,26 +412,32 @@ impl Build {
         }
     }
 
-    /// The raster's value at `offset` in the grid's cell `(i, j, k)`.
-    #[inline]
-    fn at(&self, [i, j, k]: [usize; 3], offset: usize) -> f32 {
-        let (p, pd) = (self.pad, self.padded_dims);
-        let idx = ((i + p) * pd[1] + j + p) * pd[2] + k + p;
-        self.raster.data[idx * self.raster.stride + offset]
+    /// The raster as `(padded x, y, z, property)`.
+    fn view(&self) -> ArrayView4<'_, f32> {
+        let [a, b, c] = self.padded_dims;
+        ArrayView4::from_shape((a, b, c, self.raster.stride), &self.raster.data)
+            .expect("the raster holds its padded cells")
     }
 
-    /// One scalar of the raster (at `offset` in a cell), padded.
+    /// One property of the raster (at `offset` in a cell), padded.
     fn extract(&self, offset: usize) -> Array3<f32> {
-        let (st, pd) = (self.raster.stride, self.padded_dims);
-        Array3::from_shape_fn(pd, |(i, j, k)| {
-            self.raster.data[((i * pd[1] + j) * pd[2] + k) * st + offset]
-        })
+        self.view().slice_move(s![.., .., .., offset]).to_owned()
     }
 
-    /// A padded scalar cut to the grid.
-    fn crop(&self, a: &Array3<f32>) -> Array3<f32> {
+    /// One property over the grid's own cells (the halo left out).
+    fn cells(&self, offset: usize) -> ArrayView3<'_, f32> {
         let (p, [nx, ny, nz]) = (self.pad, self.dims);
-        a.slice(s![p..p + nx, p..p + ny, p..p + nz]).to_owned()
+        self.view()
+            .slice_move(s![p..p + nx, p..p + ny, p..p + nz, offset])
+    }
+
+    /// The three properties from `base` on over the grid's own cells
+    /// (standard layout).
+    fn cells3(&self, base: usize) -> Array4<f32> {
+        let (p, [nx, ny, nz]) = (self.pad, self.dims);
+        self.view()
+            .slice_move(s![p..p + nx, p..p + ny, p..p + nz, base..base + 3])
+            .to_owned()
     }
 
     /// Boundary indicator: half the summed gradient magnitudes of every

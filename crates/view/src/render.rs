@@ -602,10 +602,8 @@ impl<'a> Renderer<'a> {
         if all && !regions.achromatic(ray.region) {
             return Traced::Parted(ray, walk);
         }
-        let h = grid.voxel_size();
-        let ds = self.opts.step * h;
+        let (ds, budget) = self.sharp_steps();
         let lit = !self.volumes.is_empty();
-        let budget = (64.0 * grid.diagonal() / ds) as u64 + 16;
         // Along a straight piece (a uniform region, no surface met) the
         // grid's exit is clipped once: where it lies farther than two steps
         // the step is `ds` whatever its exact distance.
@@ -742,32 +740,48 @@ impl<'a> Renderer<'a> {
         lanes: Lanes,
     ) -> bool {
         let grid = &self.medium.geometry;
-        let ds = self.opts.step * grid.voxel_size();
-        let budget = (64.0 * grid.diagonal() / ds) as u64 + 16;
+        let (ds, budget) = self.sharp_steps();
         // What the general step asks to pass no surface ([`Regions::step`]).
         let reach = ds + 2.0 * regions.eps();
         let dir = ray.s.v.normalize_or_zero();
+        // Along the line: the grid's edge and the receiver, once. Within two
+        // steps of either the general step takes over (it finds the exact
+        // end).
+        let x = ray.s.x;
+        let mut left = (edge - (x - origin).length()).min(
+            self.surroundings
+                .receiver_hit(x, dir, f64::INFINITY)
+                .unwrap_or(f64::INFINITY),
+        );
         let mut taken = false;
         while let Some(free) = ray.ahead {
-            let x0 = ray.s.x;
             if reach > free
-                || edge - (x0 - origin).length() <= 2.0 * ds
+                || left <= 2.0 * ds
                 || walk.stats.steps + walk.stats.skips >= budget
                 || walk.alpha.max_element() < self.opts.min_transmittance
-                || self.surroundings.receiver_hit(x0, dir, ds).is_some()
             {
                 break;
             }
+            let x0 = ray.s.x;
             let tri = grid.trilinear(x0);
             self.absorb_and_emit(&tri, here, n, dir, ds, lanes, walk);
             ray.s.x = x0 + dir * ds;
             ray.s.v = dir * n;
             ray.s.opl += n * ds;
             ray.ahead = Some(free - ds);
+            left -= ds;
             walk.stats.steps += 1;
             taken = true;
         }
         taken
+    }
+
+    /// [`Self::trace_sharp`]'s step, world units, and the most steps and
+    /// skips a ray takes.
+    fn sharp_steps(&self) -> (f64, u64) {
+        let grid = &self.medium.geometry;
+        let ds = self.opts.step * grid.voxel_size();
+        (ds, (64.0 * grid.diagonal() / ds) as u64 + 16)
     }
 
     /// `f` for the ray's channels: `f(c)` for one channel `c`; for all

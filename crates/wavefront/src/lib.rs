@@ -430,6 +430,8 @@ pub fn check_scene(scene: &Scene, medium: &Medium, opts: &Options) -> Result<(),
     }
     let h = medium.geometry.voxel_size();
     let g = &medium.geometry;
+    // A medium of the surfaces alone has its regions' extinction only.
+    let regions = (!medium.has_voxel_fields()).then(|| eikon_grid::Regions::new(scene));
     for (i, l) in scene.lights.iter().enumerate() {
         // Bounded work: a light far away, or patches tiny against the
         // volume, would make emission alone unbounded.
@@ -465,7 +467,6 @@ pub fn check_scene(scene: &Scene, medium: &Medium, opts: &Options) -> Result<(),
         if !medium.geometry.contains(position) {
             continue;
         }
-        let regions = (!medium.has_voxel_fields()).then(|| eikon_grid::Regions::new(scene));
         let ext = extinction_at(medium, regions.as_ref(), position);
         if (0..3).all(|c| (-ext[c] * h).exp() < opts.threshold) {
             return Err(scene
