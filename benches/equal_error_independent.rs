@@ -36,6 +36,11 @@
 //! interpolated in log-log between the sweep's runs around it, or
 //! extrapolated by a fit `a N^b` over its last three runs (the output says
 //! which); its time is `N*` times the cost per photon of the largest run.
+//!
+//! `EQ_DUMP=DIR` writes the glass scenes' reference, the first reference
+//! run and the wavefront's fluence there as raw little-endian `f64`
+//! (`(64, 64, 64, 3)`, standard order; `ref-SEED.f64`, `refa-SEED.f64`,
+//! `wf-SEED.f64`), for a look at where they differ.
 
 use eikon_grid::{Medium, Regions, Scene};
 use eikon_testkit::photon_ref::{self, Grid, Light, Sphere};
@@ -352,6 +357,15 @@ fn glass() -> Vec<Outcome> {
                 "   this reference vs the physical one: {:.3e} (signed {:+.2e})",
                 d.error, d.signed
             );
+        }
+        if let Ok(dir) = std::env::var("EQ_DUMP") {
+            let raw = |a: &Array4<f64>, name: &str| {
+                let bytes: Vec<u8> = a.iter().flat_map(|x| x.to_le_bytes()).collect();
+                std::fs::write(format!("{dir}/{name}-{seed}.f64"), bytes).expect("dump");
+            };
+            raw(&reference, "ref");
+            raw(&wf, "wf");
+            raw(&a.fluence, "refa");
         }
         let w = score(&wf, &reference, mask);
         let part = |want_inside: bool| {

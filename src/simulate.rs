@@ -188,7 +188,7 @@ fn print_summary(i: usize, s: &Summary, seconds: f64) {
     println!("  culled         {} W", rgb(s.culled_power));
     if s.torn > 0 {
         println!(
-            "  torn           {} W ({} patch pieces torn at a sharp interface, smaller than the smallest split)",
+            "  torn           {} W ({} thin tubes still torn at a sharp interface, dropped)",
             rgb(s.torn_power),
             s.torn
         );

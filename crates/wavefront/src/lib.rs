@@ -323,8 +323,9 @@ pub struct Summary {
     /// patches: it splits without dimming), as do paths longer than the
     /// step limit.
     pub trapped_power: [f64; 3],
-    /// Patch pieces torn at a sharp interface below the smallest split and
-    /// dropped ([`propagate::Sharp`]).
+    /// Thin tubes (the quarters of patch pieces torn below the smallest
+    /// split) still torn at a sharp interface, and dropped
+    /// ([`propagate::Sharp`]).
     pub torn: usize,
     /// RGB power they carried, W.
     pub torn_power: [f64; 3],

@@ -401,9 +401,10 @@ fn uniform_run(
 /// power 1/4 (over a whole crossing the four make `1 - R`). A patch whose
 /// corners disagree within a step (one refracts where another reflects
 /// totally, or they cross different surfaces) is taken back to where the
-/// step began and split in four, each traced again, until its corners agree
-/// or it is no longer than `min_span`; what is still torn then is dropped
-/// and counted ([`Loss::torn`]).
+/// step began and split in four, each traced again, until its corners agree;
+/// a piece still torn at `min_span` goes on as a thin tube about its
+/// centre ray, and a thin tube still torn is dropped and counted
+/// ([`Loss::torn`]).
 ///
 /// With [`Sharp::reflections`] the Fresnel-reflected part goes on as a
 /// patch of its own ([`reflection`]) once all four corners have crossed a
@@ -859,8 +860,13 @@ pub fn reflection(
 }
 
 /// Split the patch `corners` (where the step began) in four and trace each
-/// piece ([`sharp_patch`]), splitting again while torn and longer than
-/// [`Sharp::min_span`]; pieces go to `out`, dropped flux to `lost.torn`.
+/// piece ([`sharp_patch`]), splitting again while torn, down to
+/// [`MAX_SPLIT_LEVEL`] levels (`level` is the quarters'); pieces go to
+/// `out`. A torn piece no longer than [`Sharp::min_span`] goes on instead
+/// as a thin tube about its centre ray ([`THIN_SPAN`]), at the next
+/// level: a ray, as a photon is, so that the light on both sides of a
+/// silhouette carries on. A thin tube still torn is dropped, its flux to
+/// `lost.torn`.
 #[allow(clippy::too_many_arguments)]
 fn split_and_trace(
     step: &Step,
@@ -874,19 +880,36 @@ fn split_and_trace(
     out: &mut Vec<Piece>,
     lost: &mut Loss,
 ) {
-    let flux0 = kin.flux0;
-    let x = corners.map(|c| c.x);
-    if span(&x) <= sharp.min_span || level > MAX_SPLIT_LEVEL {
+    let drop = |lost: &mut Loss| {
         for (t, f) in lost.torn.iter_mut().zip(flux) {
             *t += f;
         }
         lost.torn_pieces += 1;
+    };
+    if level > MAX_SPLIT_LEVEL {
+        drop(lost);
         return;
     }
     let field = RegionIndex {
         regions: sharp.regions,
         channel: step.channel,
     };
+    if span(&corners.map(|c| c.x)) <= sharp.min_span {
+        let thin = thin_about_centre(corners, sharp.min_span * THIN_SPAN, &field);
+        let (mut f, mut through) = (flux, kept);
+        match sharp_patch(step, sharp, &thin, &mut f, &mut through, kin, lost) {
+            Some(moved) => out.push(Piece {
+                corners: moved,
+                flux: f,
+                flux0: kin.flux0,
+                area0,
+                kept: crossing_kept(sharp.regions, &moved, through),
+            }),
+            None => drop(lost),
+        }
+        return;
+    }
+    let flux0 = kin.flux0;
     let split = Split::Quarters;
     let areas = [0, 1, 2, 3].map(|q| area(&split.child(corners, q).map(|r| r.x)));
     let total: f64 = areas.iter().sum();
@@ -927,6 +950,19 @@ fn split_and_trace(
             ),
         }
     }
+}
+
+/// A patch `thin` across about the centre ray of `c`: its corners drawn
+/// in towards the centre, every one moving as the centre ray does.
+fn thin_about_centre(c: &[RayState; 4], thin: f64, field: &RegionIndex) -> [RayState; 4] {
+    let x = (c[0].x + c[1].x + c[2].x + c[3].x) * 0.25;
+    let v = (c[0].v + c[1].v + c[2].v + c[3].v).normalize_or_zero() * field.sample(x).0;
+    let shrink = thin / span(&c.map(|r| r.x)).max(thin);
+    c.map(|r| RayState {
+        x: x + (r.x - x) * shrink,
+        v,
+        ..r
+    })
 }
 
 /// One step of one patch with sharp interfaces: the corners moved, its flux
@@ -1100,6 +1136,11 @@ struct Crossed {
 /// Most surfaces one corner crosses in one step (a guard: a step is half
 /// a voxel, and surfaces closer than that are rare). The GPU's too.
 pub(crate) const MAX_CROSSINGS: usize = 16;
+
+/// Span of the thin tube a torn piece goes on as at the smallest split
+/// ([`Sharp::min_span`]), as a fraction of it: thin enough that the tube
+/// deposits its centre ray's chord.
+pub(crate) const THIN_SPAN: f64 = 1.0 / 64.0;
 
 /// Most times a torn patch is split within one step ([`Sharp`]): what is
 /// still torn below is dropped. The GPU's too (the depth of its walk).

@@ -347,21 +347,14 @@ fn sphere_rays_sent_out(a: f64, n: f64, sigma: f64, b: f64, max_p: usize) -> Vec
 /// Allowed besides 2% of each bin: what the wavefront reports it did not
 /// follow. Its reflections below `REFLECT_MIN` (their power times the
 /// longest weighted path; they are reflections inside, so no more than
-/// the light that survives a chord), and the pieces of patches torn at the
-/// silhouette, smaller than the smallest split, which end there with their
-/// power counted as torn: taken as the outermost ring of impact parameters
-/// carrying that power, where ray optics sends its light at grazing
+/// the light that survives a chord), and the thin tubes (pieces of patches
+/// torn at the silhouette, at the smallest split) still torn there, which
+/// end with their power counted as torn: taken as the outermost ring of
+/// impact parameters carrying that power, where ray optics sends its light at grazing
 /// incidence (mostly forward, where `R` nears one).
 fn the_light_a_sphere_sends_out_matches_ray_optics(sigma: f64) {
     let (res, a, n_glass) = (128, 0.3, 1.5);
-    let text = format!(
-        "[grid]\nresolution = {res}\nmin = [-1.0, -1.0, -1.0]\nmax = [1.0, 1.0, 1.0]\n\
-         [ambient]\nindex = 1.0\n\
-         [[object]]\nname = \"sphere\"\n\
-         shape = {{ type = \"sphere\", center = [0.0, 0.0, 0.0], radius = {a} }}\n\
-         index = {n_glass}\nextinction = [{sigma}, {sigma}, {sigma}]\npriority = 1\n\
-         [[light]]\ntype = \"directional\"\ndirection = [0.2, -1.0, 0.1]\npower = [1.0, 1.0, 1.0]\n"
-    );
+    let text = sphere_under_light(res, 0.0, a, n_glass, sigma);
     let light = DVec3::new(0.2, -1.0, 0.1).normalize();
     // Weights: a radial window over [0.42, 0.85] with sin^2 tapers 0.1
     // wide (inside the grid, clear of the sphere), times cos^2 hats in mu =
@@ -548,4 +541,71 @@ power = [1.0, 1.0, 1.0]
         assert!(left < 0.05 * e, "{left} of {e} not traced to the end");
     }
     assert!(s.energy_imbalance() < 1e-9, "{}", s.energy_imbalance());
+}
+
+/// A sphere of radius `a` at `(0, y, 0)` in `[-1, 1]^3` at `res`^3, index
+/// `n_glass` and extinction `sigma`, in vacuum under a directional light of
+/// irradiance 1 along `(0.2, -1, 0.1)`.
+fn sphere_under_light(res: usize, y: f64, a: f64, n_glass: f64, sigma: f64) -> String {
+    format!(
+        "[grid]\nresolution = {res}\nmin = [-1.0, -1.0, -1.0]\nmax = [1.0, 1.0, 1.0]\n\
+         [ambient]\nindex = 1.0\n\
+         [[object]]\nname = \"sphere\"\n\
+         shape = {{ type = \"sphere\", center = [0.0, {y:?}, 0.0], radius = {a} }}\n\
+         index = {n_glass}\nextinction = [{sigma}, {sigma}, {sigma}]\npriority = 1\n\
+         [[light]]\ntype = \"directional\"\ndirection = [0.2, -1.0, 0.1]\npower = [1.0, 1.0, 1.0]\n"
+    )
+}
+
+/// Unpolarized Fresnel reflectance from index 1 into `n` at incidence
+/// `cos_i` (written out here, not the engine's).
+fn reflectance_into(n: f64, cos_i: f64) -> f64 {
+    let sin_t = (1.0 - cos_i * cos_i).max(0.0).sqrt() / n;
+    let cos_t = (1.0 - sin_t * sin_t).sqrt();
+    let rs = (cos_i - n * cos_t) / (cos_i + n * cos_t);
+    let rp = (n * cos_i - cos_t) / (n * cos_i + cos_t);
+    0.5 * (rs * rs + rp * rp)
+}
+
+/// Light that grazes a sphere's silhouette carries on. An absorbing glass
+/// sphere under a directional light of irradiance 1, its reflected light
+/// not traced, absorbs what ray optics gives: at impact parameter `b` a
+/// ray enters with `T = 1 - R(theta_i)` and loses `1 - exp(-sigma L)` on
+/// its chord `L = 2 a cos(theta_t)`; what reflects at the back leaves the
+/// beam. So the absorbed power is `int_0^a T (1 - exp(-sigma L)) 2 pi b db`
+/// (midpoint rule here). Patches straddling the rim are split down to the
+/// smallest split, and a piece still torn there goes on as a thin tube
+/// about its centre ray. When those pieces were dropped instead (5.4e-3 W
+/// of them, counted as torn), the sphere absorbed 0.136% too little at
+/// 64^3; with thin tubes 0.022%.
+#[test]
+fn an_absorbing_sphere_absorbs_what_ray_optics_gives_up_to_its_rim() {
+    let (res, a, n_glass, sigma) = (64, 0.45, 1.5, 2.0);
+    let text = sphere_under_light(res, 0.1, a, n_glass, sigma);
+    let samples = 200_000;
+    let db = a / samples as f64;
+    let exact: f64 = (0..samples)
+        .map(|k| {
+            let b = (k as f64 + 0.5) * db;
+            let cos_i = (1.0 - (b / a) * (b / a)).sqrt();
+            let sin_t = (b / a) / n_glass;
+            let chord = 2.0 * a * (1.0 - sin_t * sin_t).sqrt();
+            let t = 1.0 - reflectance_into(n_glass, cos_i);
+            t * (1.0 - (-sigma * chord).exp()) * 2.0 * std::f64::consts::PI * b * db
+        })
+        .sum();
+    let (_, s) = sharp(&text, false);
+    let got = s.absorbed_power[0];
+    println!(
+        "absorbed {got:.6} W, ray optics {exact:.6} W ({:+.3}%); torn {:.2e} W in {} thin tubes; trapped {:.2e} W",
+        100.0 * (got / exact - 1.0),
+        s.torn_power[0],
+        s.torn,
+        s.trapped_power[0]
+    );
+    assert!(s.energy_imbalance() < 1e-9, "{}", s.energy_imbalance());
+    assert!(
+        (got / exact - 1.0).abs() < 1e-3,
+        "absorbed {got} W, ray optics {exact} W"
+    );
 }

@@ -51,9 +51,10 @@
 //! form, over the region table and shape data of
 //! `eikon_grid::region::gpu_regions`), the flux takes each corner's
 //! `(1 - R)^(1/4)`, and a torn patch is split in four where the step
-//! began and traced again, recursively, down to the smallest split or
-//! [`propagate::MAX_SPLIT_LEVEL`] levels; what is still torn is dropped
-//! and tallied as torn. On the GPU the tree of quarters is traced level
+//! began and traced again, recursively, down to
+//! [`propagate::MAX_SPLIT_LEVEL`] levels; a torn piece no longer than the
+//! smallest split goes on as a thin tube about its centre ray, and a thin
+//! tube still torn is dropped and tallied as torn. On the GPU the tree of quarters is traced level
 //! by level, one node per thread (a node's corners derived from its
 //! patch's down its path: no stack, no saved copies):
 //! - pass 0 steps every patch that holds together (depositing, tallying)
@@ -346,6 +347,13 @@ const FATE_TORN: u32 = 1 << 29;
 /// A frontier entry's node (level << 16 | path) with this bit has held
 /// together: a piece, passed on to the last level unchanged.
 const PIECE_TAG: u32 = 1 << 30;
+/// A frontier entry's node with this bit is the node as a thin tube about
+/// its centre ray (`propagate::split_and_trace`).
+const THIN_TAG: u32 = 1 << 28;
+/// A frontier entry's node with this bit is torn and no longer than the
+/// smallest split: it goes on as a thin tube at the next level
+/// ([`THIN_TAG`]).
+const BOTTOM_TAG: u32 = 1 << 27;
 /// The plan's state (`Plan::state` in `simulate.wgsl`, words): why it
 /// halted (`HALT_*`), the steps begun, the step limit, the longest list,
 /// the live list (0 or 1), the two lists' and the scratch's capacities
@@ -437,6 +445,9 @@ fn declarations() -> String {
         .u32("FATE_REFLECTS", FATE_REFLECTS)
         .u32("FATE_TORN", FATE_TORN)
         .u32("PIECE_TAG", PIECE_TAG)
+        .u32("THIN_TAG", THIN_TAG)
+        .u32("BOTTOM_TAG", BOTTOM_TAG)
+        .f32("THIN_SPAN", propagate::THIN_SPAN as f32)
         .u32("STATS_WORDS", STATS_WORDS as u32)
         .u32("MAX_CROSSINGS", propagate::MAX_CROSSINGS as u32)
         .u32("MAX_SPLIT_LEVEL", propagate::MAX_SPLIT_LEVEL)

@@ -955,8 +955,9 @@ fn corner_write(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workg
 // `region_step` module, the twin of the CPU's `Regions::step`), the flux
 // takes each corner's Fresnel transmittance to the power 1/4, and a patch
 // whose corners disagree is taken back to where the step began and split
-// in four, each piece traced again, down to `P.min_span` or
-// MAX_SPLIT_LEVEL levels (`propagate::split_and_trace`). Here the tree of
+// in four, each piece traced again, down to MAX_SPLIT_LEVEL levels, a node
+// no longer than `P.min_span` going on as a thin tube about its centre ray
+// (`propagate::split_and_trace`). Here the tree of
 // quarters is traced level by level, one node per thread: pass 0 steps
 // every patch that holds together and marks a torn one; then, for each
 // level, a pass traces the nodes of that level (the frontier)
@@ -1466,7 +1467,7 @@ struct Node {
     flux0: vec3<f32>,
 }
 
-fn node_of(q: Quad, a: vec4<f32>, f0: vec3<f32>, level: u32, path: u32) -> Node {
+fn node_of(q: Quad, a: vec4<f32>, f0: vec3<f32>, level: u32, path: u32, thin: bool) -> Node {
     var n = Node(q, a, f0);
     for (var l = 1u; l <= level; l++) {
         let part = (path >> (2u * (level - l))) & 3u;
@@ -1475,13 +1476,31 @@ fn node_of(q: Quad, a: vec4<f32>, f0: vec3<f32>, level: u32, path: u32) -> Node 
         n.flux *= c.share;
         n.flux0 *= c.share;
     }
+    if thin {
+        n.q = quad_thin(n.q, P.min_span * THIN_SPAN);
+    }
     return n;
 }
 
-// Node `node` (level << 16 | path) of patch i's tree, from the patch in
-// its slot (a torn patch's slot is not written during its step).
+// `propagate::thin_about_centre`: a quad `thin` across about the centre
+// ray of q, its corners drawn in towards the centre, each moving as the
+// centre ray does.
+fn quad_thin(q: Quad, thin: f32) -> Quad {
+    let x = (q.x[0] + q.x[1] + q.x[2] + q.x[3]) * 0.25;
+    let v = normalize_or_zero(q.v[0] + q.v[1] + q.v[2] + q.v[3]) * shell_index(x);
+    let shrink = thin / max(quad_span(q), thin);
+    var out = q;
+    for (var c = 0u; c < 4u; c++) {
+        out.x[c] = x + (q.x[c] - x) * shrink;
+        out.v[c] = v;
+    }
+    return out;
+}
+
+// Node `node` (THIN_TAG | level << 16 | path) of patch i's tree, from the
+// patch in its slot (a torn patch's slot is not written during its step).
 fn patch_node(i: u32, node: u32) -> Node {
-    return node_of(load_quad(i), aux[3u * i], aux[3u * i + 1u].xyz, (node >> 16u) & 0xfu, node & 0xffffu);
+    return node_of(load_quad(i), aux[3u * i], aux[3u * i + 1u].xyz, (node >> 16u) & 0xfu, node & 0xffffu, (node & THIN_TAG) != 0u);
 }
 
 // Where the counts of the frontier's level `level` are in the pyramid
@@ -1539,14 +1558,15 @@ fn first_piece_of(i: u32, total: u32) -> u32 {
 //   tallied, and marked if it reflects (`FATE_REFLECTS`: one piece, its
 //   reflection, written by pass 1); a torn one is marked `FATE_TORN` and
 //   left in its slot, to be split: its four quarters are the first level
-//   of the frontier, unless it is no longer than the smallest split, when
-//   it is dropped and tallied as torn.
+//   of the frontier (or, no longer than the smallest split, itself as a
+//   thin tube about its centre ray).
 // - SHARP_LEVEL, entry k of the frontier's level P.front_level >= 1: found
 //   from the level before through its pyramid (a quarter of a torn node or
 //   patch, or a piece passed on), traced without depositing if it is a
 //   node, and its count for the next level written: 4 (torn: its
-//   quarters), 1 (a piece), 0 (torn and no longer split: dropped, tallied
-//   as torn).
+//   quarters), 1 (a piece; or torn and no longer than the smallest split,
+//   BOTTOM_TAG: itself as a thin tube, THIN_TAG, at the next level), 0 (a
+//   torn thin tube, or torn at the last level: dropped, tallied as torn).
 // - SHARP_REFLECTIONS (pass 1), patch k (the patches before the pieces,
 //   P.n_old): a patch that held together and reflects writes its
 //   reflection, found from where it is now as pass 0 found it, into its
@@ -1563,6 +1583,11 @@ fn sharp_work(k: u32, pass_id: u32) {
         let at = hp_locate(front_pyramid(level - 1u, P.splits_base), P.front_prev, k);
         if level == 1u {
             e = vec2<u32>(at.x, (1u << 16u) | at.y);
+            // A patch no longer than the smallest split goes on as a thin
+            // tube (its only entry).
+            if quad_span(load_quad(at.x)) <= P.min_span {
+                e.y = THIN_TAG;
+            }
         } else {
             e = front[front_at(level - 1u, at.x)];
             if (e.y & PIECE_TAG) != 0u {
@@ -1571,9 +1596,14 @@ fn sharp_work(k: u32, pass_id: u32) {
                 pyramid[front_pyramid(level, P.splits_base) + k] = 1u;
                 return;
             }
-            // A quarter of a torn node, one level down.
-            let depth = ((e.y >> 16u) & 0xfu) + 1u;
-            e.y = (depth << 16u) | ((e.y & 0xffffu) << 2u) | at.y;
+            if (e.y & BOTTOM_TAG) != 0u {
+                // The node itself as a thin tube (its only entry).
+                e.y = (e.y & ~BOTTOM_TAG) | THIN_TAG;
+            } else {
+                // A quarter of a torn node, one level down.
+                let depth = ((e.y >> 16u) & 0xfu) + 1u;
+                e.y = (depth << 16u) | ((e.y & 0xffffu) << 2u) | at.y;
+            }
         }
     } else if pass_id == SHARP_PIECES {
         e = piece_at(k);
@@ -1640,12 +1670,9 @@ fn sharp_work(k: u32, pass_id: u32) {
             } else {
                 fate[i] = FATE_TORN;
                 atomicAdd(&wg_stats[S_TORN_NOW], 1u);
-                if quad_span(nd.q) > P.min_span {
-                    quarters = 4u;
-                } else {
-                    add_energy3(E_TORN, a.xyz);
-                    atomicAdd(&wg_stats[S_TORN], 1u);
-                }
+                // Its quarters, or itself as a thin tube if it is no
+                // longer than the smallest split.
+                quarters = select(4u, 1u, quad_span(nd.q) <= P.min_span);
             }
             pyramid[front_pyramid(0u, P.splits_base) + i] = quarters;
             pyramid[P.pieces_base + i] = pieces;
@@ -1654,8 +1681,13 @@ fn sharp_work(k: u32, pass_id: u32) {
             var count = 1u;
             if t.ok {
                 e.y |= PIECE_TAG;
-            } else if quad_span(nd.q) > P.min_span && ((e.y >> 16u) & 0xfu) + 1u <= MAX_SPLIT_LEVEL {
+            } else if (e.y & THIN_TAG) == 0u && ((e.y >> 16u) & 0xfu) + 1u <= MAX_SPLIT_LEVEL {
                 count = 4u;
+                if quad_span(nd.q) <= P.min_span {
+                    // Itself as a thin tube at the next level.
+                    count = 1u;
+                    e.y |= BOTTOM_TAG;
+                }
             } else {
                 add_energy3(E_TORN, nd.flux.xyz);
                 atomicAdd(&wg_stats[S_TORN], 1u);
