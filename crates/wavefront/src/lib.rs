@@ -323,8 +323,8 @@ pub struct Summary {
     /// patches: it splits without dimming), as do paths longer than the
     /// step limit.
     pub trapped_power: [f64; 3],
-    /// Thin tubes (the quarters of patch pieces torn below the smallest
-    /// split) still torn at a sharp interface, and dropped
+    /// Thin tubes (what a patch piece still torn at the smallest split goes
+    /// on as) torn again at a sharp interface, and dropped
     /// ([`propagate::Sharp`]).
     pub torn: usize,
     /// RGB power they carried, W.

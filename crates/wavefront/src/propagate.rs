@@ -1142,8 +1142,9 @@ pub(crate) const MAX_CROSSINGS: usize = 16;
 /// deposits its centre ray's chord.
 pub(crate) const THIN_SPAN: f64 = 1.0 / 64.0;
 
-/// Most times a torn patch is split within one step ([`Sharp`]): what is
-/// still torn below is dropped. The GPU's too (the depth of its walk).
+/// Most levels of a torn patch's tree within one step ([`Sharp`]): a piece
+/// split this often, or a thin tube, still torn is dropped. The GPU's too
+/// (the depth of its walk).
 pub(crate) const MAX_SPLIT_LEVEL: u32 = 8;
 
 /// [Ihrke07 eq 17] with [Ihrke07 eq 18]'s attenuation already in the flux: the

@@ -54,9 +54,10 @@
 //! began and traced again, recursively, down to
 //! [`propagate::MAX_SPLIT_LEVEL`] levels; a torn piece no longer than the
 //! smallest split goes on as a thin tube about its centre ray, and a thin
-//! tube still torn is dropped and tallied as torn. On the GPU the tree of quarters is traced level
-//! by level, one node per thread (a node's corners derived from its
-//! patch's down its path: no stack, no saved copies):
+//! tube still torn is dropped and tallied as torn. On the GPU the tree of
+//! quarters is traced level by level, one node per thread (a node's
+//! corners derived from its patch's down its path: no stack, no saved
+//! copies):
 //! - pass 0 steps every patch that holds together (depositing, tallying)
 //!   and marks a torn one, whose four quarters are level 1 of the
 //!   frontier (their count in a HistoPyramid over the patches);
