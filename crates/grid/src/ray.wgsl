@@ -39,9 +39,28 @@ fn ray_increment(form: u32, integrator: u32, x: vec3<f32>, v: vec3<f32>, k0: Ray
     if integrator == INTEGRATOR_EULER {
         return RayDeriv(k0.x * h, k0.v * h, k0.opl * h);
     }
-    let k1 = ray_deriv(form, x + k0.x * (0.5 * h), v + k0.v * (0.5 * h));
-    let k2 = ray_deriv(form, x + k1.x * (0.5 * h), v + k1.v * (0.5 * h));
-    let k3 = ray_deriv(form, x + k2.x * h, v + k2.v * h);
+    // The three later slopes from one call of `ray_deriv` in a loop:
+    // drivers inline every call, and the index field (every region's
+    // profile, VDB grids included) written out once per stage tripled the
+    // size of every kernel that steps rays. The sums are the CPU's, in its
+    // order. (On lavapipe the loop spends three of an invocation's 65535
+    // loop iterations per step; see `surface.wgsl`.)
+    var k1 = k0;
+    var k2 = k0;
+    var k3 = k0;
+    var prev = k0;
+    for (var stage = 1u; stage < 4u; stage++) {
+        let a = select(0.5 * h, h, stage == 3u);
+        let k = ray_deriv(form, x + prev.x * a, v + prev.v * a);
+        if stage == 1u {
+            k1 = k;
+        } else if stage == 2u {
+            k2 = k;
+        } else {
+            k3 = k;
+        }
+        prev = k;
+    }
     let w = h / 6.0;
     return RayDeriv(
         (k0.x + (k1.x + k2.x) * 2.0 + k3.x) * w,

@@ -318,9 +318,6 @@ type = "sky"
     );
 }
 
-// Slow (`-- --ignored` runs it), for CI's time: on lavapipe most of it
-// is compiling the kernel from a cold shader cache (its figures:
-// docs/PERFORMANCE.md, "Every shape and grid on the GPU").
 /// The wine glass of `configs/wine-glass.toml` (two solids of revolution:
 /// glass, and wine meeting it by priority; dispersion), small, on a
 /// receiver lit through a light volume.
@@ -376,11 +373,6 @@ type = "sky"
     check(gpu, "sharp wine glass", text, 40.0, MAX_COUNT_DIFFERENCE);
 }
 
-// Slow (`-- --ignored` runs it), for CI's time: on lavapipe it passes
-// (87.7 dB, skips 0.4% apart) but takes four and a half minutes cold,
-// nearly all of it llvmpipe compiling the kernel with the mesh's BVH
-// traversals. The function-level parity of the mesh code is in
-// `eikon-grid` `tests/wgsl_sharp.rs`.
 /// Two meshes in front of a checkerboard: a smooth bumpy sphere (vertex
 /// normals) and a flat-shaded cuboctahedron of diamond-like index (total
 /// internal reflection inside): the BVH on the GPU.
@@ -419,9 +411,6 @@ colors = [[0.9, 0.55, 0.12], [0.1, 0.18, 0.45]]
     check(gpu, "sharp meshes", text, 40.0, MAX_COUNT_DIFFERENCE);
 }
 
-// Slow (`-- --ignored` runs it), for CI's time (docs/PERFORMANCE.md).
-// The VDB functions themselves are checked in every run (`eikon-grid`
-// `tests/wgsl_sharp.rs`).
 /// VDB grids on the GPU: a drop that is the sample glass sphere's index
 /// grid above 1.25 (its surface found cell by cell in the grid), of
 /// constant index, with extinction from the density grid, beside a glass
@@ -505,14 +494,14 @@ fn main() {
             "sharp_rounded_box_torus_and_superquadric_match_the_cpu",
             sharp_rounded_box_torus_and_superquadric_match_the_cpu,
         )
-        .gpu_slow(
+        .gpu(
             "sharp_vdb_grids_match_the_cpu",
             sharp_vdb_grids_match_the_cpu,
         )
-        .gpu_slow(
+        .gpu(
             "sharp_wine_glass_matches_the_cpu",
             sharp_wine_glass_matches_the_cpu,
         )
-        .gpu_slow("sharp_meshes_match_the_cpu", sharp_meshes_match_the_cpu)
+        .gpu("sharp_meshes_match_the_cpu", sharp_meshes_match_the_cpu)
         .run()
 }

@@ -35,6 +35,9 @@
 //!   57.4 dB (rounded box, torus, superquadric star). A kernel holds only
 //!   its scene's shapes' code (`region::only_kinds`): drivers inline every
 //!   call, and every shape at every call site took minutes to compile.
+//!   For the same reason a kernel holds one march (`sharp.wgsl` or
+//!   `march.wgsl`, the other a stand-in), called from one place (the
+//!   colour channels in a loop).
 //!
 //! Differences from the CPU: f32 instead of f64 arithmetic (the plane-hit
 //! rounding allowance is 2e-6 instead of 1e-9 of the scene's scale), and
@@ -70,6 +73,10 @@ const SHADER: &str = include_str!("render.wgsl");
 /// The march with sharp interfaces, and its stand-ins for other scenes.
 const SHARP: &str = include_str!("sharp.wgsl");
 const SHARP_STUB: &str = include_str!("sharp_stub.wgsl");
+/// The march through the voxel grid, and its stand-in for scenes with
+/// sharp interfaces.
+const MARCH: &str = include_str!("march.wgsl");
+const MARCH_STUB: &str = include_str!("march_stub.wgsl");
 
 /// Lights the shader's uniform block holds (for the receiver's direct
 /// lighting outside the grid).
@@ -262,9 +269,11 @@ fn declarations() -> String {
 }
 
 /// The renderer's full WGSL: its generated declarations, the shared
-/// modules and `render.wgsl`; with `sharp` interfaces the `region` module
-/// and `sharp.wgsl` too (without, their stand-ins: a kernel that does not
-/// carry them compiles several times faster on lavapipe).
+/// modules and `render.wgsl`; with `sharp` interfaces the `region` modules
+/// and `sharp.wgsl`, else `march.wgsl` (the grid's march), each kernel
+/// with stand-ins for the other's march: drivers inline every call, and a
+/// kernel that does not carry the march it never runs compiles several
+/// times faster on lavapipe.
 pub fn source(sharp: bool) -> String {
     let mut modules: Vec<&'static eikon_shader::Module> = vec![
         &VECTOR,
@@ -278,7 +287,11 @@ pub fn source(sharp: bool) -> String {
         modules.push(&eikon_grid::region::WGSL);
         modules.push(&eikon_grid::region::STEP_WGSL);
     }
-    let main = format!("{SHADER}\n{}", if sharp { SHARP } else { SHARP_STUB });
+    let main = if sharp {
+        format!("{SHADER}\n{SHARP}\n{MARCH_STUB}")
+    } else {
+        format!("{SHADER}\n{SHARP_STUB}\n{MARCH}")
+    };
     compose(&declarations(), &modules, &main)
 }
 
@@ -905,7 +918,7 @@ impl<'a> GpuRenderer<'a> {
     /// [`Self::new`] for `scene` (whose medium `medium` is): with `[grid]
     /// interfaces = "sharp"` eye rays follow each region's own index and
     /// refract at the exact surfaces, as the CPU's
-    /// [`crate::Renderer::sharp`] (`march_sharp` in `render.wgsl`); else
+    /// [`crate::Renderer::sharp`] (`march_sharp` in `sharp.wgsl`); else
     /// the same as [`Self::new`]. Every shape, index profile and VDB grid
     /// of the CPU's has a GPU form (`eikon_grid::region::gpu_regions`);
     /// shape data larger than a storage binding is a

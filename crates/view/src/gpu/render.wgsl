@@ -458,164 +458,37 @@ fn gather(x: vec3<f32>, n: f32, grad: vec3<f32>, d: vec3<f32>, stp: f32, ch: u32
     }
 }
 
-// March one eye ray through index channel ch; the RGB radiance it gathers.
-fn march(o: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
-    channel = ch;
-    let clip = grid_clip_line(P.grid, o, d);
-    if !clip.hit || clip.t1 <= 0.0 {
-        return surroundings(o, d, ch);
-    }
-    let t0 = max(clip.t0, 0.0);
-    let tr0 = receiver_hit(o, d, t0);
-    if tr0 >= 0.0 {
-        return receiver_radiance(o + d * tr0, d, ch);
-    }
-    let h = P.grid.voxel;
-    let ds = P.step;
-    let x0 = o + d * t0;
-    var w: Walk;
-    w.x = x0;
-    w.v = d * index_field(x0).x;
-    w.radiance = vec3<f32>(0.0);
-    w.alpha = vec3<f32>(1.0);
-    w.steps = 0u;
-    w.mirrored = false;
-    w.has_incident = false;
-    w.n_eye = index_field(P.eye).x;
-    let budget = P.budget;
-    let skip_empty = P.skip_empty != 0u;
-    while w.steps < budget {
-        let dir = normalize_or_zero(w.v);
-        // Distance to the bounds: the slab test only within two steps.
-        let clearance = min3(min(w.x - P.grid.min, P.grid.max - w.x));
-        var exit = INF;
-        if !(clearance > 2.0 * ds) {
-            let c = grid_clip_line(P.grid, w.x, dir);
-            exit = select(0.0, max(c.t1, 0.0), c.hit);
-        }
-        if exit <= 0.0 || is_zero(dir) {
-            break;
-        }
-        if max3(w.alpha) < P.min_transmittance {
-            return w.radiance;
-        }
-        // A straight step across clear space or a uniform block, or
-        // else one step of the ray equation.
-        var moved = false;
-        if skip_empty {
-            // A skip may be longer than two steps: it must still end at the
-            // bounds (render.rs `skip_exit`).
-            if exit == INF {
-                let c = grid_clip_line(P.grid, w.x, dir);
-                exit = select(0.0, max(c.t1, 0.0), c.hit);
-            }
-            let s = clear_step(ch, w.x);
-            if s >= 0.0 {
-                // Clear of anything that bends, scatters, emits or reflects
-                // for s: one straight step in the local constant medium.
-                let t = min(s, exit);
-                let n = index_field(w.x).x;
-                let sigma = tri_sum(propa, grid_trilinear(P.grid, w.x)).xyz;
-                let tr = receiver_hit(w.x, dir, t);
-                if tr >= 0.0 {
-                    w.alpha *= exp(-sigma * tr);
-                    w.radiance += w.alpha * receiver_radiance(w.x + dir * tr, dir, ch);
-                    return w.radiance;
-                }
-                w.alpha *= exp(-sigma * t);
-                w.x += dir * t;
-                w.v = dir * n;
-                w.mirrored = false;
-                w.has_incident = false;
-                n_skips = bump(n_skips);
-                moved = true;
-            }
-            if !moved {
-                let c = crossing(ch, w.x, dir);
-                if c.ok {
-                    // Just past the block's face, so that the next lookup
-                    // lands in the next block: 1e-6 voxels on the CPU, at
-                    // least 8 ulps of the position in f32 (less would not
-                    // move the ray off the face).
-                    let t = min(c.t + max(1e-6 * h, 1e-6 * max3(abs(w.x))), exit);
-                    let tr = receiver_hit(w.x, dir, t);
-                    if tr >= 0.0 {
-                        w.alpha *= exp(-c.sigma * tr);
-                        w.radiance += w.alpha * receiver_radiance(w.x + dir * tr, dir, ch);
-                        return w.radiance;
-                    }
-                    w.alpha *= exp(-c.sigma * t);
-                    w.x += dir * t;
-                    if t < exit {
-                        // Past the face for certain: x + d t rounds to
-                        // either side of it in f32, and a ray left on the
-                        // face would cross this block again, with a step of
-                        // nothing. A few ulps of the scene's scale along
-                        // the face's axis, never backwards.
-                        let a = c.axis;
-                        let eps = 2e-6 * (h + max(max3(abs(P.grid.min)), max3(abs(P.grid.max))));
-                        if dir[a] > 0.0 {
-                            w.x[a] = max(w.x[a], c.face + eps);
-                        } else {
-                            w.x[a] = min(w.x[a], c.face - eps);
-                        }
-                    }
-                    w.v = dir * c.n;
-                    w.mirrored = false;
-                    w.has_incident = false;
-                    n_skips = bump(n_skips);
-                    moved = true;
-                }
-            }
-        }
-        if !moved {
-            let stp = min(ds, max(exit, 1e-6 * h));
-            let xs = w.x;
-            let f = index_field(xs);
-            gather(xs, f.x, f.yzw, dir, stp, ch, &w);
-            // [Ihrke07 eqs 9-12] from the sample already taken.
-            var inc = ray_euler_sampled(f.x, f.yzw, w.v, stp);
-            if P.integrator != INTEGRATOR_EULER {
-                let k0 = ray_rhs(FORM_EQUAL_DISTANCE, f.x, f.yzw, w.v);
-                inc = ray_increment(FORM_EQUAL_DISTANCE, P.integrator, xs, w.v, k0, stp);
-            }
-            w.x += inc.x;
-            w.v += inc.v;
-            w.steps += 1u;
-            n_steps = bump(n_steps);
-            let chord = w.x - xs;
-            let len = length(chord);
-            if len > 0.0 {
-                let u = chord / len;
-                let tr = receiver_hit(xs, u, len);
-                if tr >= 0.0 {
-                    w.radiance += w.alpha * receiver_radiance(xs + u * tr, u, ch);
-                    return w.radiance;
-                }
-            }
-        }
-    }
-    if w.steps >= budget {
-        return w.radiance;
-    }
-    let dir = normalize_or_zero(w.v);
-    w.radiance += w.alpha * surroundings(w.x, dir, ch);
-    return w.radiance;
-}
-
 // Radiance arriving at the eye from -d; with dispersion each channel traces
-// its own ray through its own index field.
+// its own ray through its own index field. One call site for each march in
+// a loop over the channels: drivers inline every call, and a march written
+// out per channel made the kernel four times the size (minutes more to
+// compile on lavapipe).
 fn radiance(o: vec3<f32>, d: vec3<f32>) -> vec3<f32> {
-    if P.sharp != 0u {
-        if P.channels == 1u {
-            return march_sharp(o, d, 0u);
+    var out = vec3<f32>(0.0);
+    for (var ch = 0u; ch < P.channels; ch += 1u) {
+        channel = ch;
+        var c: vec3<f32>;
+        // A ray that misses the grid, or meets the receiver before it,
+        // sees what lies there; the others march from where they enter.
+        let clip = grid_clip_line(P.grid, o, d);
+        let t0 = max(clip.t0, 0.0);
+        let tr0 = receiver_hit(o, d, t0);
+        if !clip.hit || clip.t1 <= 0.0 {
+            c = surroundings(o, d, ch);
+        } else if tr0 >= 0.0 {
+            c = receiver_radiance(o + d * tr0, d, ch);
+        } else if P.sharp != 0u {
+            c = march_sharp(o + d * t0, d, ch);
+        } else {
+            c = march(o + d * t0, d, ch);
         }
-        return vec3<f32>(march_sharp(o, d, 0u).x, march_sharp(o, d, 1u).y, march_sharp(o, d, 2u).z);
+        if P.channels == 1u {
+            out = c;
+        } else {
+            out[ch] = c[ch];
+        }
     }
-    if P.channels == 1u {
-        return march(o, d, 0u);
-    }
-    return vec3<f32>(march(o, d, 0u).x, march(o, d, 1u).y, march(o, d, 2u).z);
+    return out;
 }
 
 // Add the two-word count c to counters k, k + 1 of `wg_counts` (global:

@@ -33,21 +33,12 @@ fn sharp_index(p: vec3<f32>) -> vec4<f32> {
 
 // render.rs `march_sharp`: region by region, each region's own material,
 // straight from surface to surface where the index is constant and nothing
-// along the way scatters or emits, Fresnel at every true crossing.
-fn march_sharp(o: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
-    channel = ch;
-    let clip = grid_clip_line(P.grid, o, d);
-    if !clip.hit || clip.t1 <= 0.0 {
-        return surroundings(o, d, ch);
-    }
-    let t0 = max(clip.t0, 0.0);
-    let tr0 = receiver_hit(o, d, t0);
-    if tr0 >= 0.0 {
-        return receiver_radiance(o + d * tr0, d, ch);
-    }
+// along the way scatters or emits, Fresnel at every true crossing. From x0,
+// where the eye ray enters the grid, along d.
+fn march_sharp(x0: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
     let ds = P.step;
     var ray: RegionRay;
-    ray.x = o + d * t0;
+    ray.x = x0;
     ray.region = region_owner(ray.x);
     ray.v = d * region_index(ray.region, ray.x, ch).x;
     ray.opl = 0.0;
