@@ -179,6 +179,25 @@ impl Tests {
         }
     }
 
+    /// No tests yet, for a binary whose GPU time goes to compiling large
+    /// kernels rather than running them (the parity tests of the sharp
+    /// regions' WGSL, the view's sharp kernel): on Mesa's software device
+    /// (llvmpipe, CI's) LLVM's optimisation passes are skipped
+    /// (`GALLIVM_PERF=nopt`, unless set already), which cuts those
+    /// binaries' time by a third to a half (docs/PERFORMANCE.md) and slows
+    /// binaries that run kernels for long (the light simulations), which
+    /// therefore use [`Self::new`]. The kernels compute the same
+    /// operations either way; every other driver ignores the variable.
+    /// Call it first in `main`, before any thread starts.
+    pub fn compile_bound() -> Self {
+        if std::env::var_os("GALLIVM_PERF").is_none() {
+            // Before the adapter is opened (Mesa reads it once, at its
+            // start) and before the harness starts its threads.
+            std::env::set_var("GALLIVM_PERF", "nopt");
+        }
+        Self::new()
+    }
+
     /// A test that needs no GPU.
     pub fn cpu(mut self, name: &str, f: impl FnOnce() + Send + 'static) -> Self {
         self.trials

@@ -473,7 +473,7 @@ type = "sky"
 }
 
 fn main() {
-    Tests::new()
+    Tests::compile_bound()
         .gpu(
             "sharp_glass_sphere_matches_the_cpu",
             sharp_glass_sphere_matches_the_cpu,
