@@ -8,7 +8,9 @@
 //! fails them; elsewhere they are reported as ignored).
 //!
 //! `cargo test --release -p eikon-grid --test wgsl_sharp -- --nocapture`
-//! prints the largest errors.
+//! prints the largest errors. The binary's time is llvmpipe compiling the
+//! kernels: it skips LLVM's optimisation passes ([`Tests::compile_bound`]),
+//! which changed none of the printed errors.
 
 use eikon_gpu::{Gpu, DISPATCH};
 use eikon_grid::region::{gpu_regions, refract, GpuRegions, RegionGpu, STEP_WGSL, WGSL as REGION};

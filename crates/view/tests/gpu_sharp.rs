@@ -7,7 +7,9 @@
 //!
 //! `cargo test --release -p eikon-view --test gpu_sharp -- --nocapture`
 //! prints the measured PSNR and counters (the figures quoted below were
-//! measured on lavapipe, llvmpipe over Vulkan).
+//! measured on lavapipe, llvmpipe over Vulkan). The binary's time is
+//! llvmpipe compiling the kernel: it skips LLVM's optimisation passes
+//! ([`Tests::compile_bound`]), which changed none of those figures.
 
 use eikon_gpu::Gpu;
 use eikon_testkit::metrics::{count_difference, psnr};
