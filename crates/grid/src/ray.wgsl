@@ -47,19 +47,17 @@ fn ray_increment(form: u32, integrator: u32, x: vec3<f32>, v: vec3<f32>, k0: Ray
     // loop iterations per step; see `surface.wgsl`.)
     var k1 = k0;
     var k2 = k0;
+    // The slope the next stage starts from: k3 once the loop ends.
     var k3 = k0;
-    var prev = k0;
     for (var stage = 1u; stage < 4u; stage++) {
         let a = select(0.5 * h, h, stage == 3u);
-        let k = ray_deriv(form, x + prev.x * a, v + prev.v * a);
+        let k = ray_deriv(form, x + k3.x * a, v + k3.v * a);
         if stage == 1u {
             k1 = k;
         } else if stage == 2u {
             k2 = k;
-        } else {
-            k3 = k;
         }
-        prev = k;
+        k3 = k;
     }
     let w = h / 6.0;
     return RayDeriv(

@@ -116,15 +116,10 @@ fn march(x0: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
             w.v += inc.v;
             w.steps += 1u;
             n_steps = bump(n_steps);
-            let chord = w.x - xs;
-            let len = length(chord);
-            if len > 0.0 {
-                let u = chord / len;
-                let tr = receiver_hit(xs, u, len);
-                if tr >= 0.0 {
-                    w.radiance += w.alpha * receiver_radiance(xs + u * tr, u, ch);
-                    return w.radiance;
-                }
+            let hit = receiver_on_chord(xs, w.x);
+            if hit.w >= 0.0 {
+                w.radiance += w.alpha * receiver_radiance(xs + hit.xyz * hit.w, hit.xyz, ch);
+                return w.radiance;
             }
         }
     }

@@ -225,6 +225,19 @@ fn receiver_hit(o: vec3<f32>, d: vec3<f32>, max_t: f32) -> f32 {
     return -1.0;
 }
 
+// The receiver along a march's chord from a to b: (the chord's unit
+// direction, the distance from a to the hit), the distance -1 where the
+// chord is empty or misses. Both marches test each chord with it.
+fn receiver_on_chord(a: vec3<f32>, b: vec3<f32>) -> vec4<f32> {
+    let chord = b - a;
+    let len = length(chord);
+    if len > 0.0 {
+        let u = chord / len;
+        return vec4<f32>(u, receiver_hit(a, u, len));
+    }
+    return vec4<f32>(0.0, 0.0, 0.0, -1.0);
+}
+
 // Irradiance at x on a surface of unit normal n from light i, with nothing
 // in between (background.rs `direct`).
 fn direct(i: u32, x: vec3<f32>, n: vec3<f32>) -> vec3<f32> {

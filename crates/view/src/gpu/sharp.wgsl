@@ -85,16 +85,11 @@ fn march_sharp(x0: vec3<f32>, d: vec3<f32>, ch: u32) -> vec3<f32> {
         }
         let t = grid_trilinear(P.grid, x0);
         let emission = select(vec3<f32>(0.0), m.emission, PASS.base != 0u);
-        let chord = ray.x - x0;
-        let len = length(chord);
-        if len > 0.0 {
-            let u = chord / len;
-            let tr = receiver_hit(x0, u, len);
-            if tr >= 0.0 {
-                absorb_and_emit(t, sigma, emission, scatter, m.g, n, u, tr, ch, &w);
-                w.radiance += w.alpha * receiver_radiance(x0 + u * tr, u, ch);
-                return w.radiance;
-            }
+        let hit = receiver_on_chord(x0, ray.x);
+        if hit.w >= 0.0 {
+            absorb_and_emit(t, sigma, emission, scatter, m.g, n, hit.xyz, hit.w, ch, &w);
+            w.radiance += w.alpha * receiver_radiance(x0 + hit.xyz * hit.w, hit.xyz, ch);
+            return w.radiance;
         }
         absorb_and_emit(t, sigma, emission, scatter, m.g, n, dir, st.used, ch, &w);
         if st.c.event && !st.c.total {
