@@ -73,20 +73,10 @@ fn the_caustic_under_the_glass_sphere_carries_the_power_ray_optics_gives() {
     for res in [64, 128] {
         let (m, v, s) = wavefront(&fig7(res), &Options::default());
         let p = shadow_power(&m, &v);
-        let (mp, vp, sp) = wavefront(
-            &fig7(res),
-            &Options {
-                deposit: DepositRule::Paper,
-                fresnel: false,
-                ..Options::default()
-            },
-        );
-        let pp = shadow_power(&mp, &vp);
         println!(
-            "{res}^3: fluence deposit {p:.4} W ({:+.1}%), {} patches culled at caustics; paper's rule {pp:.4} W, {:.4} W culled at caustics",
+            "{res}^3: fluence deposit {p:.4} W ({:+.1}%), {} patches culled at caustics",
             100.0 * (p / exact - 1.0),
             s.caustic,
-            sp.culled_power[0]
         );
         assert_eq!(s.caustic, 0);
         // Only patches too faint to change any cell by 1e-4 of the
@@ -108,6 +98,27 @@ fn the_caustic_under_the_glass_sphere_carries_the_power_ray_optics_gives() {
     // sharp-interfaces issue removes the cause.
     assert!(errors[1] < 0.105, "128^3: {:.4}", errors[1]);
     assert!(errors[1] < 0.6 * errors[0], "{errors:?}");
+    // The paper's rule (`--deposit paper`, without Fresnel as in the
+    // paper) is kept to reproduce its results, and they are wrong here:
+    // each cell keeps the brightest patch crossing it [Ihrke07 sec 5.2.2],
+    // which under the sphere's focus counts light several times over (at
+    // 128^3 it reads over ten times the exact power: `eikon simulate
+    // --deposit paper --no-fresnel`), and patches are culled at the caustic.
+    let (mp, vp, sp) = wavefront(
+        &fig7(64),
+        &Options {
+            deposit: DepositRule::Paper,
+            fresnel: false,
+            ..Options::default()
+        },
+    );
+    let pp = shadow_power(&mp, &vp);
+    println!(
+        "64^3, paper's rule: {pp:.4} W against {exact_clear:.4} W without Fresnel, {:.4} W culled at caustics",
+        sp.culled_power[0]
+    );
+    assert!(pp > 2.0 * exact_clear, "{pp} W");
+    assert!(sp.caustic > 0 && sp.culled_power[0] > 0.0);
 }
 
 #[test]
