@@ -130,9 +130,14 @@ impl Shape {
                 let xz = (q.x.abs().powf(2.0 / e2) + q.z.abs().powf(2.0 / e2)).powf(e2 / e1);
                 let f = xz + q.y.abs().powf(2.0 / e1);
                 // g = f^(e1/2) is positively 1-homogeneous in the scaled
-                // coordinates, so (g - 1) * smallest radius bounds the distance
-                // for the convex cases; the extra factor 1/2 keeps the bound
-                // conservative for the pinched (e > 2) shapes as well.
+                // coordinates. With both exponents at most 2 it is the gauge
+                // of a convex body holding the octahedron |x|+|y|+|z| <= 1,
+                // whose inscribed ball has radius 1/sqrt(3): g is then
+                // sqrt(3)-Lipschitz there, and (g - 1) * smallest radius /
+                // sqrt(3) bounds the distance; the factor 1/2 is below that.
+                // The pinched (e > 2) shapes have no such bound: the march
+                // takes a fraction of this one, in short steps
+                // (`Shape::march`).
                 (f.powf(e1 / 2.0) - 1.0) * radii.min_element() * 0.5
             }
             Shape::HalfSpace { point, normal } => (p - *point).dot(*normal),

@@ -434,11 +434,12 @@ fn surface_march(sq: bool, o: vec3<f32>, d: vec3<f32>, dims: vec3<f32>, a: f32, 
         return vec2<f32>(0.0);
     }
     let h_min = SURFACE_MIN_STEP * size / dl;
-    // The superquadric's bound over-estimates near its pinches: a fraction
-    // of it, and steps of at most a fraction of its size (as the CPU).
+    // The superquadric's bound over-estimates near the pinches of a star
+    // shape (an exponent over 2): a fraction of it, and steps of at most a
+    // fraction of its size (as the CPU).
     var safety = 1.0;
     var h_max = SURFACE_FAR;
-    if sq {
+    if sq && max(a, b) > 2.0 {
         safety = SUPERQUADRIC_SAFETY;
         h_max = size / SUPERQUADRIC_STEPS / dl;
     }
