@@ -127,7 +127,10 @@ impl Shape {
                 rot,
             } => {
                 let q = local(p, *center, rot) / *radii;
-                let xz = (q.x.abs().powf(2.0 / e2) + q.z.abs().powf(2.0 / e2)).powf(e2 / e1);
+                let xz = q.x.abs().powf(2.0 / e2) + q.z.abs().powf(2.0 / e2);
+                // x^1 is x (IEEE 754's pow is exact there): one `pow` fewer
+                // for the usual e1 = e2, the same bits.
+                let xz = if e1 == e2 { xz } else { xz.powf(e2 / e1) };
                 let f = xz + q.y.abs().powf(2.0 / e1);
                 // g = f^(e1/2) is positively 1-homogeneous in the scaled
                 // coordinates. With both exponents at most 2 it is the gauge
