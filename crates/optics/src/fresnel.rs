@@ -120,6 +120,60 @@ pub fn interface(d: DVec3, normal: DVec3, n1: f64, n2: f64) -> Interface {
     }
 }
 
+/// Where one corner of a patch of light meets an interface: the cosine of
+/// its incidence and the indices on the side it comes from (`n1`) and
+/// beyond (`n2`), as [`reflectance`] takes them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Incidence {
+    /// Cosine of the angle of incidence (sign ignored).
+    pub cos_i: f64,
+    /// Index on the side the light comes from.
+    pub n1: f64,
+    /// Index beyond the interface.
+    pub n2: f64,
+}
+
+/// Gauss-Legendre nodes on `[0, 1]`, four of them, and their weights
+/// (summing to 1): exact for polynomials of degree 7.
+pub const GAUSS4: [(f64, f64); 4] = [
+    (0.069_431_844_202_973_71, 0.173_927_422_568_726_93),
+    (0.330_009_478_207_571_87, 0.326_072_577_431_273_07),
+    (0.669_990_521_792_428_1, 0.326_072_577_431_273_07),
+    (0.930_568_155_797_026_3, 0.173_927_422_568_726_93),
+];
+
+/// The share of a patch's power an interface lets through: the
+/// transmittance τ averaged over the patch, whose corners meet it at
+/// `corners` (in order around the patch, at bilinear parameters (0, 0),
+/// (1, 0), (1, 1), (0, 1)). Flux is uniform in those parameters (a patch
+/// is emitted so, and flux is conserved along its ray tubes), so the mean
+/// over them is the flux-weighted mean.
+///
+/// Between the corners, `cos²θi` and the indices are interpolated
+/// bilinearly: under a plane wave `sin²θi` of a smooth surface varies
+/// smoothly across it (on a sphere of radius `a` it is `b² / a²`, `b`
+/// the distance from the axis), where `cos θi`, and with it τ, falls like
+/// the square root of the distance to the silhouette; `cos²θt` is then
+/// linear in it too, so near the critical angle τ keeps its square root.
+/// The mean is taken by 4 x 4 Gauss-Legendre points ([`GAUSS4`]). A mean
+/// of the corners' own τ falls short of it where τ is concave (towards
+/// grazing incidence), and their geometric mean more so.
+pub fn patch_transmittance(corners: &[Incidence; 4]) -> f64 {
+    let [a, b, c, d] = corners;
+    let mut sum = 0.0;
+    for (t, wt) in GAUSS4 {
+        for (s, ws) in GAUSS4 {
+            let w = [(1.0 - s) * (1.0 - t), s * (1.0 - t), s * t, (1.0 - s) * t];
+            let mix =
+                |f: fn(&Incidence) -> f64| w[0] * f(a) + w[1] * f(b) + w[2] * f(c) + w[3] * f(d);
+            let cos2 = mix(|k| k.cos_i * k.cos_i).max(0.0);
+            let (n1, n2) = (mix(|k| k.n1), mix(|k| k.n2));
+            sum += ws * wt * transmittance(cos2.sqrt(), n1, n2);
+        }
+    }
+    sum
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -256,6 +310,106 @@ mod tests {
                         assert_eq!(it.reflectance, 1.0);
                     }
                 }
+            }
+        }
+    }
+
+    /// Fresnel's unpolarized transmittance in the sine-tangent form,
+    /// written apart from [`transmittance`].
+    fn tau_by_angles(sin_i: f64, n1: f64, n2: f64) -> f64 {
+        let sin_t = n1 / n2 * sin_i;
+        if sin_t >= 1.0 {
+            return 0.0;
+        }
+        let (ti, tt) = (sin_i.asin(), sin_t.asin());
+        if ti == 0.0 {
+            return 1.0 - ((n1 - n2) / (n1 + n2)).powi(2);
+        }
+        let s = ((ti - tt).sin() / (ti + tt).sin()).powi(2);
+        let p = ((ti - tt).tan() / (ti + tt).tan()).powi(2);
+        1.0 - 0.5 * (s + p)
+    }
+
+    /// A plane wave on a sphere of radius 1, cut into square patches `h`
+    /// across on the beam's plane (those wholly inside its outline): the
+    /// power the surface lets through, by [`patch_transmittance`] of each
+    /// patch's corners, against each patch's own mean from 32 x 32 points
+    /// of the exact incidence (`sin θi = b` at distance `b` from the axis).
+    /// Going in (1 -> 1.5) and out again (1.5 -> 1, `sin θi = b / 1.5`,
+    /// up to the critical angle at the rim; τ is the same both ways, so the
+    /// two must agree). What is left is the bilinear interpolation of
+    /// `b²`, a quadratic, off by up to `h² / 4` in `cos²θi`: worst at the
+    /// rim, where `cos²θi` is about `2 h`. The corners' geometric mean
+    /// (each corner's `τ^(1/4)`, the rule this replaced) misses the
+    /// reflected power by over ten times more (`+4.5%`).
+    #[test]
+    fn a_patch_lets_through_its_mean_transmittance() {
+        let h = 0.05;
+        let cells = (1.0 / h) as i64;
+        for (n1, n2, scale) in [(1.0, 1.5, 1.0), (1.5, 1.0, 1.0 / 1.5)] {
+            let (mut exact, mut rule, mut corners_geo) = (0.0, 0.0, 0.0);
+            let (mut worst, mut patches) = (0.0f64, 0);
+            for i in -cells..cells {
+                for j in -cells..cells {
+                    let (x0, y0) = (i as f64 * h, j as f64 * h);
+                    let at = [(x0, y0), (x0 + h, y0), (x0 + h, y0 + h), (x0, y0 + h)];
+                    let b = |(x, y): (f64, f64)| (x * x + y * y).sqrt();
+                    if at.iter().any(|&p| b(p) >= 1.0) {
+                        continue;
+                    }
+                    patches += 1;
+                    let k = 32;
+                    let mut mean = 0.0;
+                    for u in 0..k {
+                        for v in 0..k {
+                            let p = (
+                                x0 + (u as f64 + 0.5) * h / k as f64,
+                                y0 + (v as f64 + 0.5) * h / k as f64,
+                            );
+                            mean += tau_by_angles(b(p) * scale, n1, n2);
+                        }
+                    }
+                    mean /= (k * k) as f64;
+                    let inc = at.map(|p| Incidence {
+                        cos_i: (1.0 - (b(p) * scale).powi(2)).sqrt(),
+                        n1,
+                        n2,
+                    });
+                    let got = patch_transmittance(&inc);
+                    worst = worst.max((got - mean).abs());
+                    exact += mean * h * h;
+                    rule += got * h * h;
+                    corners_geo += inc
+                        .iter()
+                        .map(|c| transmittance(c.cos_i, n1, n2).powf(0.25))
+                        .product::<f64>()
+                        * h
+                        * h;
+                }
+            }
+            let reflected = |t: f64| (patches as f64 * h * h) - t;
+            let (e_rule, e_geo) = (
+                reflected(rule) / reflected(exact) - 1.0,
+                reflected(corners_geo) / reflected(exact) - 1.0,
+            );
+            println!("{n1} -> {n2}: {patches} patches, worst {worst:e}, rule {e_rule:+e}, geo {e_geo:+e}");
+            assert!(patches > 900, "{patches}");
+            assert!(worst < 5e-3, "{n1} -> {n2}: a patch off by {worst}");
+            assert!(
+                e_rule.abs() < 5e-3,
+                "{n1} -> {n2}: reflected {e_rule:+e} of the exact"
+            );
+            assert!(e_geo > 10.0 * e_rule.abs(), "{e_geo} against {e_rule}");
+        }
+        // A patch met alike at every corner lets through that τ.
+        for (n1, n2) in PAIRS {
+            for cos_i in [1.0, 0.8, 0.3, 0.05] {
+                let c = Incidence { cos_i, n1, n2 };
+                let t = transmittance(cos_i, n1, n2);
+                assert!(
+                    (patch_transmittance(&[c; 4]) - t).abs() < 1e-15,
+                    "{n1} {n2} {cos_i}"
+                );
             }
         }
     }

@@ -42,3 +42,26 @@ fn fresnel_refract(d: vec3<f32>, normal: vec3<f32>, n1: f32, n2: f32) -> vec3<f3
 fn fresnel_reflect(d: vec3<f32>, n: vec3<f32>) -> vec3<f32> {
     return d - 2.0 * dot(d, n) * n;
 }
+
+// `fresnel::patch_transmittance`: the transmittance averaged over a patch
+// whose corners (in order around it) meet the interface at c[k] =
+// (cos_i, n1, n2), cos^2 and the indices bilinear between them, by 4 x 4
+// Gauss-Legendre points (`fresnel::GAUSS4`).
+fn fresnel_patch_transmittance(c: array<vec3<f32>, 4>) -> f32 {
+    let x = array<f32, 4>(0.06943184420297371, 0.33000947820757187, 0.6699905217924281, 0.9305681557970263);
+    let w = array<f32, 4>(0.17392742256872693, 0.32607257743127307, 0.32607257743127307, 0.17392742256872693);
+    var q: array<vec3<f32>, 4>;
+    for (var k = 0u; k < 4u; k++) {
+        q[k] = vec3<f32>(c[k].x * c[k].x, c[k].y, c[k].z);
+    }
+    var sum = 0.0;
+    for (var j = 0u; j < 4u; j++) {
+        let t = x[j];
+        for (var i = 0u; i < 4u; i++) {
+            let s = x[i];
+            let m = q[0] * ((1.0 - s) * (1.0 - t)) + q[1] * (s * (1.0 - t)) + q[2] * (s * t) + q[3] * ((1.0 - s) * t);
+            sum += w[i] * w[j] * (1.0 - fresnel_reflectance(sqrt(max(m.x, 0.0)), m.y, m.z));
+        }
+    }
+    return sum;
+}

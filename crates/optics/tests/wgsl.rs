@@ -1,6 +1,6 @@
 //! Function-level parity of the optics crate's WGSL modules (the
-//! Henyey-Greenstein phase function, Fresnel's reflectance, Snell's
-//! refraction and the mirror direction, which the GPU kernels are composed
+//! Henyey-Greenstein phase function, Fresnel's reflectance and a patch's
+//! mean transmittance, Snell's refraction and the mirror direction, which the GPU kernels are composed
 //! with) with the Rust they mirror, at f32 tolerance. It needs a Vulkan, Metal or
 //! DX12 adapter (lavapipe in CI, where a missing adapter fails it; elsewhere it
 //! is reported as ignored).
@@ -156,6 +156,85 @@ fn snell(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
     assert!(tir > 20, "{tir} cases of total internal reflection");
 }
 
+fn patch_transmittance_matches_the_cpu(gpu: &Gpu) {
+    let main = "
+@group(0) @binding(0) var<storage, read> input: array<vec4<f32>>;
+@group(0) @binding(1) var<storage, read_write> output: array<vec4<f32>>;
+
+// Input: four corners (cos_i, n1, n2, -); the patch's mean transmittance.
+@compute @workgroup_size(WORKGROUP)
+fn mean_tau(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
+    let i = item(id, groups);
+    if 4u * i >= arrayLength(&input) {
+        return;
+    }
+    var c: array<vec3<f32>, 4>;
+    for (var k = 0u; k < 4u; k++) {
+        c[k] = input[4u * i + k].xyz;
+    }
+    output[i] = vec4<f32>(fresnel_patch_transmittance(c));
+}
+";
+    let source = compose("", &[&DISPATCH, &fresnel::WGSL], main);
+    // Corners from normal to grazing incidence, into denser and rarer
+    // media (kept 1e-3 in cosine clear of the critical angle, where f32
+    // loses digits as 1 / cos_t), and indices that vary across the patch.
+    let mut cases = Vec::new();
+    let mut seed = 0x9e37_79b9_u64;
+    let mut next = || {
+        seed ^= seed << 13;
+        seed ^= seed >> 7;
+        seed ^= seed << 17;
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    };
+    for (n1, n2) in [
+        (1.0f64, 1.5f64),
+        (1.5, 1.0),
+        (1.0, 2.42),
+        (1.33, 1.5),
+        (1.7, 1.2),
+    ] {
+        let floor = if n1 > n2 {
+            (1.0 - (n2 / n1) * (n2 / n1)).sqrt() + 1e-3
+        } else {
+            0.0
+        };
+        for _ in 0..200 {
+            let corner = |u: f64, dn: f64| fresnel::Incidence {
+                cos_i: (floor + (1.0 - floor) * u) as f32 as f64,
+                n1: n1 as f32 as f64,
+                n2: (n2 + dn) as f32 as f64,
+            };
+            let wide = next() < 0.5;
+            let base = next();
+            cases.push([0; 4].map(|_| {
+                let u = if wide {
+                    next()
+                } else {
+                    (base + 0.05 * next()).min(1.0)
+                };
+                corner(u * u, if n1 > n2 { 0.0 } else { 0.01 * next() })
+            }));
+        }
+    }
+    let inputs: Vec<[f32; 4]> = cases
+        .iter()
+        .flat_map(|c| c.map(|k| [k.cos_i as f32, k.n1 as f32, k.n2 as f32, 0.0]))
+        .collect();
+    let out = gpu.eval(&source, "mean_tau", &inputs, 1, &[]).unwrap();
+    let mut worst = 0.0f64;
+    for (k, c) in cases.iter().enumerate() {
+        let want = fresnel::patch_transmittance(c);
+        let got = out[k][0] as f64;
+        worst = worst.max((got - want).abs());
+        assert!((got - want).abs() < 2e-5, "{k}: {got} vs {want} ({c:?})");
+    }
+    println!(
+        "patch transmittance: {} patches, worst {worst:.1e}",
+        cases.len()
+    );
+}
+
 fn main() {
     Tests::new()
         .gpu(
@@ -165,6 +244,10 @@ fn main() {
         .gpu(
             "fresnel_refraction_and_reflection_match_the_cpu",
             fresnel_refraction_and_reflection_match_the_cpu,
+        )
+        .gpu(
+            "patch_transmittance_matches_the_cpu",
+            patch_transmittance_matches_the_cpu,
         )
         .run()
 }

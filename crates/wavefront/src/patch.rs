@@ -42,11 +42,12 @@ pub struct Patches {
     pub flux0: Vec<[f64; 3]>,
     /// Area when emitted (the patch's share of it after tessellation).
     pub area0: Vec<f64>,
-    /// While the patch straddles a sharp interface, the share of its flux
-    /// the surface has let through so far: the product of the Fresnel
-    /// factors its corners (or, for a piece of a torn patch, its
-    /// ancestor's) took since the crossing began, what its reflection is
-    /// made of (`propagate::reflected_piece`). 1 between crossings.
+    /// While the patch straddles a sharp interface, the product of the
+    /// Fresnel factors its corners (or, for a piece of a torn patch, its
+    /// ancestor's) took as they crossed, not yet applied: the patch carries
+    /// all its light on until every corner has crossed, when it is split
+    /// into what the surface lets through and its reflection
+    /// (`propagate::crossing_done`). 1 between crossings.
     pub kept: Vec<f64>,
     /// RGB differential irradiance, W/m^2, set by the irradiance step.
     pub irradiance: Vec<[f64; 3]>,

@@ -576,15 +576,9 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
             let before = *kept;
             if let Some(moved) = sharp_patch(step, sharp, &corners, flux, kept, kin, lost) {
                 [*a, *b, *c, *d] = moved;
-                let through = *kept;
-                *kept = crossing_kept(sharp.regions, &moved, through);
-                // (Below 1 only with Fresnel: nothing was taken else.)
-                if through == 1.0 || !sharp.reflections {
-                    return None;
-                }
                 let start = corners.map(|c| c.x);
                 let piece =
-                    reflected_piece(step, sharp, &start, &moved, (flux, flux0), through, lost)?;
+                    crossing_done(step, sharp, &start, &moved, (flux, flux0), kept, true, lost)?;
                 return Some((
                     i,
                     vec![Piece {
@@ -648,61 +642,82 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
     }
 }
 
-/// The reflected patch of a patch that has just finished crossing a
-/// surface ([`reflection`]), its tube from the surface deposited and its
-/// flux taken off the tally of reflected light. At the surface it carries
-/// the transmitted `flux` times `(1 - kept) / kept` (`kept`: what the
-/// surface let through of the patch, [`Patches::kept`]; the rest is what
-/// the Fresnel factors took from the beam and tallied as reflected) times
-/// `exp(restored)`: the patch was charged the absorption of the region it
-/// entered since its corners crossed, which the reflected part never
-/// entered ([`Reflection::restored`], given back from the absorbed tally).
-/// On its way back it loses [`Reflection::depth`].
-fn reflected_piece(
+/// The Fresnel split of a patch whose corners have all crossed a surface
+/// (`kept` below 1, the product of the factors `(1 - R)^(1/4)` its corners
+/// took as they crossed, [`Patches::kept`]; nothing else to do while they
+/// have not). Until then the patch carries all its light on: its corners
+/// cross at different steps, and the share the surface lets through is
+/// Fresnel's transmittance over the whole patch from all four corners'
+/// incidence, [`Reflection::transmitted`]. The factors, their geometric
+/// mean, fall short of that where the transmittance is concave in the
+/// incidence (towards grazing, at an object's outline: the shadow under a
+/// glass sphere read low); they stand in where the surface is not found
+/// ([`reflection`]: the corners met different surfaces, or it is out of
+/// reach).
+///
+/// The reflected light, at the surface, is the patch's flux times `1 -
+/// transmitted`, times `exp(restored)`: the patch was charged the
+/// absorption of the region it entered since its corners crossed, which
+/// the reflected part never entered ([`Reflection::restored`], given back
+/// from the absorbed tally). If reflections are traced and it is not too
+/// faint ([`REFLECT_MIN`]), it goes on as the reflected patch: its tube
+/// from the surface deposited, and on its way back it loses
+/// [`Reflection::depth`]. Else (and always for a piece of a torn patch,
+/// `trace` false: the GPU has no slot for it) it is tallied as reflected.
+#[allow(clippy::too_many_arguments)]
+fn crossing_done(
     step: &Step,
     sharp: &Sharp,
     start: &[DVec3; 4],
     moved: &[RayState; 4],
-    (flux, flux0): (&[f64; 3], &[f64; 3]),
-    kept: f64,
+    (flux, flux0): (&mut [f64; 3], &[f64; 3]),
+    kept: &mut f64,
+    trace: bool,
     lost: &mut Loss,
 ) -> Option<Piece> {
+    let through = *kept;
     let regions = sharp.regions;
     let to = regions.at(moved[0].x);
-    // Only a patch that began the step across a surface has just finished
-    // crossing it.
-    if start.iter().all(|&x| regions.at(x) == to) {
+    if through == 1.0 || moved[1..].iter().any(|c| regions.at(c.x) != to) {
         return None;
     }
-    let grid = &step.medium.geometry;
-    let r = reflection(
-        regions,
-        grid,
-        moved,
-        to,
-        step.dt,
-        step.integrator,
-        step.channel,
-    )?;
-    // The transmitted patch carries flux * kept: the reflected part, as
-    // tallied, is flux * (1 - kept) / kept; at the surface, before the
-    // absorption beyond it, that times exp(restored). `kept` is what the
-    // factors took from this patch (or from the patch it is a piece of),
-    // not the factors of its corners' way back: the two differ where a
-    // torn patch's pieces crossed at corners of their own.
-    let tallied = flux.map(|f| f * (1.0 - kept) / kept);
-    let f: [f64; 3] = std::array::from_fn(|c| tallied[c] * r.restored[c].exp());
-    if (0..3).all(|c| f[c] < REFLECT_MIN * flux0[c]) {
-        return None;
+    *kept = 1.0;
+    // (A patch that began the step in `to` crossed nothing in it.)
+    let r = if start.iter().all(|&x| regions.at(x) == to) {
+        None
+    } else {
+        reflection(
+            regions,
+            &step.medium.geometry,
+            moved,
+            to,
+            step.dt,
+            step.integrator,
+            step.channel,
+        )
+    };
+    let share = r.as_ref().map_or(through, |r| r.transmitted);
+    let tallied = flux.map(|f| f * (1.0 - share));
+    let f: [f64; 3] =
+        std::array::from_fn(|c| tallied[c] * r.as_ref().map_or(1.0, |r| r.restored[c].exp()));
+    for c in 0..3 {
+        flux[c] *= share;
+        lost.absorbed[c] -= f[c] - tallied[c];
     }
+    let traced =
+        r.filter(|_| trace && sharp.reflections && (0..3).any(|c| f[c] >= REFLECT_MIN * flux0[c]));
+    let Some(r) = traced else {
+        for (r, f) in lost.reflected.iter_mut().zip(f) {
+            *r += f;
+        }
+        return None;
+    };
     if let Some(t) = step.tally {
         deposit::tube(t, &r.hits, &r.corners.map(|c| c.x), &f, r.depth, step.group);
     }
     let out: [f64; 3] = std::array::from_fn(|c| f[c] * (-r.depth[c]).exp());
     for c in 0..3 {
-        lost.reflected[c] -= tallied[c];
-        // `f - tallied` given back, then `f - out` absorbed on its way back.
-        lost.absorbed[c] += tallied[c] - out[c];
+        lost.absorbed[c] += f[c] - out[c];
     }
     lost.reflections += 1;
     Some(Piece {
@@ -743,6 +758,10 @@ pub struct Reflection {
     /// The optical depth the reflected light loses from the surface to
     /// its corners (their mean), in the region it came from.
     pub depth: DVec3,
+    /// The share of the patch's flux the surface let through: Fresnel's
+    /// transmittance averaged over the patch from its corners' incidence
+    /// ([`fresnel::patch_transmittance`]).
+    pub transmitted: f64,
 }
 
 /// The Fresnel reflection of a patch whose corners `moved` have all
@@ -783,6 +802,11 @@ pub fn reflection(
     let mut reflects = false;
     let mut corners = *moved;
     let mut hits = [DVec3::ZERO; 4];
+    let mut incidence = [fresnel::Incidence {
+        cos_i: 1.0,
+        n1: 1.0,
+        n2: 1.0,
+    }; 4];
     let (mut restored, mut depth) = (DVec3::ZERO, DVec3::ZERO);
     let per_index = |r: Region, p: DVec3| region_extinction_per_index(grid, regions, r, p, ch);
     for k in 0..4 {
@@ -815,6 +839,7 @@ pub fn reflection(
             return None;
         }
         reflects |= r > 0.0;
+        incidence[k] = fresnel::Incidence { cos_i, n1, n2 };
         // The optical path since the crossing (trapezoid in the index).
         let back = 0.5 * (n2 + regions.index(to, s.x, ch).0) * (c.t - 2.0 * eps).max(0.0);
         restored += step_depth(grid, p, s.x, per_index(to, p), per_index(to, s.x), back);
@@ -856,6 +881,7 @@ pub fn reflection(
         hits: [hits[0], hits[3], hits[2], hits[1]],
         restored: restored * 0.25,
         depth: depth * 0.25,
+        transmitted: fresnel::patch_transmittance(&incidence),
     })
 }
 
@@ -890,6 +916,17 @@ fn split_and_trace(
         drop(lost);
         return;
     }
+    // A piece that has just finished crossing a surface is split by
+    // Fresnel as a patch is; its reflection is not traced.
+    let settle = |start: &[RayState; 4],
+                  moved: &[RayState; 4],
+                  f: &mut [f64; 3],
+                  flux0: &[f64; 3],
+                  through: &mut f64,
+                  lost: &mut Loss| {
+        let start = start.map(|c| c.x);
+        crossing_done(step, sharp, &start, moved, (f, flux0), through, false, lost);
+    };
     let field = RegionIndex {
         regions: sharp.regions,
         channel: step.channel,
@@ -898,13 +935,16 @@ fn split_and_trace(
         let thin = thin_about_centre(corners, sharp.min_span * THIN_SPAN, &field);
         let (mut f, mut through) = (flux, kept);
         match sharp_patch(step, sharp, &thin, &mut f, &mut through, kin, lost) {
-            Some(moved) => out.push(Piece {
-                corners: moved,
-                flux: f,
-                flux0: kin.flux0,
-                area0,
-                kept: crossing_kept(sharp.regions, &moved, through),
-            }),
+            Some(moved) => {
+                settle(&thin, &moved, &mut f, &kin.flux0, &mut through, lost);
+                out.push(Piece {
+                    corners: moved,
+                    flux: f,
+                    flux0: kin.flux0,
+                    area0,
+                    kept: through,
+                })
+            }
             None => drop(lost),
         }
         return;
@@ -929,13 +969,16 @@ fn split_and_trace(
         // surface it straddles (its own corners take this step's factors).
         let mut through = kept;
         match sharp_patch(step, sharp, &child, &mut f, &mut through, part, lost) {
-            Some(moved) => out.push(Piece {
-                corners: moved,
-                flux: f,
-                flux0: part.flux0,
-                area0: area0 * share,
-                kept: crossing_kept(sharp.regions, &moved, through),
-            }),
+            Some(moved) => {
+                settle(&child, &moved, &mut f, &part.flux0, &mut through, lost);
+                out.push(Piece {
+                    corners: moved,
+                    flux: f,
+                    flux0: part.flux0,
+                    area0: area0 * share,
+                    kept: through,
+                })
+            }
             None => split_and_trace(
                 step,
                 sharp,
@@ -966,8 +1009,10 @@ fn thin_about_centre(c: &[RayState; 4], thin: f64, field: &RegionIndex) -> [RayS
 }
 
 /// One step of one patch with sharp interfaces: the corners moved, its flux
-/// attenuated [Ihrke07 eq 18] and Fresnel-transmitted, its tube deposited;
-/// `None` (nothing changed) when its corners disagree.
+/// attenuated [Ihrke07 eq 18], its tube deposited, and the Fresnel factors
+/// of the corners that crossed a surface taken into `kept` (the patch is
+/// split when all have crossed, [`crossing_done`]); `None` (nothing
+/// changed) when its corners disagree.
 fn sharp_patch(
     step: &Step,
     sharp: &Sharp,
@@ -1086,11 +1131,9 @@ fn sharp_patch(
         }
     }
     let x1 = moved.map(|c| c.x);
-    // (The step's light is absorbed before its Fresnel loss: what goes on
-    // is exact; of the steps since a corner crossed, the reflected share
-    // is charged the absorption beyond the surface. A traced reflection
-    // gets it back (`reflected_piece`); untraced, the absorbed and
-    // reflected tallies stay off by up to R times that absorption.)
+    // (Until its corners have all crossed, the patch's reflected share is
+    // charged the absorption beyond the surface with the rest; it is given
+    // back when the crossing is done, `crossing_done`.)
     let depth = depth * 0.25;
     if let Some(t) = tally {
         deposit::tube(t, &x0, &x1, flux, depth, group);
@@ -1100,28 +1143,10 @@ fn sharp_patch(
         lost.absorbed[ch] += flux[ch] - k;
         flux[ch] = k;
     }
-    if sharp.fresnel && factor < 1.0 {
-        for (f, r) in flux.iter_mut().zip(lost.reflected.iter_mut()) {
-            let k = *f * factor;
-            *r += *f - k;
-            *f = k;
-        }
+    if sharp.fresnel {
         *kept *= factor;
     }
     Some(moved)
-}
-
-/// [`Patches::kept`] of a patch at `moved` after a step that left it
-/// with `through`: back to 1 once its corners are in one region (any
-/// crossing is over: its reflection, traced or not, has been accounted).
-fn crossing_kept(regions: &Regions, moved: &[RayState; 4], through: f64) -> f64 {
-    if through < 1.0 {
-        let r = regions.at(moved[0].x);
-        if moved[1..].iter().all(|c| regions.at(c.x) == r) {
-            return 1.0;
-        }
-    }
-    through
 }
 
 /// The first surface a corner crossed in a step.

@@ -337,7 +337,7 @@ fn absorbing_slab_absorbs_within_its_faces(b: &Backend) {
     assert!(below < 1e-4, "below the slab: {below}");
     // What goes on is exact, as `below` shows. The entry step charges the
     // glass's absorption before the Fresnel split; the traced reflection
-    // gets its share back (`propagate::reflected_piece`). The absorbed
+    // gets its share back (`propagate::crossing_done`). The absorbed
     // tally may fall short by what the untraced reflections would still
     // have lost inside.
     for c in 0..3 {

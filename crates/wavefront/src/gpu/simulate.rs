@@ -85,13 +85,15 @@
 //! on meshes and solids of revolution and lost its last pieces. A
 //! frontier or a list that outgrows the scratch or the live list halts
 //! the plan in mid-step; the host grows them and the step goes on where
-//! it stopped. A patch that has just crossed a surface and reflects
-//! ([`propagate::reflection`], the WGSL `patch_reflection`) adds one more
-//! piece after the list: pass 0 finds that it reflects, pass 1 writes the
-//! reflection, found again from the patch as pass 0 stored it, deposits
-//! its tube from the surface and tallies its flux as traced (the
-//! `E_TRACED` energy, taken off `E_REFLECTED`, and `E_RESTORED`, the
-//! absorption beyond the surface it gets back, taken off `E_ABSORBED`).
+//! it stopped. A patch whose corners have all crossed a surface is split
+//! by Fresnel ([`propagate::reflection`], the WGSL `patch_reflection`).
+//! One whose reflection is traced adds one more piece after the list:
+//! pass 0 finds that it reflects, pass 1 splits it, writes the reflection,
+//! found again from the patch as pass 0 stored it, deposits its tube from
+//! the surface and tallies `E_RESTORED`, the absorption beyond the surface
+//! it gets back, taken off `E_ABSORBED`. Any other is split where it is
+//! traced (pass 0, or pass 2 for a piece), its reflection tallied as
+//! `E_REFLECTED`.
 //! New corners (splits,
 //! pieces) take the own index of the region where they lie, and a patch
 //! whose corners lie in different regions is not split (`refine::Hold`),
@@ -309,18 +311,16 @@ const SHARP_PIECES: u32 = 3;
 
 /// Energy categories of the tallies, each 64-bit fixed point per channel
 /// (two words): words `2 (3 category + channel)`.
-const ENERGY: [&str; 8] = [
+const ENERGY: [&str; 7] = [
     "E_ABSORBED",
     "E_EXITED",
     "E_CULLED",
     "E_REFLECTED",
     "E_TRAPPED",
     "E_TORN",
-    // Reflected light traced on as patches (taken off `E_REFLECTED`).
-    "E_TRACED",
     // Absorption a traced reflection gets back: the patch was charged it
     // beyond the surface, which the reflected part never crossed (taken
-    // off `E_ABSORBED`; `propagate::reflected_piece`).
+    // off `E_ABSORBED`; `propagate::crossing_done`).
     "E_RESTORED",
 ];
 /// Stats words after the energies: counts.
@@ -2223,10 +2223,10 @@ impl<'a> GpuSimulator<'a> {
             (s[w] as f64 + s[w + 1] as f64 * 4294967296.0) / scale
         };
         for c in 0..3 {
-            summary.absorbed_power[c] += energy(0, c) - energy(7, c);
+            summary.absorbed_power[c] += energy(0, c) - energy(6, c);
             summary.exited_power[c] += energy(1, c);
             summary.culled_power[c] += energy(2, c);
-            summary.reflected_power[c] += energy(3, c) - energy(6, c);
+            summary.reflected_power[c] += energy(3, c);
             summary.trapped_power[c] += energy(4, c);
             summary.torn_power[c] += energy(5, c);
         }

@@ -1230,12 +1230,7 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
         add_energy3(E_ABSORBED, flux - through);
     }
     out.flux = through;
-    if P.fresnel != 0u && kept < 1.0 {
-        let t = through * kept;
-        if write {
-            add_energy3(E_REFLECTED, through - t);
-        }
-        out.flux = t;
+    if P.fresnel != 0u {
         out.kept = kept;
     }
     return out;
@@ -1260,14 +1255,22 @@ fn crossing_kept(q: Quad, through: f32) -> f32 {
 
 // Where a patch's Fresnel reflection is (`propagate::reflection`).
 struct Reflected {
+    // Traced (`traced_reflection_of`); `patch_reflection` sets it where
+    // every corner's incidence was found.
     ok: bool,
+    // Every corner's incidence found, as `ok` left by `patch_reflection`.
+    found: bool,
     // The reflected corners (in the order 0 3 2 1 of the patch's, which
     // keeps the orientation), and where each left the surface.
     q: Quad,
     hits: array<vec3<f32>, 4>,
-    // The share of the patch's flux the surface let through
-    // (`Patches::kept`), set by `traced_reflection_of`.
+    // The share of the patch's flux the surface lets through, set by
+    // `traced_reflection_of`: `tau` where found, else the corners' factors
+    // (`Patches::kept`).
     kept: f32,
+    // Fresnel's transmittance over the patch from its corners' incidence
+    // (`fresnel_patch_transmittance`; `propagate::Reflection::transmitted`).
+    tau: f32,
     // The optical depth the patch was charged beyond the surface since its
     // corners crossed, and the one the reflected light loses on its way
     // back (the corners' means; `propagate::Reflection`).
@@ -1292,6 +1295,7 @@ fn patch_reflection(m: Quad, to: u32) -> Reflected {
     var reflects = false;
     var r: Quad;
     var hits: array<vec3<f32>, 4>;
+    var incidence: array<vec3<f32>, 4>;
     var restored = vec3<f32>(0.0);
     var depth = vec3<f32>(0.0);
     // Every corner must have arrived: checked for all four before any is
@@ -1331,6 +1335,7 @@ fn patch_reflection(m: Quad, to: u32) -> Reflected {
             return out;
         }
         reflects = reflects || rho > 0.0;
+        incidence[k] = vec3<f32>(cos_i, n1, n2);
         let back = 0.5 * (n2 + region_index(to, m.x[k], P.channel).x) * max(hit.t - 2.0 * eps, 0.0);
         restored += step_depth(P.grid, p, m.x[k], sharp_extinction_per_index(to, p), sharp_extinction_per_index(to, m.x[k]), back);
         var ray = RegionRay(p, vi - along * (2.0 * dot(vi, along)), m.opl[k] - back, behind);
@@ -1360,6 +1365,7 @@ fn patch_reflection(m: Quad, to: u32) -> Reflected {
         return out;
     }
     out.ok = true;
+    out.tau = fresnel_patch_transmittance(incidence);
     out.restored = restored * 0.25;
     out.depth = depth * 0.25;
     let order = array<u32, 4>(0u, 3u, 2u, 1u);
@@ -1372,44 +1378,55 @@ fn patch_reflection(m: Quad, to: u32) -> Reflected {
     return out;
 }
 
-// The reflected flux, as tallied, of a patch whose transmitted part
-// carries `flux`.
-fn tallied_reflection(flux: vec3<f32>, r: Reflected) -> vec3<f32> {
-    return flux * ((1.0 - r.kept) / r.kept);
+// The reflected flux of a patch that came with `came`: what the surface
+// does not let through.
+fn tallied_reflection(came: vec3<f32>, r: Reflected) -> vec3<f32> {
+    return came * (1.0 - r.kept);
 }
 
 // The reflected flux at the surface: the tallied one with the absorption
-// beyond the surface given back (`propagate::reflected_piece`).
-fn reflected_flux(flux: vec3<f32>, r: Reflected) -> vec3<f32> {
-    return tallied_reflection(flux, r) * exp(r.restored);
+// beyond the surface given back (`propagate::crossing_done`).
+fn reflected_flux(came: vec3<f32>, r: Reflected) -> vec3<f32> {
+    return tallied_reflection(came, r) * exp(r.restored);
 }
 
-// The reflection of the patch at `moved` (carrying `flux`, emitted with
-// `flux0`, the surface having let `kept` of it through), if it is traced:
-// not below REFLECT_MIN of what the patch was emitted with
-// (`propagate::reflected_piece`). Its flux is made of `kept`, what the
-// Fresnel factors took from the patch, not of its corners' way back.
-fn traced_reflection_of(moved: Quad, to: u32, flux: vec3<f32>, flux0: vec3<f32>, kept: f32) -> Reflected {
+// The Fresnel split of a patch at `moved` whose corners have all crossed
+// into region `to`, carrying `came`, emitted with `flux0`, its corners'
+// factors `kept` (`propagate::crossing_done`): where its corners'
+// incidence is found (`found`), the surface lets `tau` through (`kept`);
+// its reflection is traced (`ok`) if `traceable`, reflections are traced,
+// and it is not below REFLECT_MIN of what the patch was emitted with.
+fn traced_reflection_of(moved: Quad, to: u32, came: vec3<f32>, flux0: vec3<f32>, kept: f32, traceable: bool) -> Reflected {
     var r = patch_reflection(moved, to);
-    r.kept = kept;
-    if r.ok && all(reflected_flux(flux, r) < REFLECT_MIN * flux0) {
+    r.found = r.ok;
+    r.kept = select(kept, r.tau, r.found);
+    if r.ok && (!traceable || P.reflections == 0u || all(reflected_flux(came, r) < REFLECT_MIN * flux0)) {
         r.ok = false;
     }
     return r;
 }
 
-// Pass 1: deposit the reflection's tube from the surface (the patch's
-// transmitted part carrying `transmitted`), take its flux off the
-// reflected light's tally and what it gets back off the absorbed; the flux
-// it goes on with.
-fn traced_reflection(r: Reflected, transmitted: vec3<f32>) -> vec3<f32> {
-    let tallied = tallied_reflection(transmitted, r);
-    let f = reflected_flux(transmitted, r);
+// A split whose reflection is not traced: the reflected flux tallied at
+// the surface (the absorption it was charged beyond it given back); the
+// flux that goes on.
+fn untraced_split(came: vec3<f32>, r: Reflected) -> vec3<f32> {
+    let tallied = tallied_reflection(came, r);
+    let f = reflected_flux(came, r);
+    add_energy3(E_REFLECTED, f);
+    add_energy3(E_RESTORED, f - tallied);
+    return came * r.kept;
+}
+
+// Pass 1: deposit the reflection's tube from the surface (of a patch that
+// came with `came`), and tally what it gets back off the absorbed; the
+// flux it goes on with.
+fn traced_reflection(r: Reflected, came: vec3<f32>) -> vec3<f32> {
+    let tallied = tallied_reflection(came, r);
+    let f = reflected_flux(came, r);
     if P.fluence != 0u {
         tube(Swept(r.hits, r.q.x, f, r.depth));
     }
     let out = f * exp(-r.depth);
-    add_energy3(E_TRACED, tallied);
     add_energy3(E_RESTORED, f - tallied);
     add_energy3(E_ABSORBED, f - out);
     atomicAdd(&wg_stats[S_REFLECTIONS], 1u);
@@ -1633,29 +1650,39 @@ fn sharp_work(k: u32, pass_id: u32) {
     }
     var r: Reflected;
     r.ok = false;
-    var look = pass_id == SHARP_REFLECTIONS;
-    // Pass 0: only a patch that has just crossed a surface reflects
-    // (`propagate::reflected_piece`).
-    let may = pass_id == SHARP_PATCHES && t.ok && P.reflections != 0u && through < 1.0;
-    var to = 0u;
-    if look || may {
-        to = region_owner(moved.x[0]);
+    r.found = false;
+    // A patch (pass 0) or piece (pass 2) whose corners have all crossed a
+    // surface is split by Fresnel (`propagate::crossing_done`); pass 1
+    // traces the reflection of a patch pass 0 found to reflect.
+    var done = pass_id == SHARP_REFLECTIONS;
+    if (pass_id == SHARP_PATCHES || pass_id == SHARP_PIECES) && t.ok && through < 1.0 {
+        done = crossing_kept(moved, through) == 1.0;
     }
-    if may {
+    var look = pass_id == SHARP_REFLECTIONS;
+    var to = 0u;
+    if done {
+        to = region_owner(moved.x[0]);
+        // (A patch that began the step in `to` crossed nothing in it.)
         for (var c = 0u; c < 4u; c++) {
             look = look || region_owner(nd.q.x[c]) != to;
         }
     }
     if look {
-        r = traced_reflection_of(moved, to, t.flux, f0.xyz, through);
+        r = traced_reflection_of(moved, to, t.flux, f0.xyz, through, pass_id != SHARP_PIECES);
+    } else {
+        r.kept = through;
     }
     if pass_id == SHARP_PATCHES && t.ok {
-        // A patch that reflects keeps its share for pass 1, which resets it.
+        var flux = t.flux;
+        // A patch that reflects keeps its factors for pass 1, which splits
+        // it; one that does not is split here.
         var kept = through;
-        if !r.ok {
-            kept = crossing_kept(moved, through);
+        if done && !r.ok {
+            flux = untraced_split(t.flux, r);
+            kept = 1.0;
+            aux[3u * i] = vec4<f32>(flux, a.w);
         }
-        aux[3u * i + 2u] = vec4<f32>(quad_irradiance(t.q, t.flux), kept);
+        aux[3u * i + 2u] = vec4<f32>(quad_irradiance(t.q, flux), kept);
     }
     switch pass_id {
         case SHARP_PATCHES: {
@@ -1698,18 +1725,24 @@ fn sharp_work(k: u32, pass_id: u32) {
         }
         case SHARP_REFLECTIONS: {
             var fl = vec3<f32>(0.0);
+            var through_flux = a.xyz * r.kept;
             if r.ok {
                 fl = traced_reflection(r, a.xyz);
+            } else {
+                // (Found as pass 0 found it, from the same input: not met.)
+                through_flux = untraced_split(a.xyz, r);
             }
             // Its crossing is over: the patch's corners are in one region.
-            aux[3u * i + 2u].w = 1.0;
+            aux[3u * i] = vec4<f32>(through_flux, a.w);
+            aux[3u * i + 2u] = vec4<f32>(quad_irradiance(moved, through_flux), 1.0);
             let slot = P.n_old + hp_rank(P.pieces_base, P.n_old, i);
             write_patch(slot, r.q, fl, f0.xyz, a.w, f0.w, 1.0);
         }
         default: {
-            let r = k - first_piece_of(i, pieces_total());
-            let slot = P.n_old + hp_rank(P.pieces_base, P.n_old, i) + r;
+            let nth = k - first_piece_of(i, pieces_total());
+            let slot = P.n_old + hp_rank(P.pieces_base, P.n_old, i) + nth;
             var flux = t.flux;
+            var kept = through;
             if !t.ok {
                 // The level found it whole and this trace does not (it
                 // cannot, with the same code and input): dropped, counted
@@ -1717,8 +1750,11 @@ fn sharp_work(k: u32, pass_id: u32) {
                 add_energy3(E_TORN, nd.flux.xyz);
                 atomicAdd(&wg_stats[S_TORN], 1u);
                 flux = vec3<f32>(0.0);
+            } else if done {
+                flux = untraced_split(t.flux, r);
+                kept = 1.0;
             }
-            write_patch(slot, t.q, flux, nd.flux0, nd.flux.w, f0.w + 1.0, crossing_kept(t.q, through));
+            write_patch(slot, t.q, flux, nd.flux0, nd.flux.w, f0.w + 1.0, kept);
         }
     }
 }
