@@ -40,7 +40,10 @@
 //! `EQ_DUMP=DIR` writes the glass scenes' reference, the first reference
 //! run and the wavefront's fluence there as raw little-endian `f64`
 //! (`(64, 64, 64, 3)`, standard order; `ref-SEED.f64`, `refa-SEED.f64`,
-//! `wf-SEED.f64`), for a look at where they differ.
+//! `wf-SEED.f64`), for a look at where they differ. `EQ_PATCH=VOXELS` sets
+//! the glass scenes' emitted patch size (`Options::patch_size`, the
+//! default's otherwise), to weigh the wavefront's sampling against its
+//! time.
 
 use eikon_grid::{Medium, Regions, Scene};
 use eikon_testkit::photon_ref::{self, Grid, Light, Sphere};
@@ -72,6 +75,22 @@ fn env_u32(name: &str, default: u32) -> u32 {
         .and_then(|v| v.parse().ok())
         .unwrap_or(default)
 }
+/// The glass scenes' emitted patch size, voxels: `EQ_PATCH`, else the
+/// default's. An unreadable value is said and not used.
+fn patch_size() -> f64 {
+    let default = Options::default().patch_size;
+    match std::env::var("EQ_PATCH") {
+        Err(_) => default,
+        Ok(v) => match v.parse::<f64>() {
+            Ok(x) if x.is_finite() && x > 0.0 => x,
+            _ => {
+                println!("EQ_PATCH={v:?} is not a positive size in voxels: {default} used");
+                default
+            }
+        },
+    }
+}
+
 /// No photon run predicted (twice the last) beyond this, s.
 const RUN_CAP_S: f64 = 60.0;
 
@@ -266,8 +285,10 @@ fn vacuum() -> Outcome {
 }
 
 fn glass() -> Vec<Outcome> {
+    let patch = patch_size();
     println!(
-        "\n== glass: configs/glass-sphere.toml at 64^3, sharp interfaces, directional light ==",
+        "\n== glass: configs/glass-sphere.toml at 64^3, sharp interfaces, directional light; \
+         emitted patches {patch} voxel ==",
     );
     let scene = Scene::parse(GLASS, "glass").expect("the scene parses");
     assert_eq!(scene.grid.interfaces, eikon_grid::Interfaces::Sharp);
@@ -293,6 +314,7 @@ fn glass() -> Vec<Outcome> {
         );
         let opts = Options {
             reflections,
+            patch_size: patch,
             ..Options::default()
         };
         let (t_wf, wf, account) = wavefront(&scene, &medium, Some(&regions), &opts);
