@@ -61,7 +61,7 @@ pub struct Args {
     #[arg(long, value_enum, default_value = "rk4")]
     integrator: Integrator,
     /// Size of the emitted patches, in voxels.
-    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = eikon_wavefront::PATCH_SIZE, allow_hyphen_values = true)]
     patch_size: f64,
     /// Tessellate patches whose corners span more than this many voxels.
     #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]

@@ -61,6 +61,16 @@ pub enum DepositRule {
     Paper,
 }
 
+/// Size of the emitted patches, voxels (`--patch-size`): the size of the
+/// deposit's sub-patches ([`deposit::SUBPATCH_SIZE`]), so that every
+/// sub-patch of an emitted patch follows a traced ray of its own rather
+/// than the bilinear interpolation of rays a voxel apart. The wave a
+/// curved surface refracts converges without being split, so its ray map
+/// is sampled only as finely as it was emitted: against independent
+/// photons the glass sphere's light read with a smaller error, for a little
+/// more time (docs/PERFORMANCE.md, fourteenth session on issue 16).
+pub const PATCH_SIZE: f64 = deposit::SUBPATCH_SIZE;
+
 /// Patches whose irradiance has fallen below this fraction of what the
 /// light would give at their place unobstructed are not split further
 /// (with the fluence deposit; [`refine::Rules::dim`]).
@@ -135,7 +145,7 @@ pub struct Options {
     /// Integrator for the corners (Euler or RK4; the adaptive scheme would
     /// break the common time of a wavefront).
     pub integrator: Integrator,
-    /// Size of the emitted patches, in voxels.
+    /// Size of the emitted patches, in voxels ([`PATCH_SIZE`]).
     pub patch_size: f64,
     /// Tessellate a patch whose span exceeds this many voxels.
     pub split: f64,
@@ -176,7 +186,7 @@ impl Default for Options {
         Self {
             step: 0.5,
             integrator: Integrator::Rk4,
-            patch_size: 1.0,
+            patch_size: PATCH_SIZE,
             split: 1.0,
             threshold: 1e-4,
             max_patches: 8 << 20,

@@ -80,30 +80,31 @@ pub struct Rules {
     /// through the focus and is split when it grows again.
     pub cull_caustics: bool,
     /// Do not split a patch whose irradiance has fallen below this fraction
-    /// of [`Rules::incident`] (0: split whatever it carries).
+    /// of [`Rules::incident`] in every channel ([`below`]; 0: split
+    /// whatever it carries).
     pub dim: f64,
     /// The light's unobstructed irradiance, for [`Rules::dim`].
     pub incident: Incident,
     /// Eliminate a patch whose flux is below this many times the
-    /// unobstructed irradiance at its midpoint (an area, world units^2; 0:
-    /// never).
+    /// unobstructed irradiance at its midpoint in every channel ([`below`];
+    /// an area, world units^2; 0: never).
     pub faint: f64,
 }
 
-/// The irradiance (summed over the colour channels a wavefront carries) a
+/// The irradiance per colour channel (of those a wavefront carries) a
 /// light would give at a point with nothing in the way: across the beam of
 /// a directional light, `P w / (4 pi r^2)` from a point or spot light (`w`
 /// the cone weight).
 #[derive(Clone, Copy, Debug)]
 pub enum Incident {
-    /// A plane wave of this irradiance.
-    Uniform(f64),
+    /// A plane wave of this irradiance per channel.
+    Uniform([f64; 3]),
     /// A point or spot light.
     Point {
         /// Where it is.
         position: glam::DVec3,
-        /// Its power.
-        power: f64,
+        /// Its power per channel.
+        power: [f64; 3],
         /// Its cone (axis, half-angle and falloff in degrees).
         cone: Option<(glam::DVec3, f64, f64)>,
     },
@@ -113,7 +114,7 @@ impl Incident {
     /// For `light`, with its channels weighted by `mask`.
     pub fn new(light: &eikon_grid::Light, mask: [f64; 3]) -> Self {
         use eikon_grid::Light;
-        let carried = |p: glam::DVec3| p.x * mask[0] + p.y * mask[1] + p.z * mask[2];
+        let carried = |p: glam::DVec3| [p.x * mask[0], p.y * mask[1], p.z * mask[2]];
         match light {
             Light::Directional { power, .. } => Incident::Uniform(carried(*power)),
             Light::Point { position, power } => Incident::Point {
@@ -135,9 +136,9 @@ impl Incident {
         }
     }
 
-    /// The irradiance at `x`.
+    /// The irradiance per channel at `x`.
     #[inline]
-    pub fn at(&self, x: glam::DVec3) -> f64 {
+    pub fn at(&self, x: glam::DVec3) -> [f64; 3] {
         match *self {
             Incident::Uniform(e) => e,
             Incident::Point {
@@ -147,11 +148,23 @@ impl Incident {
             } => {
                 let d = x - position;
                 let r2 = d.length_squared();
-                power * eikon_optics::spot::cone_weight(d / r2.sqrt(), cone)
-                    / (4.0 * std::f64::consts::PI * r2)
+                let g = eikon_optics::spot::cone_weight(d / r2.sqrt(), cone)
+                    / (4.0 * std::f64::consts::PI * r2);
+                power.map(|p| p * g)
             }
         }
     }
+}
+
+/// Whether `flux` is below `k` times the irradiance `incident` in every
+/// channel the light carries (`incident` above 0): the tests of
+/// [`Rules::faint`] (`k` an area) and [`Rules::dim`] (`k` times the
+/// patch's area), channel by channel, so that how a patch is followed in
+/// one channel never depends on how another is absorbed (a glass opaque to
+/// red passes green and blue as a clear one does).
+#[inline]
+pub fn below(flux: &[f64; 3], k: f64, incident: &[f64; 3]) -> bool {
+    (0..3).all(|c| incident[c] <= 0.0 || flux[c] < k * incident[c])
 }
 
 /// Patches [`refine`] must not split now, whatever their size, by their
@@ -238,7 +251,7 @@ impl Seen {
         // thousands of steps. It ends still travelling, its flux counted as
         // trapped: in clear glass that is most of what total internal
         // reflection holds (it splits without dimming until it is faint).
-        if rules.faint > 0.0 && f[0] + f[1] + f[2] < rules.faint * rules.incident.at(mid) {
+        if rules.faint > 0.0 && below(&f, rules.faint, &rules.incident.at(mid)) {
             return Fate::Faint;
         }
         if rules.cull_caustics && normal(&x).dot(dir()) <= 0.0 {
@@ -251,8 +264,7 @@ impl Seen {
                 // to any cell: it is not worth more patches (it deposits along
                 // its corner rays once it is over two voxels across,
                 // `deposit::tube`).
-                let flux = f[0] + f[1] + f[2];
-                if flux < rules.dim * rules.incident.at(mid) * area(&x) {
+                if below(&f, rules.dim * area(&x), &rules.incident.at(mid)) {
                     return Fate::Retain;
                 }
             }

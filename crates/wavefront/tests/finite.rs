@@ -207,10 +207,13 @@ fn an_absorbing_slab_never_gains_light_and_decays_by_beer_lambert() {
 /// there with the fluence deposit, a cell average; the paper's point value
 /// stays at 1), and light skimming the index halo outside the matter bends
 /// into the shadow unabsorbed (red behind the sphere 1.9% of the clear
-/// sphere's with the fluence deposit, 1.5% with the paper's). Green and
-/// blue are not bitwise the same: which patches are split, or are too
-/// faint to go on, is decided on the flux summed over the channels
-/// (measured 4.6e-4 on the totals).
+/// sphere's with the fluence deposit, 1.5% with the paper's). With the
+/// fluence deposit green and blue are the same bits whatever red's
+/// extinction: which patches are split, or are too faint to go on, is
+/// decided channel by channel (`refine::below`; on the flux summed over
+/// the channels the totals differed by 4.6e-4 with patches one voxel
+/// across, 4.1e-3 with half a voxel). The paper's rule keeps the ray of
+/// highest energy summed over the channels: within 2e-3 there.
 #[test]
 fn a_glass_sphere_opaque_to_red_stays_finite_and_keeps_green_and_blue() {
     let sphere = |red: f64| {
@@ -274,6 +277,9 @@ fn a_glass_sphere_opaque_to_red_stays_finite_and_keeps_green_and_blue() {
         assert!(opaque.2 <= 1.03, "red max {}", opaque.2);
         for ch in [1, 2] {
             let rel = (opaque.0[ch] / clear.0[ch] - 1.0).abs();
+            if deposit == DepositRule::Fluence {
+                assert_eq!(opaque.0[ch], clear.0[ch], "channel {ch}");
+            }
             assert!(rel < 2e-3, "{} channel {ch}: {rel}", name(deposit));
         }
     }

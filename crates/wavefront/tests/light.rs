@@ -433,7 +433,7 @@ fn runs_deposit_what_their_steps_do(scene: &str, material: &str, saving: f64) {
         max_depth: 0,
         cull_caustics: false,
         dim: 0.0,
-        incident: eikon_wavefront::refine::Incident::Uniform(1.0),
+        incident: eikon_wavefront::refine::Incident::Uniform([1.0; 3]),
         faint: 0.0,
     };
     let (runs, calls_runs, absorbed_runs) = volume(propagate::Run {

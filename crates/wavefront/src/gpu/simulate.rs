@@ -213,8 +213,8 @@ layout! {
         pub flux_scale: f32,
         /// [`Incident`]: a point or spot light's position.
         pub incident_position: [f32; 3],
-        /// Its power, or a plane wave's irradiance.
-        pub incident_power: f32,
+        /// Padding.
+        pub pad3: u32,
         /// A spot light's unit axis.
         pub cone_axis: [f32; 3],
         /// `INCIDENT_UNIFORM`, `INCIDENT_POINT` or `INCIDENT_SPOT`.
@@ -282,6 +282,11 @@ layout! {
         pub pad1: u32,
         /// Padding.
         pub pad2: u32,
+        /// [`Incident`]: a point or spot light's power per channel, or a
+        /// plane wave's irradiance.
+        pub incident_power: [f32; 3],
+        /// Padding.
+        pub pad4: u32,
     }
 }
 
@@ -1610,14 +1615,14 @@ impl<'a> GpuSimulator<'a> {
             ..Default::default()
         };
         match rules.incident {
-            Incident::Uniform(e) => params.incident_power = e as f32,
+            Incident::Uniform(e) => params.incident_power = e.map(|x| x as f32),
             Incident::Point {
                 position,
                 power,
                 cone,
             } => {
                 params.incident_position = f3(position);
-                params.incident_power = power as f32;
+                params.incident_power = power.map(|x| x as f32);
                 params.incident_kind = INCIDENT_POINT;
                 if let Some((axis, angle, falloff)) = cone {
                     params.incident_kind = INCIDENT_SPOT;

@@ -486,8 +486,9 @@ fn gone(x: vec3<f32>, d: vec3<f32>) -> bool {
     return !grid_contains(P.grid, x) && (!clip.hit || clip.t1 <= 0.0);
 }
 
-// The light's unobstructed irradiance at x (`refine::Incident::at`).
-fn incident_at(x: vec3<f32>) -> f32 {
+// The light's unobstructed irradiance per channel at x
+// (`refine::Incident::at`).
+fn incident_at(x: vec3<f32>) -> vec3<f32> {
     if P.incident_kind == INCIDENT_UNIFORM {
         return P.incident_power;
     }
@@ -497,7 +498,13 @@ fn incident_at(x: vec3<f32>) -> f32 {
     if P.incident_kind == INCIDENT_SPOT {
         w = spot_cone_weight(d / sqrt(r2), P.cone_axis, P.cone_angle, P.cone_falloff);
     }
-    return P.incident_power * w / (4.0 * PI * r2);
+    return P.incident_power * (w / (4.0 * PI * r2));
+}
+
+// Whether flux is below k times the irradiance `incident` in every channel
+// the light carries (`refine::below`).
+fn below(flux: vec3<f32>, k: f32, incident: vec3<f32>) -> bool {
+    return all((incident <= vec3<f32>(0.0)) | (flux < k * incident));
 }
 
 // `refine::fate`.
@@ -529,8 +536,7 @@ fn fate_of(i: u32) -> u32 {
     if all(flux.xyz <= P.threshold * f0.xyz) {
         return FATE_ABSORBED;
     }
-    let total = flux.x + flux.y + flux.z;
-    if P.faint > 0.0 && total < P.faint * incident_at(mid) {
+    if P.faint > 0.0 && below(flux.xyz, P.faint, incident_at(mid)) {
         // Still travelling, too faint to follow: trapped.
         return FATE_FAINT;
     }
@@ -539,7 +545,7 @@ fn fate_of(i: u32) -> u32 {
     }
     if patch_span(p0, p1, p2, p3) > P.split_span && u32(f0.w) < P.max_depth {
         // Too dim to be worth more patches (`Rules::dim`).
-        if P.dim > 0.0 && total < P.dim * incident_at(mid) * patch_area(p0, p1, p2, p3) {
+        if P.dim > 0.0 && below(flux.xyz, P.dim * patch_area(p0, p1, p2, p3), incident_at(mid)) {
             return FATE_RETAIN;
         }
         if P.sharp != 0u && straddles(i) {
