@@ -463,3 +463,31 @@ fn rebuild<F: IndexField + ?Sized>(
         );
     std::mem::swap(p, next);
 }
+
+#[cfg(test)]
+mod tests {
+    use super::below;
+
+    /// The tessellation's tests go channel by channel: a patch is below a
+    /// share only when every channel the light carries is, so one channel
+    /// still bright keeps it whatever the others (summed, red's absorption
+    /// ended green sooner), and a channel the light does not carry never
+    /// holds it.
+    #[test]
+    fn below_is_every_carried_channel_below_its_own_share() {
+        let incident = [2.0, 1.0, 0.5];
+        // Each channel under 0.1 of its own irradiance.
+        assert!(below(&[0.19, 0.09, 0.04], 0.1, &incident));
+        // Green at its share: not below, though the sum (0.33) is under
+        // 0.1 of the summed irradiance (0.35).
+        assert!(!below(&[0.19, 0.1, 0.04], 0.1, &incident));
+        // Red gone (absorbed): green and blue decide alone, as they would
+        // with red still there.
+        assert!(below(&[0.0, 0.09, 0.04], 0.1, &incident));
+        assert!(!below(&[0.0, 0.11, 0.04], 0.1, &incident));
+        // A channel the light does not carry is ignored.
+        assert!(below(&[5.0, 0.09, 0.04], 0.1, &[0.0, 1.0, 0.5]));
+        // No light in any channel: nothing to follow.
+        assert!(below(&[0.0; 3], 0.1, &[0.0; 3]));
+    }
+}
