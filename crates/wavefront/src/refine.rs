@@ -83,7 +83,8 @@ pub struct Rules {
     /// of [`Rules::incident`] in every channel ([`below`]; 0: split
     /// whatever it carries).
     pub dim: f64,
-    /// The light's unobstructed irradiance, for [`Rules::dim`].
+    /// The light's unobstructed irradiance per channel, for [`Rules::dim`]
+    /// and [`Rules::faint`].
     pub incident: Incident,
     /// Eliminate a patch whose flux is below this many times the
     /// unobstructed irradiance at its midpoint in every channel ([`below`];
