@@ -76,9 +76,9 @@ fn env_u32(name: &str, default: u32) -> u32 {
         .unwrap_or(default)
 }
 /// The glass scenes' emitted patch size, voxels: `EQ_PATCH`, else the
-/// default's. An unreadable value is said and not used.
+/// default's at sharp interfaces. An unreadable value is said and not used.
 fn patch_size() -> f64 {
-    let default = Options::default().patch_size;
+    let default = Options::default().emitted_size(true);
     match std::env::var("EQ_PATCH") {
         Err(_) => default,
         Ok(v) => match v.parse::<f64>() {
@@ -314,7 +314,7 @@ fn glass() -> Vec<Outcome> {
         );
         let opts = Options {
             reflections,
-            patch_size: patch,
+            patch_size: Some(patch),
             ..Options::default()
         };
         let (t_wf, wf, account) = wavefront(&scene, &medium, Some(&regions), &opts);

@@ -60,9 +60,10 @@ pub struct Args {
     /// Integrator for the particles.
     #[arg(long, value_enum, default_value = "rk4")]
     integrator: Integrator,
-    /// Size of the emitted patches, in voxels.
-    #[arg(long, default_value_t = eikon_wavefront::PATCH_SIZE, allow_hyphen_values = true)]
-    patch_size: f64,
+    /// Size of the emitted patches, in voxels [default: 0.5 at sharp
+    /// interfaces, 1 with the smoothed index].
+    #[arg(long, allow_hyphen_values = true)]
+    patch_size: Option<f64>,
     /// Tessellate patches whose corners span more than this many voxels.
     #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
     split: f64,
@@ -489,7 +490,10 @@ pub fn simulate(
     medium: &Medium,
     backend: &Backend,
 ) -> Result<Vec<LightVolume>> {
-    let mut opts = args.options()?;
+    // The emitted patch size settled for the interfaces, as the run records it.
+    let mut opts = args
+        .options()?
+        .settled(scene.grid.interfaces == eikon_grid::Interfaces::Sharp);
     // The patch list at its cap is part of the memory the run needs: the
     // default cap is lowered to what fits, a cap the user gave is checked.
     if args.method == SimMethod::Wavefront && args.max_patches.is_none() {
@@ -598,7 +602,8 @@ pub fn simulate(
         options: RunOptions {
             step_voxels: opts.step,
             integrator: format!("{:?}", opts.integrator),
-            patch_size_voxels: opts.patch_size,
+            patch_size_voxels: opts
+                .emitted_size(scene.grid.interfaces == eikon_grid::Interfaces::Sharp),
             split_voxels: opts.split,
             threshold: opts.threshold,
             deposit: match opts.deposit {

@@ -60,7 +60,9 @@ fn every_config_loads_and_builds() {
 }
 
 /// Every shipped scene runs end to end (`eikon run`) at a small
-/// resolution, writes its image, and is listed in the README.
+/// resolution (8 voxels on the longest side: the scenes whose light is
+/// trapped in glass follow it for hundreds of steps whatever the size),
+/// writes its image, and is listed in the README.
 #[test]
 fn every_config_runs_and_is_in_the_readme() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
@@ -80,7 +82,7 @@ fn every_config_runs_and_is_in_the_readme() {
             "-o",
             out.to_str().unwrap(),
             "--resolution",
-            "12",
+            "8",
             "--width",
             "32",
             "--height",
@@ -102,7 +104,7 @@ fn every_config_runs_and_is_in_the_readme() {
             serde_json::from_slice(&std::fs::read(out.join("light_volumes.json")).unwrap())
                 .unwrap();
         let dims: Vec<u64> = serde_json::from_value(sidecar["grid"]["dims"].clone()).unwrap();
-        assert_eq!(dims.iter().max(), Some(&12), "{name}: dims {dims:?}");
+        assert_eq!(dims.iter().max(), Some(&8), "{name}: dims {dims:?}");
         assert!(
             readme.contains(&format!("`{name}`")),
             "README.md does not list configs/{name}"
@@ -503,6 +505,53 @@ fn simulate_json(
     let sidecar =
         serde_json::from_slice(&std::fs::read(out.join("light_volumes.json")).unwrap()).unwrap();
     (summary, sidecar)
+}
+
+/// The emitted patch size follows the interfaces unless given: half a
+/// voxel at sharp interfaces (16^2 x 4 patches emitted by the plane wave
+/// over the 16^3 slab), a voxel with the smoothed index (16^2), and
+/// `--patch-size` over either; the sidecar records the size the run used.
+#[test]
+fn the_emitted_patch_size_follows_the_interfaces_unless_given() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = write_scene(dir.path(), "slab.toml", SLAB);
+    for (i, (flags, size, emitted)) in [
+        (&[][..], 0.5, 1024),
+        (&["--interfaces", "smoothed"][..], 1.0, 256),
+        (
+            &["--interfaces", "smoothed", "--patch-size", "0.5"][..],
+            0.5,
+            1024,
+        ),
+        (&["--patch-size", "1"][..], 1.0, 256),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let out = dir.path().join(format!("light{i}"));
+        let mut args = vec![
+            "simulate",
+            scene.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--json",
+        ];
+        args.extend(flags);
+        let summary: serde_json::Value = serde_json::from_slice(&eikon_ok(&args).stdout).unwrap();
+        let sidecar: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("light_volumes.json")).unwrap())
+                .unwrap();
+        assert_eq!(
+            sidecar["options"]["patch_size_voxels"].as_f64(),
+            Some(size),
+            "{flags:?}: {sidecar}"
+        );
+        assert_eq!(
+            summary["lights"][0]["emitted"].as_u64(),
+            Some(emitted),
+            "{flags:?}: {summary}"
+        );
+    }
 }
 
 /// By default the Fresnel-reflected light is traced on and recorded so;

@@ -61,15 +61,26 @@ pub enum DepositRule {
     Paper,
 }
 
-/// Size of the emitted patches, voxels (`--patch-size`): the size of the
-/// deposit's sub-patches ([`deposit::SUBPATCH_SIZE`]), so that every
-/// sub-patch of an emitted patch follows a traced ray of its own rather
-/// than the bilinear interpolation of rays a voxel apart. The wave a
-/// curved surface refracts converges without being split, so its ray map
-/// is sampled only as finely as it was emitted: against independent
-/// photons the glass sphere's light read with a smaller error, for a little
-/// more time (docs/PERFORMANCE.md, fourteenth session on issue 16).
+/// Size of the emitted patches at sharp interfaces, voxels (the default
+/// of `--patch-size` there): the size of the deposit's sub-patches
+/// ([`deposit::SUBPATCH_SIZE`]), so that every sub-patch of an emitted
+/// patch follows a traced ray of its own rather than the bilinear
+/// interpolation of rays a voxel apart. The wave a curved surface refracts
+/// converges without being split, so its ray map is sampled only as finely
+/// as it was emitted: against independent photons the glass sphere's light
+/// read with a smaller error, for a little more time (docs/PERFORMANCE.md,
+/// fourteenth session on issue 16).
 pub const PATCH_SIZE: f64 = deposit::SUBPATCH_SIZE;
+
+/// Size of the emitted patches with the smoothed index, voxels (the
+/// default of `--patch-size` there): one voxel. The smoothed interface
+/// bends the wave over a band of voxels, and its own bias (the sphere made
+/// a voxel wider, grazing light under-reflected) is what the light reads
+/// wrong there: the caustic under the [Ihrke07 fig 7] sphere carried the
+/// same power against exact ray optics to four digits at either size, for
+/// twice the time at half a voxel (docs/PERFORMANCE.md, fifteenth session
+/// on issue 16).
+pub const SMOOTHED_PATCH_SIZE: f64 = 1.0;
 
 /// Patches whose irradiance has fallen below this fraction of what the
 /// light would give at their place unobstructed are not split further
@@ -134,7 +145,7 @@ pub const SHARP_MIN_SPAN: f64 = 0.0625;
 /// [`propagate::Sharp::min_span`] for `opts` on `grid`, world units (both
 /// backends).
 pub(crate) fn sharp_min_span(grid: &eikon_grid::GridGeometry, opts: &Options) -> f64 {
-    SHARP_MIN_SPAN * opts.split.min(opts.patch_size) * grid.voxel_size()
+    SHARP_MIN_SPAN * opts.split.min(opts.emitted_size(true)) * grid.voxel_size()
 }
 
 /// Settings of a simulation.
@@ -145,8 +156,9 @@ pub struct Options {
     /// Integrator for the corners (Euler or RK4; the adaptive scheme would
     /// break the common time of a wavefront).
     pub integrator: Integrator,
-    /// Size of the emitted patches, in voxels ([`PATCH_SIZE`]).
-    pub patch_size: f64,
+    /// Size of the emitted patches, in voxels; `None` takes the
+    /// interfaces' default ([`Options::emitted_size`]).
+    pub patch_size: Option<f64>,
     /// Tessellate a patch whose span exceeds this many voxels.
     pub split: f64,
     /// Eliminate a patch whose transmittance falls below this.
@@ -186,7 +198,7 @@ impl Default for Options {
         Self {
             step: 0.5,
             integrator: Integrator::Rk4,
-            patch_size: PATCH_SIZE,
+            patch_size: None,
             split: 1.0,
             threshold: 1e-4,
             max_patches: 8 << 20,
@@ -232,6 +244,27 @@ pub enum Error {
 }
 
 impl Options {
+    /// The emitted patch size, voxels: [`Options::patch_size`], else
+    /// [`PATCH_SIZE`] at sharp interfaces (`sharp`) and
+    /// [`SMOOTHED_PATCH_SIZE`] with the smoothed index.
+    pub fn emitted_size(&self, sharp: bool) -> f64 {
+        self.patch_size.unwrap_or(if sharp {
+            PATCH_SIZE
+        } else {
+            SMOOTHED_PATCH_SIZE
+        })
+    }
+
+    /// These options with the emitted patch size settled for the
+    /// interfaces ([`Options::emitted_size`]): what a simulation runs with
+    /// and what a run records.
+    pub fn settled(&self, sharp: bool) -> Options {
+        Options {
+            patch_size: Some(self.emitted_size(sharp)),
+            ..*self
+        }
+    }
+
     /// Check every setting.
     pub fn check(&self) -> Result<(), Error> {
         let bad = |option, message: String| Err(Error::Option { option, message });
@@ -251,12 +284,12 @@ impl Options {
                 "adaptive steps break the common time of a wavefront; use euler or rk4".into(),
             );
         }
-        if !within(self.patch_size, PATCH_RANGE) {
+        if let Some(size) = self.patch_size.filter(|&s| !within(s, PATCH_RANGE)) {
             return bad(
                 "patch-size",
                 format!(
-                    "must lie in [{}, {}] voxels, got {}",
-                    PATCH_RANGE.0, PATCH_RANGE.1, self.patch_size
+                    "must lie in [{}, {}] voxels, got {size}",
+                    PATCH_RANGE.0, PATCH_RANGE.1
                 ),
             );
         }
@@ -413,12 +446,15 @@ pub fn check_finite(volume: &LightVolume, summary: &Summary) -> Result<(), Error
 /// across a discontinuity of the ray map (straddling an object's
 /// silhouette, part of it skimming inside the smoothed interface) stretches
 /// without bound: four levels (256 pieces of an emitted patch) leave room
-/// for a diverging lens without letting a tear multiply unchecked.
+/// for a diverging lens without letting a tear multiply unchecked. `opts`
+/// as a simulation settles them ([`Options::settled`]; unsettled, the
+/// patch size of sharp interfaces).
 pub fn default_depth(light: &Light, grid: &eikon_grid::GridGeometry, opts: &Options) -> u8 {
     match light {
         Light::Directional { .. } => 4,
         _ => {
-            let ratio = grid.diagonal() / (opts.split.min(opts.patch_size) * grid.voxel_size());
+            let ratio =
+                grid.diagonal() / (opts.split.min(opts.emitted_size(true)) * grid.voxel_size());
             (ratio.log2().ceil().max(0.0) as u8).saturating_add(1)
         }
     }
@@ -431,6 +467,7 @@ fn add(acc: &mut [f64; 3], x: &[f64; 3]) {
 /// Reject scenes that cannot be lit: no lights, or a point or spot light
 /// inside matter so opaque that its light dies within a voxel.
 pub fn check_scene(scene: &Scene, medium: &Medium, opts: &Options) -> Result<(), Error> {
+    let opts = &opts.settled(scene.grid.interfaces == eikon_grid::Interfaces::Sharp);
     if scene.lights.is_empty() {
         return Err(scene
             .error_at(
@@ -459,14 +496,15 @@ pub fn check_scene(scene: &Scene, medium: &Medium, opts: &Options) -> Result<(),
                     .into());
             }
         }
-        let n = light::candidates(l, g, opts.patch_size * h);
+        let size = opts.emitted_size(true);
+        let n = light::candidates(l, g, size * h);
         if n > (EMIT_PER_PATCH_LIMIT * opts.max_patches) as f64 {
             return Err(scene
                 .error_at(
                     &format!("light[{i}]"),
                     format!(
-                        "emitting it would take {n:.3e} patches of {} voxel, more than {EMIT_PER_PATCH_LIMIT} x --max-patches ({}): raise --patch-size or --max-patches, or lower the resolution",
-                        opts.patch_size, opts.max_patches
+                        "emitting it would take {n:.3e} patches of {size} voxel, more than {EMIT_PER_PATCH_LIMIT} x --max-patches ({}): raise --patch-size or --max-patches, or lower the resolution",
+                        opts.max_patches
                     ),
                 )
                 .into());
@@ -666,7 +704,8 @@ pub(crate) fn start_wavefront<F: eikon_grid::IndexField + ?Sized>(
     let grid = &medium.geometry;
     let h = grid.voxel_size();
     p.clear();
-    let entered = light::emit(light, grid, field, opts.patch_size * h, mask, p);
+    let size = opts.emitted_size(regions.is_some());
+    let entered = light::emit(light, grid, field, size * h, mask, p);
     add(&mut summary.entered, &entered);
     // A light inside the volume emits from a sphere one voxel across
     // (a patch needs an area): what the medium absorbs within it,
@@ -732,7 +771,9 @@ pub(crate) fn start_wavefront<F: eikon_grid::IndexField + ?Sized>(
 /// from emission instead, a light far outside spends its levels on
 /// reaching the volume, and one inside on nothing: the budget then either
 /// starves or lets light fanned out behind a caustic split without end
-/// (a spot through a superquadric grew past a million patches).
+/// (a spot through a superquadric grew past a million patches). `opts` as
+/// a simulation settles them ([`Options::settled`]; unsettled, the patch
+/// size of sharp interfaces).
 pub fn fluence_depth(light: &Light, grid: &eikon_grid::GridGeometry, opts: &Options) -> u8 {
     let position = match light {
         Light::Directional { .. } => return 4,
@@ -752,7 +793,7 @@ pub fn fluence_depth(light: &Light, grid: &eikon_grid::GridGeometry, opts: &Opti
             (c - position).length()
         })
         .fold(0.0, f64::max);
-    let grow = (far / near * opts.patch_size / opts.split)
+    let grow = (far / near * opts.emitted_size(true) / opts.split)
         .log2()
         .ceil()
         .max(0.0);
@@ -783,6 +824,7 @@ pub fn simulate_light_in(
     progress: Progress,
 ) -> Result<(LightVolume, Summary), Error> {
     opts.check()?;
+    let opts = &opts.settled(regions.is_some());
     let grid = &medium.geometry;
     let groups = medium.channels();
     let paper = opts.deposit == DepositRule::Paper;
@@ -931,4 +973,40 @@ pub fn simulate_light_in(
     };
     check_finite(&volume, &summary)?;
     Ok((volume, summary))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The emitted patch size: the interfaces' default unless given, and
+    /// settled options keep the size they were settled with.
+    #[test]
+    fn the_emitted_size_is_the_interfaces_default_unless_given() {
+        let o = Options::default();
+        assert_eq!(o.emitted_size(true), 0.5);
+        assert_eq!(o.emitted_size(false), 1.0);
+        let given = Options {
+            patch_size: Some(0.75),
+            ..o
+        };
+        assert_eq!(given.emitted_size(true), 0.75);
+        assert_eq!(given.emitted_size(false), 0.75);
+        for sharp in [true, false] {
+            let s = o.settled(sharp);
+            assert_eq!(s.patch_size, Some(o.emitted_size(sharp)));
+            assert_eq!(s.emitted_size(!sharp), o.emitted_size(sharp));
+        }
+        let bad = Options {
+            patch_size: Some(f64::NAN),
+            ..o
+        };
+        assert!(matches!(
+            bad.check(),
+            Err(Error::Option {
+                option: "patch-size",
+                ..
+            })
+        ));
+    }
 }

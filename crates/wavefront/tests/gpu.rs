@@ -245,18 +245,18 @@ fn gpu_paper_volumes_match_the_cpu(gpu: &Gpu) {
 fn gpu_patch_limit_and_euler_match_the_cpu(gpu: &Gpu) {
     let (scene, m) = medium(&glass_sphere(32, ""));
     let sim = GpuSimulator::new(gpu, &m).unwrap();
-    // Patches a voxel across: the cap holds back splits, so it must be
-    // above the emitted wavefront (32^2 patches a voxel across, four times
-    // that at the default half voxel).
+    // Patches a voxel across (the smoothed index's default, stated): the
+    // cap holds back splits, so it must be above the emitted wavefront
+    // (32^2 patches a voxel across, four times that at half a voxel).
     for opts in [
         Options {
             max_patches: 3000,
-            patch_size: 1.0,
+            patch_size: Some(1.0),
             ..paper()
         },
         Options {
             integrator: eikon_grid::Integrator::Euler,
-            patch_size: 1.0,
+            patch_size: Some(1.0),
             ..paper()
         },
     ] {
@@ -418,7 +418,7 @@ fn gpu_volume_larger_than_a_binding(gpu: &Gpu) {
     // Patches a voxel across: the limit on a binding bounds the patch list
     // too (2048 patches here), and the emitted wavefront must fit it.
     let voxel = |o: Options| Options {
-        patch_size: 1.0,
+        patch_size: Some(1.0),
         ..o
     };
     for opts in [voxel(fluence()), voxel(paper())] {

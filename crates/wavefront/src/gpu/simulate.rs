@@ -1349,6 +1349,7 @@ impl<'a> GpuSimulator<'a> {
         progress: Progress,
     ) -> Result<(LightVolume, Summary), Error> {
         opts.check()?;
+        let opts = &opts.settled(self.regions.is_some());
         let medium = self.medium;
         let grid = &medium.geometry;
         let ngroups = medium.channels();
