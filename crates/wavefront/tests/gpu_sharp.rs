@@ -142,11 +142,16 @@ power = [1, 1, 1]
 /// Step by step on the CPU too: runs through uniform space are the CPU's
 /// alone (`propagate::Run`), and what they deposit against the steps they
 /// stand for is `tests/light.rs`'s to check; here both backends take the
-/// same steps.
+/// same steps. Patches emitted a voxel across, as when the figures below
+/// were measured (two by two sub-patches a patch, as with the smoothed
+/// index in `gpu.rs`); [`reflections_obey_fresnel`] and
+/// [`sharp_runs_are_bitwise_repeatable`] take the default half voxel (a
+/// sub-patch a patch).
 fn opts(max_steps: usize) -> Options {
     Options {
         max_steps: Some(max_steps),
         runs: false,
+        patch_size: Some(1.0),
         ..fluence()
     }
 }
@@ -400,6 +405,7 @@ fn sharp_runs_are_bitwise_repeatable(gpu: &Gpu) {
     let sim = GpuSimulator::with_regions(gpu, &m, regions(&scene, &m)).unwrap();
     let opts = Options {
         reflections: true,
+        patch_size: None,
         ..opts(60)
     };
     let run = || sim.simulate(&scene.lights[0], &opts, &|_, _| {}).unwrap();
