@@ -485,12 +485,12 @@ direction = [0, -1, 0]
 power = [1, 1, 1]
 "#;
 
-/// `eikon simulate SCENE -o OUT --json [FLAG]`: its JSON summary and the
+/// `eikon simulate SCENE -o OUT --json [FLAGS]`: its JSON summary and the
 /// sidecar it wrote.
 fn simulate_json(
     scene: &Path,
     out: &Path,
-    flag: Option<&str>,
+    flags: &[&str],
 ) -> (serde_json::Value, serde_json::Value) {
     let mut args = vec![
         "simulate",
@@ -499,7 +499,7 @@ fn simulate_json(
         out.to_str().unwrap(),
         "--json",
     ];
-    args.extend(flag);
+    args.extend(flags);
     let run = eikon_ok(&args);
     let summary = serde_json::from_slice(&run.stdout).unwrap();
     let sidecar =
@@ -528,19 +528,8 @@ fn the_emitted_patch_size_follows_the_interfaces_unless_given() {
     .into_iter()
     .enumerate()
     {
-        let out = dir.path().join(format!("light{i}"));
-        let mut args = vec![
-            "simulate",
-            scene.to_str().unwrap(),
-            "-o",
-            out.to_str().unwrap(),
-            "--json",
-        ];
-        args.extend(flags);
-        let summary: serde_json::Value = serde_json::from_slice(&eikon_ok(&args).stdout).unwrap();
-        let sidecar: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(out.join("light_volumes.json")).unwrap())
-                .unwrap();
+        let (summary, sidecar) =
+            simulate_json(&scene, &dir.path().join(format!("light{i}")), flags);
         assert_eq!(
             sidecar["options"]["patch_size_voxels"].as_f64(),
             Some(size),
@@ -563,7 +552,7 @@ fn simulate_traces_reflected_light_unless_told_not_to() {
     let scene = write_scene(dir.path(), "slab.toml", SLAB);
     for (flag, want) in [(None, 1.04), (Some("--no-reflections"), 1.0)] {
         let out = dir.path().join(format!("light{}", flag.is_some()));
-        let (summary, sidecar) = simulate_json(&scene, &out, flag);
+        let (summary, sidecar) = simulate_json(&scene, &out, flag.as_slice());
         let light = &summary["lights"][0];
         let traced = light["reflections"].as_u64().unwrap_or(0);
         let reflected = light["energy_w"]["reflected"][0].as_f64().unwrap();
@@ -607,7 +596,7 @@ fn simulate_without_runs_says_so_and_reads_the_same() {
     let mut read = Vec::new();
     for flag in [None, Some("--no-runs")] {
         let out = dir.path().join(format!("runs{}", flag.is_none()));
-        let (summary, sidecar) = simulate_json(&scene, &out, flag);
+        let (summary, sidecar) = simulate_json(&scene, &out, flag.as_slice());
         let exited = summary["lights"][0]["energy_w"]["exited"][0]
             .as_f64()
             .unwrap();
