@@ -21,7 +21,17 @@
 use crate::histopyramid::HistoPyramid;
 use crate::patch::{area, normal, span, Patches, Split};
 use eikon_grid::{GridGeometry, IndexField, RayState};
+use eikon_shader::{nothing, Module};
 use rayon::prelude::*;
+
+/// The WGSL of [`below`] and of [`Incident::at`] for a point or spot
+/// light (`point_irradiance`), which the GPU's tessellation analysis calls.
+pub static WGSL: Module = Module {
+    name: "refine",
+    requires: &[&eikon_shader::VECTOR, &eikon_optics::spot::WGSL],
+    declarations: nothing,
+    text: include_str!("refine.wgsl"),
+};
 
 /// Why patches left the list, and how much flux they took with them.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -252,7 +262,10 @@ impl Seen {
         // thousands of steps. It ends still travelling, its flux counted as
         // trapped: in clear glass that is most of what total internal
         // reflection holds (it splits without dimming until it is faint).
-        if rules.faint > 0.0 && below(&f, rules.faint, &rules.incident.at(mid)) {
+        // The light's own irradiance at the midpoint, once for both tests
+        // (a point light's costs a square root and its cone).
+        let incident = rules.incident.at(mid);
+        if rules.faint > 0.0 && below(&f, rules.faint, &incident) {
             return Fate::Faint;
         }
         if rules.cull_caustics && normal(&x).dot(dir()) <= 0.0 {
@@ -265,7 +278,7 @@ impl Seen {
                 // to any cell: it is not worth more patches (it deposits along
                 // its corner rays once it is over two voxels across,
                 // `deposit::tube`).
-                if below(&f, rules.dim * area(&x), &rules.incident.at(mid)) {
+                if below(&f, rules.dim * area(&x), &incident) {
                     return Fate::Retain;
                 }
             }

@@ -11,12 +11,12 @@ use eikon_gpu::DISPATCH;
 use eikon_grid::geometry::{GridGpu, WGSL as GRID};
 use eikon_grid::GridGeometry;
 use eikon_shader::compose;
-use eikon_testkit::parity::{bits, v4, xyz, Cases, IO};
+use eikon_testkit::parity::{bits, f32s, v4, xyz, Cases, IO};
 use eikon_testkit::Tests;
 use eikon_wavefront::deposit::{self, Counters};
 use eikon_wavefront::patch::{area, normal, span, Split};
 use eikon_wavefront::propagate::step_depth;
-use eikon_wavefront::{histopyramid, patch, propagate, HistoPyramid};
+use eikon_wavefront::{histopyramid, patch, propagate, refine, HistoPyramid};
 use glam::DVec3;
 
 // ---------------------------------------------------------------------
@@ -604,20 +604,7 @@ fn cone(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
     }
     assert!(crossing > 100, "{crossing} steps across the bounds");
 
-    let cones: Vec<_> = (0..4000)
-        .map(|k| {
-            let axis = r.v(-1.0, 1.0).normalize();
-            let angle = r.f(5.0, 80.0);
-            let falloff = if k % 4 == 0 { 0.0 } else { r.f(1.0, angle) };
-            // Directions spread around the cone's edge.
-            let theta = (angle + r.f(-1.5 * falloff - 5.0, 5.0)).clamp(0.0, 179.0);
-            let side = axis.any_orthonormal_vector();
-            let t = theta.to_radians();
-            let dir = axis * t.cos() + side * t.sin();
-            let f = |v: DVec3| DVec3::new(v.x as f32 as f64, v.y as f32 as f64, v.z as f32 as f64);
-            (f(dir), f(axis), angle, falloff)
-        })
-        .collect();
+    let cones: Vec<_> = (0..4000).map(|k| around_a_cone(&mut r, k)).collect();
     let inputs: Vec<[f32; 4]> = cones
         .iter()
         .flat_map(|&(d, a, angle, fall)| [v4(d, angle), v4(a, fall)])
@@ -627,22 +614,202 @@ fn cone(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
     for (k, &(d, a, angle, fall)) in cones.iter().enumerate() {
         let want = eikon_optics::spot::cone_weight(d, Some((a, angle, fall)));
         let got = out[2 * k][0] as f64;
-        // Within f32 rounding of the edge or of the band's inner edge the
-        // weight may fall either side of a kink.
-        let theta = d.dot(a).clamp(-1.0, 1.0).acos().to_degrees();
-        if (theta - angle).abs() < 0.01 || (theta - (angle - fall)).abs() < 0.01 {
+        let Some(tol) = cone_tolerance(d, a, angle, fall) else {
             continue;
-        }
-        // Vulkan allows acos an error of 4096 ulp of the angle (it is
-        // inherited from atan2), and the band's slope is at most
-        // 1.5 / falloff per degree.
-        let ulp = theta.to_radians() * f32::EPSILON as f64;
-        let slope = if fall > 0.0 { 1.5 / fall } else { 0.0 };
-        let tol = slope * (4096.0 * ulp).to_degrees() + 1e-6;
+        };
+        let tol = tol + 1e-6;
         assert!((got - want).abs() < tol, "cone {k}: {got} vs {want}");
         checked += 1;
     }
     assert!(checked > 3800, "{checked}");
+}
+
+/// A spot's cone and a direction around its edge, `(dir, axis, angle,
+/// falloff)` (degrees; the vectors rounded to f32): the `k`th of a series
+/// in which every fourth cone has no falloff band.
+fn around_a_cone(r: &mut Cases, k: usize) -> (DVec3, DVec3, f64, f64) {
+    let axis = r.v(-1.0, 1.0).normalize();
+    let angle = r.f(5.0, 80.0);
+    let falloff = if k.is_multiple_of(4) { 0.0 } else { r.f(1.0, angle) };
+    // Directions spread around the cone's edge.
+    let theta = (angle + r.f(-1.5 * falloff - 5.0, 5.0)).clamp(0.0, 179.0);
+    let side = axis.any_orthonormal_vector();
+    let t = theta.to_radians();
+    let dir = axis * t.cos() + side * t.sin();
+    (f32s(dir), f32s(axis), angle, falloff)
+}
+
+/// How far the GPU's cone weight of the unit `dir` may stray from the
+/// CPU's: Vulkan allows acos an error of 4096 ulp of the angle (it is
+/// inherited from atan2), times the band's slope (at most 1.5 / falloff
+/// per degree). `None` within f32 rounding of the edge or of the band's
+/// inner edge, where the weight may fall either side of a kink.
+fn cone_tolerance(dir: DVec3, axis: DVec3, angle: f64, falloff: f64) -> Option<f64> {
+    let theta = dir.dot(axis).clamp(-1.0, 1.0).acos().to_degrees();
+    if (theta - angle).abs() < 0.01 || (theta - (angle - falloff)).abs() < 0.01 {
+        return None;
+    }
+    let ulp = theta.to_radians() * f32::EPSILON as f64;
+    let slope = if falloff > 0.0 { 1.5 / falloff } else { 0.0 };
+    Some(slope * (4096.0 * ulp).to_degrees())
+}
+
+// ---------------------------------------------------------------------
+// The tessellation analysis's light tests: `refine::below` and a point
+// or spot light's `refine::Incident::at`.
+
+fn the_faint_test_and_a_point_lights_irradiance_match_the_cpu(gpu: &Gpu) {
+    let main = format!(
+        "{IO}
+// Input: (flux, k), (incident, 0).
+@compute @workgroup_size(WORKGROUP)
+fn faint(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if 2u * i >= arrayLength(&input) {{
+        return;
+    }}
+    let a = input[2u * i];
+    output[2u * i] = vec4<f32>(select(0.0, 1.0, below(a.xyz, a.w, input[2u * i + 1u].xyz)));
+}}
+
+// Input: (x, spot), (position, angle), (power, falloff), (axis, 0).
+@compute @workgroup_size(WORKGROUP)
+fn irradiance(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if 4u * i >= arrayLength(&input) {{
+        return;
+    }}
+    let x = input[4u * i];
+    let p = input[4u * i + 1u];
+    let w = input[4u * i + 2u];
+    let axis = input[4u * i + 3u].xyz;
+    output[4u * i] = vec4<f32>(point_irradiance(x.xyz, p.xyz, w.xyz, x.w > 0.5, axis, p.w, w.w), 0.0);
+}}
+"
+    );
+    let source = compose("", &[&DISPATCH, &refine::WGSL], &main);
+    let mut r = Cases::new(47);
+    let f = |x: f64| x as f32 as f64;
+
+    // Each channel's flux near, above or below k times its irradiance,
+    // or a channel the light does not carry.
+    let cases: Vec<([f64; 3], f64, [f64; 3])> = (0..4000)
+        .map(|_| {
+            let k = f(r.f(0.05, 4.0));
+            let mut flux = [0.0; 3];
+            let mut incident = [0.0; 3];
+            for c in 0..3 {
+                let u = r.f(0.0, 1.0);
+                incident[c] = if u < 0.15 { 0.0 } else { f(r.f(0.01, 3.0)) };
+                let scale = if r.f(0.0, 1.0) < 0.7 {
+                    r.f(0.99, 1.01)
+                } else {
+                    r.f(0.0, 3.0)
+                };
+                flux[c] = f(if incident[c] > 0.0 {
+                    k * incident[c] * scale
+                } else {
+                    r.f(0.0, 2.0)
+                });
+            }
+            (flux, k, incident)
+        })
+        .collect();
+    let inputs: Vec<[f32; 4]> = cases
+        .iter()
+        .flat_map(|&(fl, k, inc)| {
+            [
+                v4(DVec3::from_array(fl), k),
+                v4(DVec3::from_array(inc), 0.0),
+            ]
+        })
+        .collect();
+    let out = gpu.eval(&source, "faint", &inputs, 1, &[]).unwrap();
+    let (mut yes, mut no, mut carried_not) = (0, 0, 0);
+    for (n, &(fl, k, inc)) in cases.iter().enumerate() {
+        // The GPU rounds k * incident to f32: a channel within that
+        // rounding of the edge may fall either way.
+        if (0..3).any(|c| inc[c] > 0.0 && (fl[c] - k * inc[c]).abs() <= 1e-6 * k * inc[c]) {
+            continue;
+        }
+        let want = refine::below(&fl, k, &inc);
+        let got = out[2 * n][0] == 1.0;
+        assert_eq!(got, want, "case {n}: flux {fl:?}, k {k}, incident {inc:?}");
+        if want {
+            yes += 1;
+        } else {
+            no += 1;
+        }
+        carried_not += usize::from(inc.contains(&0.0));
+    }
+    assert!(
+        yes > 300 && no > 300 && carried_not > 1000,
+        "{yes} below, {no} not, {carried_not} with a channel not carried"
+    );
+
+    // Point and spot lights, with the receiving point around the cone's
+    // edge for a spot.
+    let lights: Vec<_> = (0..3000)
+        .map(|k| {
+            let position = r.v(-2.0, 2.0);
+            let power = DVec3::new(r.f(0.0, 5.0), r.f(0.0, 5.0), r.f(0.1, 5.0));
+            let spot = k % 2 == 1;
+            let (dir, axis, angle, falloff) = if spot {
+                around_a_cone(&mut r, k / 2)
+            } else {
+                (r.v(-1.0, 1.0).normalize(), DVec3::Z, 0.0, 0.0)
+            };
+            let x = f32s(position + dir * r.f(0.05, 3.0));
+            (
+                x,
+                f32s(position),
+                f32s(power),
+                spot,
+                f32s(axis),
+                f(angle),
+                f(falloff),
+            )
+        })
+        .collect();
+    let inputs: Vec<[f32; 4]> = lights
+        .iter()
+        .flat_map(|&(x, p, w, spot, axis, angle, fall)| {
+            [
+                v4(x, if spot { 1.0 } else { 0.0 }),
+                v4(p, angle),
+                v4(w, fall),
+                v4(axis, 0.0),
+            ]
+        })
+        .collect();
+    let out = gpu.eval(&source, "irradiance", &inputs, 1, &[]).unwrap();
+    let (mut points, mut spots) = (0, 0);
+    for (n, &(x, p, w, spot, axis, angle, fall)) in lights.iter().enumerate() {
+        let cone = spot.then_some((axis, angle, fall));
+        let incident = refine::Incident::Point {
+            position: p,
+            power: w.to_array(),
+            cone,
+        };
+        let want = DVec3::from_array(incident.at(x));
+        let got = xyz(out[4 * n]);
+        let unweighted = w.length() / (4.0 * std::f64::consts::PI * (x - p).length_squared());
+        let mut tol = 1e-5 * unweighted;
+        if spot {
+            let Some(cone) = cone_tolerance((x - p).normalize(), axis, angle, fall) else {
+                continue;
+            };
+            tol += unweighted * cone;
+            spots += 1;
+        } else {
+            points += 1;
+        }
+        assert!((got - want).length() <= tol, "light {n}: {got} vs {want}");
+    }
+    assert!(
+        points > 1400 && spots > 1300,
+        "{points} point lights, {spots} spots"
+    );
 }
 
 fn main() {
@@ -666,6 +833,10 @@ fn main() {
         .gpu(
             "step_depth_and_the_spot_cone_match_the_cpu",
             step_depth_and_the_spot_cone_match_the_cpu,
+        )
+        .gpu(
+            "the_faint_test_and_a_point_lights_irradiance_match_the_cpu",
+            the_faint_test_and_a_point_lights_irradiance_match_the_cpu,
         )
         .run()
 }

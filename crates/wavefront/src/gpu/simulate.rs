@@ -526,6 +526,7 @@ pub fn source() -> String {
             &deposit::WGSL,
             &propagate::WGSL,
             &histopyramid::WGSL,
+            &crate::refine::WGSL,
             &eikon_grid::region::STEP_WGSL,
         ],
         SOURCE,

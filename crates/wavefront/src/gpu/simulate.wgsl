@@ -492,19 +492,7 @@ fn incident_at(x: vec3<f32>) -> vec3<f32> {
     if P.incident_kind == INCIDENT_UNIFORM {
         return P.incident_power;
     }
-    let d = x - P.incident_position;
-    let r2 = dot(d, d);
-    var w = 1.0;
-    if P.incident_kind == INCIDENT_SPOT {
-        w = spot_cone_weight(d / sqrt(r2), P.cone_axis, P.cone_angle, P.cone_falloff);
-    }
-    return P.incident_power * (w / (4.0 * PI * r2));
-}
-
-// Whether flux is below k times the irradiance `incident` in every channel
-// the light carries (`refine::below`).
-fn below(flux: vec3<f32>, k: f32, incident: vec3<f32>) -> bool {
-    return all((incident <= vec3<f32>(0.0)) | (flux < k * incident));
+    return point_irradiance(x, P.incident_position, P.incident_power, P.incident_kind == INCIDENT_SPOT, P.cone_axis, P.cone_angle, P.cone_falloff);
 }
 
 // `refine::fate`.
