@@ -630,7 +630,11 @@ fn cone(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
 fn around_a_cone(r: &mut Cases, k: usize) -> (DVec3, DVec3, f64, f64) {
     let axis = r.v(-1.0, 1.0).normalize();
     let angle = r.f(5.0, 80.0);
-    let falloff = if k.is_multiple_of(4) { 0.0 } else { r.f(1.0, angle) };
+    let falloff = if k.is_multiple_of(4) {
+        0.0
+    } else {
+        r.f(1.0, angle)
+    };
     // Directions spread around the cone's edge.
     let theta = (angle + r.f(-1.5 * falloff - 5.0, 5.0)).clamp(0.0, 179.0);
     let side = axis.any_orthonormal_vector();
