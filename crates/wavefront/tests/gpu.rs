@@ -511,11 +511,12 @@ fn gpu_256_cubed(gpu: &Gpu) {
 
 /// The estimate of device memory checked before a run
 /// ([`GpuSimulator::device_bytes`]) covers what the simulator holds at its
-/// peak ([`Gpu::peak_bytes`] over constructing it and simulating 64 steps
-/// of all three lights of the glass sphere), and by at most a quarter more (plus 64
-/// KiB): with and without dispersion and Fresnel, with either deposit,
-/// with `max_patches` below the wavefronts' natural peak so that the
-/// lists reach their cap (from the first step, and grown by doubling).
+/// peak ([`Gpu::peak_bytes`] over constructing it and simulating 64
+/// steps of all three lights of the glass sphere), and by at most a
+/// quarter more (plus 64 KiB): with and without dispersion and Fresnel,
+/// with either deposit, with `max_patches` below the wavefronts' natural
+/// peak so that the lists reach their cap (from the first step, and grown
+/// by doubling).
 /// Everything is freed afterwards. One test per case (named in
 /// [`DEVICE_BYTES_CASES`]), so that the harness runs them side by side.
 /// The case whose lists grow simulates the point light alone: its lists
