@@ -769,7 +769,7 @@ fn irradiance(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgro
                 f32s(position),
                 f32s(power),
                 spot,
-                f32s(axis),
+                axis,
                 f(angle),
                 f(falloff),
             )
