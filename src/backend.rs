@@ -73,13 +73,20 @@ impl Backend {
     /// With `[grid] interfaces = "sharp"` the simulation crosses the
     /// scene's exact surfaces (on the GPU, for the shapes its region table
     /// holds: `eikon_grid::region::gpu_regions`).
-    pub fn simulator<'a>(&'a self, medium: &'a Medium, scene: &'a Scene) -> Result<Simulator<'a>> {
+    /// `regions`, where given, are the scene's regions already cleared
+    /// ([`eikon_grid::Regions::clear_of`]) of a medium whose boundary
+    /// indicator is since released.
+    pub fn simulator<'a>(
+        &'a self,
+        medium: &'a Medium,
+        scene: &'a Scene,
+        regions: Option<eikon_grid::Regions<'a>>,
+    ) -> Result<Simulator<'a>> {
         let sharp = scene.grid.interfaces == eikon_grid::Interfaces::Sharp;
+        let regions =
+            || regions.unwrap_or_else(|| eikon_grid::Regions::new(scene).clear_of(medium));
         Ok(match self {
-            Backend::Cpu => Simulator::Cpu(
-                medium,
-                sharp.then(|| Box::new(eikon_grid::Regions::new(scene).clear_of(medium))),
-            ),
+            Backend::Cpu => Simulator::Cpu(medium, sharp.then(|| Box::new(regions()))),
             #[cfg(feature = "gpu")]
             Backend::Gpu(g) => {
                 use eikon_wavefront::gpu::GpuSimulator;
@@ -87,11 +94,7 @@ impl Backend {
                 // half-spaces; any other object is an error naming it (and
                 // the way out: --backend cpu or --interfaces smoothed).
                 let sim = if sharp {
-                    GpuSimulator::with_regions(
-                        g,
-                        medium,
-                        eikon_grid::Regions::new(scene).clear_of(medium),
-                    )?
+                    GpuSimulator::with_regions(g, medium, regions())?
                 } else {
                     GpuSimulator::new(g, medium)?
                 };

@@ -106,7 +106,7 @@ fn one(name: &str, text: &str, backend: Backend, args: &Args) -> Result<Value> {
     let mut volumes = Vec::new();
     let mut patches = 0;
     // The GPU uploads the medium once, untimed.
-    let sim = backend.simulator(&medium, &scene)?;
+    let sim = backend.simulator(&medium, &scene, None)?;
     let bname = backend.name();
     eprintln!("  {name} on {bname}: {}", crate::grid::describe(&scene));
     // Round trips to the GPU per simulation (all lights): the same every run.

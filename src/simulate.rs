@@ -279,14 +279,18 @@ pub fn run(args: Args) -> Result<()> {
     // voxels it needs only the boundary indicator. Else what only
     // renderers read goes before the light volumes' counters are
     // allocated.
-    let medium = if args.reads_surfaces_alone(&scene, &backend)? {
-        build_surfaces(&scene)?
+    // Of the surfaces alone the regions read the boundary indicator once
+    // (`Regions::clear_of`); it goes before the counters come.
+    if args.reads_surfaces_alone(&scene, &backend)? {
+        let mut medium = build_surfaces(&scene)?;
+        let regions = eikon_grid::Regions::new(&scene).clear_of(&medium);
+        medium.release_boundary();
+        simulate_in(&args, &scene, &medium, &backend, Some(regions))?;
     } else {
         let mut medium = build_medium(&scene)?;
         medium.release_render_properties();
-        medium
-    };
-    simulate(&args, &scene, &medium, &backend)?;
+        simulate(&args, &scene, &medium, &backend)?;
+    }
     Ok(())
 }
 
@@ -490,6 +494,19 @@ pub fn simulate(
     medium: &Medium,
     backend: &Backend,
 ) -> Result<Vec<LightVolume>> {
+    simulate_in(args, scene, medium, backend, None)
+}
+
+/// [`simulate`] with the scene's `regions` already cleared of the medium
+/// (`Regions::clear_of`), where given: a medium of the surfaces alone
+/// whose boundary indicator was released.
+fn simulate_in<'a>(
+    args: &Args,
+    scene: &'a Scene,
+    medium: &'a Medium,
+    backend: &'a Backend,
+    regions: Option<eikon_grid::Regions<'a>>,
+) -> Result<Vec<LightVolume>> {
     // The emitted patch size settled for the interfaces, as the run records it.
     let mut opts = args
         .options()?
@@ -543,8 +560,9 @@ pub fn simulate(
         SimMethod::Wavefront => backend,
         SimMethod::Photons => &Backend::Cpu,
     };
-    let sim = on.simulator(medium, scene)?;
-    let photon_regions = (scene.grid.interfaces == eikon_grid::Interfaces::Sharp)
+    let sim = on.simulator(medium, scene, regions)?;
+    let photon_regions = (args.method == SimMethod::Photons
+        && scene.grid.interfaces == eikon_grid::Interfaces::Sharp)
         .then(|| eikon_grid::Regions::new(scene).clear_of(medium));
     let sim_backend = on.describe();
     let mut results: Vec<(LightVolume, Summary, f64)> = Vec::new();

@@ -289,6 +289,16 @@ impl Medium {
         self.emission = Array4::zeros((0, 0, 0, 3));
     }
 
+    /// Free the boundary indicator of a medium of the surfaces alone
+    /// ([`Self::build_surfaces_within`]) once [`crate::Regions::clear_of`]
+    /// has read it: the light with sharp interfaces reads nothing else of
+    /// the voxels, and the deposit's counters are allocated after it.
+    /// [`crate::Regions::clear_of`] on the medium then goes by the shapes'
+    /// distance bounds alone.
+    pub fn release_boundary(&mut self) {
+        self.boundary = Array3::zeros((0, 0, 0));
+    }
+
     /// Smallest and largest index over all channels.
     pub fn index_range(&self) -> (f32, f32) {
         self.index_bounds

@@ -200,15 +200,19 @@ impl<'a> Regions<'a> {
     }
 
     /// Skip the surface tests and owner queries far from every surface,
-    /// as the boundary indicator of `medium` (built from this scene) shows
-    /// it (see [`Clear`]). Results are the same; only the work differs.
+    /// as the shapes' distance bounds and the boundary indicator of
+    /// `medium` (built from this scene; the bounds alone once
+    /// [`Medium::release_boundary`] freed it) show it (see [`Clear`]).
+    /// Results are the same; only the work differs.
     pub fn clear_of(mut self, medium: &Medium) -> Self {
         let g = &medium.geometry;
         if g.dims != self.scene.grid.geometry.dims {
             return self;
         }
         let blocks = BlockGrid::new(g);
-        let bnd = &medium.boundary;
+        // Released (`Medium::release_boundary`): the distance bounds alone.
+        let bnd = (medium.boundary.dim() == (g.dims[0], g.dims[1], g.dims[2]))
+            .then_some(&medium.boundary);
         let reach = g.spacing().min_element();
         // A point of the block lies within half its diagonal of the centre;
         // a piece from it within `reach` more. Where every shape's distance
@@ -223,7 +227,7 @@ impl<'a> Regions<'a> {
                 let b = blocks.coords(f);
                 let c = blocks.centre(b);
                 if objects.iter().all(|o| o.shape.distance(c).abs() > far)
-                    || blocks.all_around(b, |i, j, k| bnd[[i, j, k]] == 0.0)
+                    || bnd.is_some_and(|bnd| blocks.all_around(b, |i, j, k| bnd[[i, j, k]] == 0.0))
                 {
                     match self.scene.owner(c) {
                         None => 1,

@@ -437,7 +437,8 @@ impl IndexField for RegionIndex<'_> {
     }
 }
 
-/// Flux that left the beams in one step, per patch.
+/// Flux that left the beams in one step, summed over a [`CHUNK`] of
+/// patches.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Loss {
     /// RGB flux absorbed or scattered away [Ihrke07 eq 18].
@@ -454,11 +455,52 @@ pub struct Loss {
     pub reflections: usize,
 }
 
+impl Loss {
+    /// Add what `other` lost.
+    #[inline]
+    fn add(&mut self, other: &Loss) {
+        for c in 0..3 {
+            self.absorbed[c] += other.absorbed[c];
+            self.reflected[c] += other.reflected[c];
+            self.torn[c] += other.torn[c];
+        }
+        self.torn_pieces += other.torn_pieces;
+        self.reflections += other.reflections;
+    }
+}
+
+/// Patches per [`Loss`] of [`propagate`]: each chunk sums its patches'
+/// losses in order, and the chunks fall at the same patches whatever the
+/// thread count, so the sums are the same bits (a loss per patch took 88
+/// bytes beside each patch's record, at the peak of the list).
+pub const CHUNK: usize = 1024;
+
+/// The four corner lists in [`CHUNK`]s, side by side.
+fn corner_chunks(
+    corner: &mut [Vec<RayState>; 4],
+) -> impl IndexedParallelIterator<
+    Item = (
+        &mut [RayState],
+        &mut [RayState],
+        &mut [RayState],
+        &mut [RayState],
+    ),
+> {
+    let [c0, c1, c2, c3] = corner;
+    (
+        c0.par_chunks_mut(CHUNK),
+        c1.par_chunks_mut(CHUNK),
+        c2.par_chunks_mut(CHUNK),
+        c3.par_chunks_mut(CHUNK),
+    )
+        .into_par_iter()
+}
+
 /// Advance every patch by one equal-time step `dt` (optical path, world
 /// units), deposit the tube each patch sweeps into the tally, attenuate its
 /// flux [Ihrke07 eq 18] and apply Fresnel transmission where it crosses an
-/// interface. `losses` receives, per patch, the flux taken out of the beam
-/// in this step.
+/// interface. `losses` receives, per [`CHUNK`] of patches, the flux taken
+/// out of the beam in this step.
 pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
     if let Some(sharp) = step.sharp {
         propagate_sharp(patches, step, sharp, losses);
@@ -479,58 +521,77 @@ pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
     } = step;
     let field = field.expect("the smoothed index steps through its voxel field");
     losses.clear();
-    losses.resize(patches.len(), Loss::default());
-    let [c0, c1, c2, c3] = &mut patches.corner;
+    losses.resize(patches.len().div_ceil(CHUNK), Loss::default());
+    let one = |a: &mut RayState,
+               b: &mut RayState,
+               c: &mut RayState,
+               d: &mut RayState,
+               flux: &mut [f64; 3],
+               flux0: [f64; 3],
+               depth: u8,
+               lost: &mut Loss| {
+        let mut corners = [*a, *b, *c, *d];
+        if uniform_run(step, None, &mut corners, flux, Kin { flux0, depth }, lost) {
+            [*a, *b, *c, *d] = corners;
+            return;
+        }
+        let x0 = [a.x, b.x, c.x, d.x];
+        let m0 = (x0[0] + x0[1] + x0[2] + x0[3]) * 0.25;
+        let before = extinction_per_index(medium, field, empty, m0);
+        for s in [&mut *a, &mut *b, &mut *c, &mut *d] {
+            // On the shell |v| = n, so each corner advances exactly dt
+            // of optical path and the four stay on one wavefront.
+            match integrator {
+                Integrator::Euler => step_euler_on_shell(field, Form::EqualTime, s, dt),
+                _ => step_rk4_on_shell(field, Form::EqualTime, s, dt),
+            }
+        }
+        let x1 = [a.x, b.x, c.x, d.x];
+        let m1 = (x1[0] + x1[1] + x1[2] + x1[3]) * 0.25;
+        let after = extinction_per_index(medium, field, empty, m1);
+        let depth = step_depth(&medium.geometry, m0, m1, before, after, dt);
+        if let Some(t) = tally {
+            deposit::tube(t, &x0, &x1, flux, depth, group);
+        }
+        for ch in 0..3 {
+            let kept = flux[ch] * (-depth[ch]).exp();
+            lost.absorbed[ch] = flux[ch] - kept;
+            flux[ch] = kept;
+        }
+        if let Some(faces) = interfaces {
+            let v = (a.v + b.v + c.v + d.v) * 0.25;
+            let t = faces.transmittance(medium, field, (m0 + m1) * 0.5, v, m1 - m0, channel);
+            if t < 1.0 {
+                for (f, r) in flux.iter_mut().zip(lost.reflected.iter_mut()) {
+                    let kept = *f * t;
+                    *r = *f - kept;
+                    *f = kept;
+                }
+            }
+        }
+    };
     (
-        c0.par_iter_mut(),
-        c1.par_iter_mut(),
-        c2.par_iter_mut(),
-        c3.par_iter_mut(),
-        patches.flux.par_iter_mut(),
-        patches.flux0.par_iter(),
-        patches.depth.par_iter(),
+        corner_chunks(&mut patches.corner),
+        patches.flux.par_chunks_mut(CHUNK),
+        patches.flux0.par_chunks(CHUNK),
+        patches.depth.par_chunks(CHUNK),
         losses.par_iter_mut(),
     )
         .into_par_iter()
-        .for_each(|(a, b, c, d, flux, &flux0, &depth, lost)| {
-            let mut corners = [*a, *b, *c, *d];
-            if uniform_run(step, None, &mut corners, flux, Kin { flux0, depth }, lost) {
-                [*a, *b, *c, *d] = corners;
-                return;
-            }
-            let x0 = [a.x, b.x, c.x, d.x];
-            let m0 = (x0[0] + x0[1] + x0[2] + x0[3]) * 0.25;
-            let before = extinction_per_index(medium, field, empty, m0);
-            for s in [&mut *a, &mut *b, &mut *c, &mut *d] {
-                // On the shell |v| = n, so each corner advances exactly dt
-                // of optical path and the four stay on one wavefront.
-                match integrator {
-                    Integrator::Euler => step_euler_on_shell(field, Form::EqualTime, s, dt),
-                    _ => step_rk4_on_shell(field, Form::EqualTime, s, dt),
-                }
-            }
-            let x1 = [a.x, b.x, c.x, d.x];
-            let m1 = (x1[0] + x1[1] + x1[2] + x1[3]) * 0.25;
-            let after = extinction_per_index(medium, field, empty, m1);
-            let depth = step_depth(&medium.geometry, m0, m1, before, after, dt);
-            if let Some(t) = tally {
-                deposit::tube(t, &x0, &x1, flux, depth, group);
-            }
-            for ch in 0..3 {
-                let kept = flux[ch] * (-depth[ch]).exp();
-                lost.absorbed[ch] = flux[ch] - kept;
-                flux[ch] = kept;
-            }
-            if let Some(faces) = interfaces {
-                let v = (a.v + b.v + c.v + d.v) * 0.25;
-                let t = faces.transmittance(medium, field, (m0 + m1) * 0.5, v, m1 - m0, channel);
-                if t < 1.0 {
-                    for (f, r) in flux.iter_mut().zip(lost.reflected.iter_mut()) {
-                        let kept = *f * t;
-                        *r = *f - kept;
-                        *f = kept;
-                    }
-                }
+        .for_each(|((a, b, c, d), flux, flux0, depth, sum)| {
+            for k in 0..a.len() {
+                let mut lost = Loss::default();
+                one(
+                    &mut a[k],
+                    &mut b[k],
+                    &mut c[k],
+                    &mut d[k],
+                    &mut flux[k],
+                    flux0[k],
+                    depth[k],
+                    &mut lost,
+                );
+                sum.add(&lost);
             }
         });
 }
@@ -551,78 +612,110 @@ struct Piece {
 /// (deterministic; the GPU's order too).
 fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &mut Vec<Loss>) {
     losses.clear();
-    losses.resize(patches.len(), Loss::default());
-    let [c0, c1, c2, c3] = &mut patches.corner;
-    let extra: Vec<(usize, Vec<Piece>)> = (
-        c0.par_iter_mut(),
-        c1.par_iter_mut(),
-        c2.par_iter_mut(),
-        c3.par_iter_mut(),
-        patches.flux.par_iter_mut(),
-        patches.flux0.par_iter_mut(),
-        patches.area0.par_iter_mut(),
-        patches.kept.par_iter_mut(),
-        patches.depth.par_iter_mut(),
+    losses.resize(patches.len().div_ceil(CHUNK), Loss::default());
+    // One patch: `None` where it carries on alone in its slot, else its
+    // pieces for after the list.
+    #[allow(clippy::type_complexity)]
+    let one = |(a, b, c, d, flux, flux0, area0, kept, depth): (
+        &mut RayState,
+        &mut RayState,
+        &mut RayState,
+        &mut RayState,
+        &mut [f64; 3],
+        &mut [f64; 3],
+        &mut f64,
+        &mut f64,
+        &mut u8,
+    ),
+               lost: &mut Loss|
+     -> Option<Vec<Piece>> {
+        let corners = [*a, *b, *c, *d];
+        let kin = Kin {
+            flux0: *flux0,
+            depth: *depth,
+        };
+        let before = *kept;
+        if let Some(moved) = sharp_patch(step, sharp, &corners, flux, kept, kin, lost) {
+            [*a, *b, *c, *d] = moved;
+            let start = corners.map(|c| c.x);
+            let piece =
+                crossing_done(step, sharp, &start, &moved, (flux, flux0), kept, true, lost)?;
+            return Some(vec![Piece {
+                flux0: *flux0,
+                area0: *area0,
+                ..piece
+            }]);
+        }
+        // Torn: split where the step began and trace the pieces.
+        let mut pieces = Vec::new();
+        // The pieces' depth is the patch's after the split.
+        split_and_trace(
+            step,
+            sharp,
+            &corners,
+            *flux,
+            Kin {
+                flux0: *flux0,
+                depth: depth.saturating_add(1),
+            },
+            *area0,
+            before,
+            1,
+            &mut pieces,
+            lost,
+        );
+        *depth = depth.saturating_add(1);
+        if pieces.is_empty() {
+            // Every piece was dropped: the patch carries nothing on
+            // and ends at the next refine.
+            *flux = [0.0; 3];
+            return None;
+        }
+        let p = pieces.remove(0);
+        [*a, *b, *c, *d] = p.corners;
+        *flux = p.flux;
+        *flux0 = p.flux0;
+        *area0 = p.area0;
+        *kept = p.kept;
+        Some(pieces)
+    };
+    let extra: Vec<Vec<(usize, Vec<Piece>)>> = (
+        corner_chunks(&mut patches.corner),
+        patches.flux.par_chunks_mut(CHUNK),
+        patches.flux0.par_chunks_mut(CHUNK),
+        patches.area0.par_chunks_mut(CHUNK),
+        patches.kept.par_chunks_mut(CHUNK),
+        patches.depth.par_chunks_mut(CHUNK),
         losses.par_iter_mut(),
     )
         .into_par_iter()
         .enumerate()
-        .filter_map(|(i, (a, b, c, d, flux, flux0, area0, kept, depth, lost))| {
-            let corners = [*a, *b, *c, *d];
-            let kin = Kin {
-                flux0: *flux0,
-                depth: *depth,
-            };
-            let before = *kept;
-            if let Some(moved) = sharp_patch(step, sharp, &corners, flux, kept, kin, lost) {
-                [*a, *b, *c, *d] = moved;
-                let start = corners.map(|c| c.x);
-                let piece =
-                    crossing_done(step, sharp, &start, &moved, (flux, flux0), kept, true, lost)?;
-                return Some((
-                    i,
-                    vec![Piece {
-                        flux0: *flux0,
-                        area0: *area0,
-                        ..piece
-                    }],
-                ));
-            }
-            // Torn: split where the step began and trace the pieces.
-            let mut pieces = Vec::new();
-            // The pieces' depth is the patch's after the split.
-            split_and_trace(
-                step,
-                sharp,
-                &corners,
-                *flux,
-                Kin {
-                    flux0: *flux0,
-                    depth: depth.saturating_add(1),
-                },
-                *area0,
-                before,
-                1,
-                &mut pieces,
-                lost,
-            );
-            *depth = depth.saturating_add(1);
-            if pieces.is_empty() {
-                // Every piece was dropped: the patch carries nothing on
-                // and ends at the next refine.
-                *flux = [0.0; 3];
-                return None;
-            }
-            let p = pieces.remove(0);
-            [*a, *b, *c, *d] = p.corners;
-            *flux = p.flux;
-            *flux0 = p.flux0;
-            *area0 = p.area0;
-            *kept = p.kept;
-            Some((i, pieces))
-        })
+        .map(
+            |(chunk, ((a, b, c, d), flux, flux0, area0, kept, depth, sum))| {
+                let mut extra = Vec::new();
+                for k in 0..a.len() {
+                    let mut lost = Loss::default();
+                    let patch = (
+                        &mut a[k],
+                        &mut b[k],
+                        &mut c[k],
+                        &mut d[k],
+                        &mut flux[k],
+                        &mut flux0[k],
+                        &mut area0[k],
+                        &mut kept[k],
+                        &mut depth[k],
+                    );
+                    if let Some(pieces) = one(patch, &mut lost) {
+                        extra.push((chunk * CHUNK + k, pieces));
+                    }
+                    sum.add(&lost);
+                }
+                extra
+            },
+        )
         .collect();
-    for (i, pieces) in extra {
+    for (i, pieces) in extra.into_iter().flatten() {
         let depth = patches.depth[i];
         for p in pieces {
             for (list, c) in patches.corner.iter_mut().zip(p.corners) {
@@ -637,7 +730,6 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
                 .irradiance
                 .push(p.flux.map(|f| if ar > 0.0 { f / ar } else { 0.0 }));
             patches.depth.push(depth);
-            losses.push(Loss::default());
         }
     }
 }
