@@ -16,8 +16,8 @@
 //!    and the new patch list through a [`HistoPyramid`].
 //!
 //! With `--deposit paper` ([`DepositRule::Paper`]) the paper's own steps run instead of
-//! the deposit in step 1: [`irradiance`](propagate::irradiance) ([Ihrke07 eq 17], flux over
-//! area), patches culled where they flip at a caustic, and
+//! the deposit in step 1: each patch's [`irradiance`](Patches::irradiance) ([Ihrke07 eq 17],
+//! flux over area), patches culled where they flip at a caustic, and
 //! [`PaperVolume::deposit`](deposit::paper::PaperVolume::deposit) keeping the highest-energy
 //! ray per cell [Ihrke07 sec 5.2.2].
 //!
@@ -722,11 +722,10 @@ pub(crate) fn start_wavefront<F: eikon_grid::IndexField + ?Sized>(
                     deposit::tube(t, &at, &p.positions(i), &p.flux[i], depth, group);
                 });
             }
-            for (f, e) in p.flux.iter_mut().zip(p.irradiance.iter_mut()) {
+            for f in p.flux.iter_mut() {
                 for c in 0..3 {
                     summary.absorbed_power[c] += f[c] * (1.0 - kept[c]);
                     f[c] *= kept[c];
-                    e[c] *= kept[c];
                 }
             }
         }
@@ -936,9 +935,6 @@ pub fn simulate_light_in(
                 add(&mut summary.torn_power, &l.torn);
                 summary.torn += l.torn_pieces;
                 summary.reflections += l.reflections;
-            }
-            if paper {
-                propagate::irradiance(&mut p);
             }
             let ended = refine::refine(
                 &mut p,

@@ -322,7 +322,7 @@ mod tests {
         // Irradiance at the start sphere is power / (4 pi r^2) up to the
         // patches' flatness.
         let r = out.corner[0][0].x.length();
-        let e = out.irradiance.iter().map(|e| e[0]).sum::<f64>() / out.len() as f64;
+        let e = (0..out.len()).map(|i| out.irradiance(i)[0]).sum::<f64>() / out.len() as f64;
         let want = 4.0 / (4.0 * PI * r * r);
         assert!((e / want - 1.0).abs() < 0.05, "{e} vs {want}");
     }
@@ -340,7 +340,7 @@ mod tests {
         for i in 0..out.len() {
             let r = (out.midpoint(i) - p).length();
             let want = 10.0 / (4.0 * PI * r * r);
-            let got = out.irradiance[i][0];
+            let got = out.irradiance(i)[0];
             assert!((got / want - 1.0).abs() < 0.01, "r {r}: {got} vs {want}");
             // It starts half a voxel before the bounds, along its central ray.
             let start = (out.corner[0][i].x - p).length();
@@ -358,7 +358,7 @@ mod tests {
         };
         emit(&light, &grid(), &Uniform, 0.1, [1.0; 3], &mut out);
         for i in 0..out.len() {
-            assert!((out.irradiance[i][0] - 2.0).abs() < 1e-9);
+            assert!((out.irradiance(i)[0] - 2.0).abs() < 1e-9);
             let n = crate::patch::normal(&out.positions(i)).normalize();
             assert!((n.dot(out.direction(i)) - 1.0).abs() < 1e-9);
         }

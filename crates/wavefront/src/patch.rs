@@ -49,8 +49,6 @@ pub struct Patches {
     /// into what the surface lets through and its reflection
     /// (`propagate::crossing_done`). 1 between crossings.
     pub kept: Vec<f64>,
-    /// RGB differential irradiance, W/m^2, set by the irradiance step.
-    pub irradiance: Vec<[f64; 3]>,
     /// Times the patch's ancestors were tessellated (0 when emitted).
     pub depth: Vec<u8>,
 }
@@ -64,7 +62,7 @@ impl Patches {
     pub const BYTES_PER_PATCH: usize = 2
         * 2
         * (4 * std::mem::size_of::<RayState>()
-            + 3 * std::mem::size_of::<[f64; 3]>()
+            + 2 * std::mem::size_of::<[f64; 3]>()
             + 2 * std::mem::size_of::<f64>()
             + std::mem::size_of::<u8>());
 
@@ -85,7 +83,6 @@ impl Patches {
         self.flux0.clear();
         self.area0.clear();
         self.kept.clear();
-        self.irradiance.clear();
         self.depth.clear();
     }
 
@@ -99,7 +96,6 @@ impl Patches {
         self.flux0.push(flux);
         self.area0.push(area);
         self.kept.push(1.0);
-        self.irradiance.push(flux.map(|f| f / area));
         self.depth.push(0);
     }
 
@@ -107,6 +103,15 @@ impl Patches {
     #[inline]
     pub fn positions(&self, i: usize) -> [DVec3; 4] {
         [0, 1, 2, 3].map(|c| self.corner[c][i].x)
+    }
+
+    /// RGB differential irradiance of patch `i`, W/m^2: its flux over its
+    /// area [Ihrke07 eq 17] (the attenuation of [Ihrke07 eq 18] is in the
+    /// flux); 0 for a patch of no area.
+    #[inline]
+    pub fn irradiance(&self, i: usize) -> [f64; 3] {
+        let ar = area(&self.positions(i));
+        self.flux[i].map(|f| if ar > 0.0 { f / ar } else { 0.0 })
     }
 
     /// Midpoint of patch `i`: where it deposits [Ihrke07 sec 5.2.2].

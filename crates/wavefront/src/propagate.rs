@@ -472,8 +472,10 @@ impl Loss {
 /// Patches per [`Loss`] of [`propagate`]: each chunk sums its patches'
 /// losses in order, and the chunks fall at the same patches whatever the
 /// thread count, so the sums are the same bits (a loss per patch took 88
-/// bytes beside each patch's record, at the peak of the list).
-pub const CHUNK: usize = 1024;
+/// bytes beside each patch's record, at the peak of the list). Small
+/// enough that the threads share a short list evenly: a patch's step costs
+/// from a few sums to a run's whole tube.
+pub const CHUNK: usize = 64;
 
 /// The four corner lists in [`CHUNK`]s, side by side.
 fn corner_chunks(
@@ -721,14 +723,10 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
             for (list, c) in patches.corner.iter_mut().zip(p.corners) {
                 list.push(c);
             }
-            let ar = area(&p.corners.map(|c| c.x));
             patches.flux.push(p.flux);
             patches.flux0.push(p.flux0);
             patches.area0.push(p.area0);
             patches.kept.push(p.kept);
-            patches
-                .irradiance
-                .push(p.flux.map(|f| if ar > 0.0 { f / ar } else { 0.0 }));
             patches.depth.push(depth);
         }
     }
@@ -1263,25 +1261,6 @@ pub(crate) const THIN_SPAN: f64 = 1.0 / 64.0;
 /// split this often, or a thin tube, still torn is dropped. The GPU's too
 /// (the depth of its walk).
 pub(crate) const MAX_SPLIT_LEVEL: u32 = 8;
-
-/// [Ihrke07 eq 17] with [Ihrke07 eq 18]'s attenuation already in the flux: the
-/// differential irradiance of each patch is its flux over its current area.
-pub fn irradiance(patches: &mut Patches) {
-    let [c0, c1, c2, c3] = &patches.corner;
-    (
-        patches.irradiance.par_iter_mut(),
-        patches.flux.par_iter(),
-        c0.par_iter(),
-        c1.par_iter(),
-        c2.par_iter(),
-        c3.par_iter(),
-    )
-        .into_par_iter()
-        .for_each(|(e, f, a, b, c, d)| {
-            let ar = area(&[a.x, b.x, c.x, d.x]);
-            *e = f.map(|x| if ar > 0.0 { x / ar } else { 0.0 });
-        });
-}
 
 #[cfg(test)]
 mod tests {

@@ -415,8 +415,6 @@ fn rebuild<F: IndexField + ?Sized>(
     next.area0.resize(total, 0.0);
     next.kept.clear();
     next.kept.resize(total, 1.0);
-    next.irradiance.clear();
-    next.irradiance.resize(total, [0.0; 3]);
     next.depth.clear();
     next.depth.resize(total, 0);
 
@@ -431,14 +429,13 @@ fn rebuild<F: IndexField + ?Sized>(
         next.flux0.par_iter_mut(),
         next.area0.par_iter_mut(),
         next.kept.par_iter_mut(),
-        next.irradiance.par_iter_mut(),
         next.depth.par_iter_mut(),
         scratch.source.par_iter(),
         scratch.part.par_iter(),
     )
         .into_par_iter()
         .for_each(
-            |(a, b, c, d, flux, flux0, area0, kept, irr, depth, &src, &part)| {
+            |(a, b, c, d, flux, flux0, area0, kept, depth, &src, &part)| {
                 let i = src as usize;
                 // A child keeps its parent's share of the flux through a
                 // surface it straddles.
@@ -449,7 +446,6 @@ fn rebuild<F: IndexField + ?Sized>(
                     *flux = p.flux[i];
                     *flux0 = p.flux0[i];
                     *area0 = p.area0[i];
-                    *irr = p.irradiance[i];
                     *depth = p.depth[i];
                     return;
                 }
@@ -471,8 +467,6 @@ fn rebuild<F: IndexField + ?Sized>(
                 *flux0 = p.flux0[i].map(|f| f * share);
                 *area0 = p.area0[i] * share;
                 *depth = p.depth[i] + 1;
-                let ar = areas[part as usize];
-                *irr = flux.map(|f| if ar > 0.0 { f / ar } else { 0.0 });
             },
         );
     std::mem::swap(p, next);

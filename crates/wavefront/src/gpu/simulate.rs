@@ -1673,7 +1673,7 @@ impl<'a> GpuSimulator<'a> {
                 pos.extend([x.x, x.y, x.z, r.opl].map(|v| v as f32));
                 vel.extend([r.v.x, r.v.y, r.v.z, 0.0].map(|v| v as f32));
             }
-            let (f, f0, e) = (p.flux[i], p.flux0[i], p.irradiance[i]);
+            let (f, f0, e) = (p.flux[i], p.flux0[i], p.irradiance(i));
             aux.extend([f[0], f[1], f[2], p.area0[i]].map(|v| v as f32));
             aux.extend([f0[0], f0[1], f0[2], p.depth[i] as f64].map(|v| v as f32));
             aux.extend([e[0], e[1], e[2], p.kept[i]].map(|v| v as f32));

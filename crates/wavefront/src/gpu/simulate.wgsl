@@ -239,7 +239,7 @@ fn direction(i: u32) -> vec3<f32> {
 
 // ---------------------------------------------------------------------
 // Step 1 [Ihrke07 eqs 14-15, 18] and step 2 [Ihrke07 eq 17]:
-// `propagate::propagate` and `propagate::irradiance`.
+// `propagate::propagate` and `Patches::irradiance`.
 
 // sigma_t / n per channel (zero outside the bounds and in empty space).
 fn extinction_per_index(p: vec3<f32>) -> vec3<f32> {
@@ -270,7 +270,7 @@ struct Swept {
 }
 
 // One step of patch i: `propagate::propagate` and, for the paper's
-// deposit, `propagate::irradiance`.
+// deposit, `Patches::irradiance`.
 fn propagate_patch(i: u32) -> Swept {
     let dt = P.dt;
     let m0 = midpoint(i);
