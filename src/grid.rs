@@ -312,23 +312,21 @@ pub fn peak_resident() -> Option<u64> {
     Some(kib * 1024)
 }
 
-/// The most patches that fit the memory left once everything else of a
-/// simulation is held, at most `cap`.
-pub fn patches_that_fit(scene: &Scene, cap: usize, fresnel: bool) -> usize {
-    let rest: u128 = itemize(
-        scene,
-        &Needs {
-            light_volumes: true,
-            counters: true,
-            interfaces: fresnel,
-            ..Needs::default()
-        },
-    )
-    .iter()
-    .map(|(_, b)| b)
-    .sum();
-    let left = memory_limit().saturating_sub(rest);
-    let fit = left / eikon_wavefront::Patches::BYTES_PER_PATCH as u128;
+/// The most patches that fit the memory limit once everything else a
+/// simulation holds (`rest`: its medium as it is held, volumes, counters)
+/// is counted, at most `cap`.
+pub fn patches_that_fit(scene: &Scene, cap: usize, rest: &Needs) -> usize {
+    patches_within(scene, cap, rest, memory_limit())
+}
+
+/// [`patches_that_fit`] under `limit` bytes.
+fn patches_within(scene: &Scene, cap: usize, rest: &Needs, limit: u128) -> usize {
+    let rest = Needs {
+        patches: None,
+        ..*rest
+    };
+    let held: u128 = itemize(scene, &rest).iter().map(|(_, b)| b).sum();
+    let fit = limit.saturating_sub(held) / eikon_wavefront::Patches::BYTES_PER_PATCH as u128;
     (fit.min(cap as u128)) as usize
 }
 
@@ -407,6 +405,35 @@ mod tests {
             ),
             (est.resident, est.light, 0)
         );
+    }
+
+    /// The patch cap that fits a limit counts the medium as the run holds
+    /// it: a simulation of the surfaces alone (its boundary indicator
+    /// released) has the whole resident medium's bytes more for patches.
+    #[test]
+    fn the_patches_that_fit_count_the_medium_as_held() {
+        let scene = Scene::parse(
+            "[grid]\nresolution = 24\nmin = [-1, -1, -1]\nmax = [1, 1, 1]\n\n[[object]]\nshape = { type = \"sphere\", center = [0, 0, 0], radius = 0.5 }\nindex = 1.5\n",
+            "test",
+        )
+        .unwrap();
+        let est = Medium::memory_estimate(&scene);
+        let per = eikon_wavefront::Patches::BYTES_PER_PATCH as u128;
+        let run = |surfaces_only| Needs {
+            surfaces_only,
+            light_volumes: true,
+            counters: true,
+            ..Needs::default()
+        };
+        let (light, counters) = light_volume_bytes(&scene);
+        let limit = light + counters + est.resident + 1000 * per;
+        assert_eq!(patches_within(&scene, usize::MAX, &run(false), limit), 1000);
+        let lean = patches_within(&scene, usize::MAX, &run(true), limit);
+        assert_eq!(lean as u128, 1000 + est.resident / per);
+        // The cap bounds it, and a limit below what the rest holds leaves
+        // none.
+        assert_eq!(patches_within(&scene, 10, &run(true), limit), 10);
+        assert_eq!(patches_within(&scene, 10, &run(false), light), 0);
     }
 
     #[test]

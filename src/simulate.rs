@@ -513,8 +513,19 @@ fn simulate_in<'a>(
         .settled(scene.grid.interfaces == eikon_grid::Interfaces::Sharp);
     // The patch list at its cap is part of the memory the run needs: the
     // default cap is lowered to what fits, a cap the user gave is checked.
+    // What the run holds besides patches and GPU buffers.
+    let held = crate::grid::Needs {
+        light_only: !medium.has_render_properties(),
+        surfaces_only: !medium.has_voxel_fields(),
+        light_volumes: true,
+        counters: true,
+        // (Sharp interfaces on the CPU know both sides exactly.)
+        interfaces: opts.fresnel && medium.has_voxel_fields(),
+        photons: args.method == SimMethod::Photons,
+        ..crate::grid::Needs::default()
+    };
     if args.method == SimMethod::Wavefront && args.max_patches.is_none() {
-        let fit = crate::grid::patches_that_fit(scene, opts.max_patches, opts.fresnel);
+        let fit = crate::grid::patches_that_fit(scene, opts.max_patches, &held);
         if fit < opts.max_patches {
             if !args.quiet {
                 eprintln!(
@@ -528,14 +539,7 @@ fn simulate_in<'a>(
     let estimate = crate::grid::check_memory(
         scene,
         &crate::grid::Needs {
-            light_only: !medium.has_render_properties(),
-            surfaces_only: !medium.has_voxel_fields(),
-            light_volumes: true,
-            counters: true,
             patches: (args.method == SimMethod::Wavefront).then_some(opts.max_patches),
-            // (Sharp interfaces on the CPU know both sides exactly.)
-            interfaces: opts.fresnel && medium.has_voxel_fields(),
-            photons: args.method == SimMethod::Photons,
             gpu: (args.method == SimMethod::Wavefront)
                 .then(|| {
                     backend.simulator_host_bytes(
@@ -546,7 +550,7 @@ fn simulate_in<'a>(
                     )
                 })
                 .flatten(),
-            ..crate::grid::Needs::default()
+            ..held
         },
     )?;
     check_scene(scene, medium, &opts)?;

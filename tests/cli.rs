@@ -1169,7 +1169,7 @@ fn the_memory_estimate_covers_the_peak_resident_memory() {
         ],
         &[
             "--resolution",
-            "64",
+            "80",
             "--max-patches",
             "40000",
             "--backend",
