@@ -276,11 +276,9 @@ pub fn run(args: Args) -> Result<()> {
     let backend = args.select_backend()?;
     // Nothing here renders. With sharp interfaces the wavefront on the
     // CPU reads each region's index and extinction from the scene: of the
-    // voxels it needs only the boundary indicator. Else what only
-    // renderers read goes before the light volumes' counters are
-    // allocated.
-    // Of the surfaces alone the regions read the boundary indicator once
-    // (`Regions::clear_of`); it goes before the counters come.
+    // voxels it needs only the boundary indicator, which the regions read
+    // once (`Regions::clear_of`). Else what only renderers read goes. Both
+    // go before the light volumes' counters are allocated.
     if args.reads_surfaces_alone(&scene, &backend)? {
         let mut medium = build_surfaces(&scene)?;
         let regions = eikon_grid::Regions::new(&scene).clear_of(&medium);
@@ -511,8 +509,6 @@ fn simulate_in<'a>(
     let mut opts = args
         .options()?
         .settled(scene.grid.interfaces == eikon_grid::Interfaces::Sharp);
-    // The patch list at its cap is part of the memory the run needs: the
-    // default cap is lowered to what fits, a cap the user gave is checked.
     // What the run holds besides patches and GPU buffers.
     let held = crate::grid::Needs {
         light_only: !medium.has_render_properties(),
@@ -524,6 +520,8 @@ fn simulate_in<'a>(
         photons: args.method == SimMethod::Photons,
         ..crate::grid::Needs::default()
     };
+    // The patch list at its cap is part of the memory the run needs: the
+    // default cap is lowered to what fits, a cap the user gave is checked.
     if args.method == SimMethod::Wavefront && args.max_patches.is_none() {
         let fit = crate::grid::patches_that_fit(scene, opts.max_patches, &held);
         if fit < opts.max_patches {
