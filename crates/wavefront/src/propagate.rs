@@ -504,6 +504,8 @@ fn corner_chunks(
 /// interface. `losses` receives, per [`CHUNK`] of patches, the flux taken
 /// out of the beam in this step.
 pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
+    losses.clear();
+    losses.resize(patches.len().div_ceil(CHUNK), Loss::default());
     if let Some(sharp) = step.sharp {
         propagate_sharp(patches, step, sharp, losses);
         return;
@@ -522,8 +524,6 @@ pub fn propagate(patches: &mut Patches, step: &Step, losses: &mut Vec<Loss>) {
         run: _,
     } = step;
     let field = field.expect("the smoothed index steps through its voxel field");
-    losses.clear();
-    losses.resize(patches.len().div_ceil(CHUNK), Loss::default());
     let one = |a: &mut RayState,
                b: &mut RayState,
                c: &mut RayState,
@@ -612,9 +612,8 @@ struct Piece {
 /// within the step keeps its slot for its first piece; the others, and a
 /// patch's reflection, are appended after all patches, in patch order
 /// (deterministic; the GPU's order too).
-fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &mut Vec<Loss>) {
-    losses.clear();
-    losses.resize(patches.len().div_ceil(CHUNK), Loss::default());
+/// `losses` holds a zeroed [`Loss`] per [`CHUNK`] of patches.
+fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &mut [Loss]) {
     // One patch: `None` where it carries on alone in its slot, else its
     // pieces for after the list.
     #[allow(clippy::type_complexity)]
