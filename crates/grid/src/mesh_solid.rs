@@ -6,7 +6,8 @@
 //! shape (see [`crate::shape`]):
 //!
 //! * `contains(p)`: the parity of the crossings of the ray from `p` along
-//!   +x. The crossing test works in the yz-plane with edge functions
+//!   +x (or -x, whichever meets fewer triangles before the bucket grid
+//!   knows the side). The crossing test works in the yz-plane with edge functions
 //!   evaluated in one canonical orientation per edge, and ties broken as if
 //!   `p` were moved by an infinitesimal `(0, ε, ε²)` (simulation of
 //!   simplicity), so a ray through a shared edge or vertex of a closed mesh
@@ -23,12 +24,17 @@ use eikon_mesh::{bvh::closest_hit_among, Bvh, Hit, Mesh, Ray};
 use glam::DVec3;
 use std::sync::Arc;
 
-/// [`MeshSolid`]'s side of a bucket that triangles touch.
+/// [`MeshSolid`]'s side of a bucket that triangles touch, from which
+/// [`MeshSolid::contains`] walks along +x.
 const HOLDS: u8 = 0;
 /// A bucket wholly outside the solid.
 const OUTSIDE: u8 = 1;
 /// A bucket wholly inside the solid.
 const INSIDE: u8 = 2;
+/// A bucket that triangles touch, from which [`MeshSolid::contains`]
+/// walks along -x (fewer triangles lie that way before a bucket of known
+/// side).
+const HOLDS_BACK: u8 = 3;
 
 /// Most buckets a segment's box may overlap for [`MeshSolid::closest_hit`]
 /// to test their triangles instead of descending the tree.
@@ -55,8 +61,9 @@ pub struct MeshSolid {
     /// Bucket `b` lists `items[start[b]..start[b + 1]]`.
     start: Vec<u32>,
     items: Vec<u32>,
-    /// Per bucket: [`HOLDS`] where triangles touch it, else which side of
-    /// the surface the whole bucket lies on ([`OUTSIDE`], [`INSIDE`]).
+    /// Per bucket: [`HOLDS`] or [`HOLDS_BACK`] where triangles touch it,
+    /// else which side of the surface the whole bucket lies on
+    /// ([`OUTSIDE`], [`INSIDE`]).
     side: Vec<u8>,
     /// The ray-triangle hierarchy, for exact surface crossings
     /// ([`crate::surface`]).
@@ -183,6 +190,30 @@ impl MeshSolid {
                         if self.crosses_x(t, y, z).is_some_and(|x| x >= x0 && x < x1) {
                             inside = !inside;
                         }
+                    }
+                }
+                // Which way from each bucket with triangles reaches a bucket
+                // of known side (or the row's end) past fewer of them.
+                let row = |i: usize| (i * ny + j) * nz + k;
+                let mut ahead = vec![0usize; nx];
+                let mut run = 0;
+                for i in (0..nx).rev() {
+                    run = if side[row(i)] == HOLDS {
+                        run + self.bucket([i, j, k]).len()
+                    } else {
+                        0
+                    };
+                    ahead[i] = run;
+                }
+                run = 0;
+                for (i, &ahead) in ahead.iter().enumerate() {
+                    if side[row(i)] != HOLDS {
+                        run = 0;
+                        continue;
+                    }
+                    run += self.bucket([i, j, k]).len();
+                    if run < ahead {
+                        side[row(i)] = HOLDS_BACK;
                     }
                 }
             }
@@ -317,34 +348,52 @@ impl MeshSolid {
         (self.lo, self.hi)
     }
 
-    /// Whether `p` is inside: parity of the crossings along +x, up to the
-    /// first bucket no triangle touches, whose side is known
-    /// ([`Self::find_sides`]).
+    /// Whether `p` is inside: parity of the crossings along +x (or -x,
+    /// whichever passes fewer triangles from `p`'s bucket, [`HOLDS_BACK`]),
+    /// up to the first bucket no triangle touches, whose side is known
+    /// ([`Self::find_sides`]). Either way counts the crossings of the line
+    /// through `p` along x on one side of it, each where its `x` falls, so
+    /// the two agree off the surface.
     pub fn contains(&self, p: DVec3) -> bool {
         if p.cmplt(self.lo).any() || p.cmpgt(self.hi).any() {
             return false;
         }
         let [i0, j, k] = self.bucket_of(p);
+        let at = |i: usize| (i * self.dims[1] + j) * self.dims[2] + k;
+        let back = self.side[at(i0)] == HOLDS_BACK;
         let mut inside = false;
-        for i in i0..self.dims[0] {
-            let b = (i * self.dims[1] + j) * self.dims[2] + k;
-            match self.side[b] {
+        // The buckets of the row from `p`'s on, the way the walk goes.
+        let (mut i, end) = if back {
+            (i0 as isize, -1)
+        } else {
+            (i0 as isize, self.dims[0] as isize)
+        };
+        let way = if back { -1 } else { 1 };
+        while i != end {
+            let iu = i as usize;
+            match self.side[at(iu)] {
                 OUTSIDE => return inside,
                 INSIDE => return !inside,
                 _ => {}
             }
             // A triangle spanning several buckets of the row is counted in
             // the one bucket its crossing falls in (`p`'s own bucket counts
-            // everything before it too).
-            let (x0, x1) = self.row_span(i);
-            let x0 = if i == i0 { f64::NEG_INFINITY } else { x0 };
-            for &t in self.bucket([i, j, k]) {
+            // everything between `p` and its far face too).
+            let (x0, x1) = self.row_span(iu);
+            let (x0, x1) = match (iu == i0, back) {
+                (true, false) => (f64::NEG_INFINITY, x1),
+                (true, true) => (x0, f64::INFINITY),
+                _ => (x0, x1),
+            };
+            for &t in self.bucket([iu, j, k]) {
                 if let Some(x) = self.crosses_x(t, p.y, p.z) {
-                    if x > p.x && x >= x0 && x < x1 {
+                    let beyond = if back { x < p.x } else { x > p.x };
+                    if beyond && x >= x0 && x < x1 {
                         inside = !inside;
                     }
                 }
             }
+            i += way;
         }
         inside
     }
@@ -519,6 +568,31 @@ mod tests {
         }
     }
 
+    /// The bumpy sphere the near-surface tests use.
+    fn bumpy_sphere() -> MeshSolid {
+        solid(
+            eikon_mesh::BumpySphere::new(0.5, 0.1, 9, 4)
+                .and_then(|b| b.mesh(24))
+                .unwrap(),
+        )
+    }
+
+    /// Inside by the plain parity of every triangle crossed along +x.
+    fn parity_along_x(s: &MeshSolid, p: DVec3) -> bool {
+        s.tris
+            .iter()
+            .filter(|t| crossing_x(t, p.y, p.z).is_some_and(|x| x > p.x))
+            .count()
+            % 2
+            == 1
+    }
+
+    /// A point within `spread` (a cube's side) of a random vertex.
+    fn near_a_vertex(s: &MeshSolid, rng: &mut Rng, spread: f64) -> DVec3 {
+        let v = s.tris[(rng.unit() * s.tris.len() as f64) as usize][0];
+        v + (DVec3::new(rng.unit(), rng.unit(), rng.unit()) - 0.5) * spread
+    }
+
     #[test]
     fn a_cube_mesh_holds_exactly_the_cube() {
         let s = solid(eikon_mesh::cuboid(DVec3::new(0.5, 0.25, 1.0)).unwrap());
@@ -580,13 +654,7 @@ mod tests {
         for _ in 0..20_000 {
             let u = DVec3::new(rng.unit(), rng.unit(), rng.unit());
             let p = lo + (hi - lo) * (u * 1.1 - 0.05);
-            let parity = s
-                .tris
-                .iter()
-                .filter(|t| crossing_x(t, p.y, p.z).is_some_and(|x| x > p.x))
-                .count()
-                % 2
-                == 1;
+            let parity = parity_along_x(&s, p);
             assert_eq!(s.contains(p), parity, "{p}");
             if parity {
                 inside += 1;
@@ -598,19 +666,41 @@ mod tests {
     }
 
     #[test]
+    fn either_way_along_x_a_bumpy_sphere_holds_what_the_parity_says() {
+        // Points within a few buckets of a bumpy sphere's surface, where
+        // `contains` walks from buckets with triangles: +x or -x, whichever
+        // passes fewer of them. Both must agree with the plain parity of
+        // every triangle crossed along +x, and both ways must be taken.
+        let s = bumpy_sphere();
+        let mut rng = Rng(23);
+        let mut ways = [0usize; 2];
+        let mut inside = 0;
+        for _ in 0..20_000 {
+            let p = near_a_vertex(&s, &mut rng, 0.1);
+            let parity = parity_along_x(&s, p);
+            assert_eq!(s.contains(p), parity, "{p}");
+            inside += parity as usize;
+            let [i, j, k] = s.bucket_of(p);
+            match s.side[(i * s.dims[1] + j) * s.dims[2] + k] {
+                HOLDS => ways[0] += 1,
+                HOLDS_BACK => ways[1] += 1,
+                _ => {}
+            }
+        }
+        assert!(ways.iter().all(|&w| w > 2000), "{ways:?}");
+        assert!(inside > 5000 && inside < 15_000, "{inside}");
+    }
+
+    #[test]
     fn short_segments_hit_what_the_tree_hits() {
         // Segments from a hundredth of the mesh's size to all of it,
         // aimed near the surface of a bumpy sphere: the buckets' answer is
         // the tree's, triangle and distance bit for bit (misses too).
-        let mesh = eikon_mesh::BumpySphere::new(0.5, 0.1, 9, 4)
-            .and_then(|b| b.mesh(24))
-            .unwrap();
-        let s = solid(mesh);
+        let s = bumpy_sphere();
         let mut rng = Rng(11);
         let (mut hits, mut short) = (0, 0);
         for i in 0..20_000 {
-            let v = s.tris[(rng.unit() * s.tris.len() as f64) as usize][0];
-            let o = v + (DVec3::new(rng.unit(), rng.unit(), rng.unit()) - 0.5) * 0.06;
+            let o = near_a_vertex(&s, &mut rng, 0.06);
             let d = DVec3::new(rng.unit(), rng.unit(), rng.unit()) * 2.0 - 1.0;
             let len = [0.01, 0.03, 0.1, 1.0][i % 4];
             let ray = Ray::segment(o, d, 0.0, len / d.length());

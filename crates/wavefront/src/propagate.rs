@@ -356,23 +356,38 @@ fn uniform_run(
     let grid = &step.medium.geometry;
     let mut from = x0;
     let mut taken = 0;
+    let advance = |from: [DVec3; 4]| -> [DVec3; 4] { std::array::from_fn(|c| from[c] + v[c]) };
+    let seen = |x: [DVec3; 4], steps: usize| {
+        let depth = per_step * steps as f64;
+        refine::Seen {
+            x,
+            v: corners.map(|c| c.v),
+            flux: std::array::from_fn(|ch| flux[ch] * (-depth[ch]).exp()),
+            flux0: kin.flux0,
+            depth: kin.depth,
+        }
+    };
+    // The analysis' verdict over the whole run from its two ends, where
+    // that proves it ([`refine::retained_along`]): the corners end where
+    // the steps one by one take them, without the analysis at each.
+    if let Some(rules) = rules.filter(|_| k > 1) {
+        let mut last = x0;
+        for _ in 1..k {
+            last = advance(last);
+        }
+        if refine::retained_along(grid, &rules, &seen(x0, 0), &seen(last, k - 1)) {
+            from = advance(last);
+            taken = k;
+        }
+    }
     while taken < k {
-        from = std::array::from_fn(|c| from[c] + v[c]);
+        from = advance(from);
         taken += 1;
         if taken == k {
             break;
         }
-        let kept = rules.is_some_and(|rules| {
-            let depth = per_step * taken as f64;
-            let seen = refine::Seen {
-                x: from,
-                v: corners.map(|c| c.v),
-                flux: std::array::from_fn(|ch| flux[ch] * (-depth[ch]).exp()),
-                flux0: kin.flux0,
-                depth: kin.depth,
-            };
-            seen.fate(grid, &rules) == refine::Fate::Retain
-        });
+        let kept =
+            rules.is_some_and(|rules| seen(from, taken).fate(grid, &rules) == refine::Fate::Retain);
         if !kept {
             break;
         }

@@ -660,7 +660,9 @@ impl Tube<'_> {
             (a.min(p).min(q), b.max(p).max(q))
         });
         let group = self.group.unwrap_or(0);
+        let cells = Cells::new(g, axes);
         for layer in first..=last {
+            let layer_base = layer as usize * cells.stride[0];
             for lane in lanes {
                 let Some((ta, tb)) = lane.in_layer(m, layer) else {
                     continue;
@@ -696,7 +698,7 @@ impl Tube<'_> {
                     cuts[q] = v;
                 }
                 for piece in cuts[..n].windows(2) {
-                    lane.deposit(piece[0], piece[1], depth, axes, layer, g, tile);
+                    lane.deposit(piece[0], piece[1], depth, &cells, layer_base, tile);
                 }
             }
             // A layer's cells are not met again.
@@ -729,28 +731,26 @@ impl Lane {
         (tb > ta).then_some((ta, tb))
     }
 
-    /// Deposit the piece `[ta, tb]` of the lane in `layer` of the major
-    /// axis (`axes`: major, minor, minor), losing `depth` over the whole
-    /// tube: across each minor axis the sub-patch's box footprint, with its
-    /// second moments at the piece's middle, swept along with the centre
-    /// over the piece ([`swept_parts`]).
-    #[allow(clippy::too_many_arguments)]
+    /// Deposit the piece `[ta, tb]` of the lane in the layer of the major
+    /// axis whose first counter is `layer_base`, losing `depth` over the
+    /// whole tube: across each minor axis the sub-patch's box footprint,
+    /// with its second moments at the piece's middle, swept along with the
+    /// centre over the piece ([`swept_parts`]).
     #[inline]
     fn deposit(
         &self,
         ta: f64,
         tb: f64,
         depth: DVec3,
-        axes: [usize; 3],
-        layer: i64,
-        g: &GridGeometry,
+        cells: &Cells,
+        layer_base: usize,
         tile: &mut Tile,
     ) {
         let dt = tb - ta;
         if dt <= 0.0 {
             return;
         }
-        let [m, ab, ac] = axes;
+        let [_, ab, ac] = cells.axes;
         let t = 0.5 * (ta + tb);
         let c = self.at + self.moves * t;
         let (e1, e2) = (self.e1 + self.de1 * t, self.e2 + self.de2 * t);
@@ -758,31 +758,59 @@ impl Lane {
         let weight = attenuated(depth, ta, tb);
         let fluence: [f64; 3] = std::array::from_fn(|ch| self.fluence[ch] * weight[ch]);
         let along = self.u * (0..3).map(|ch| self.flux[ch] * weight[ch]).sum::<f64>();
-        let dims = g.dims;
         let pb = swept_parts(c[ab], width(ab), (self.moves[ab] * dt).abs());
         let pc = swept_parts(c[ac], width(ac), (self.moves[ac] * dt).abs());
-        for (&fb, ib) in pb.fraction[..pb.count].iter().zip(pb.first..) {
-            if !(ib >= 0 && ib < dims[ab] as i64) {
-                continue;
-            }
-            for (&fc, ic) in pc.fraction[..pc.count].iter().zip(pc.first..) {
-                if !(ic >= 0 && ic < dims[ac] as i64) {
-                    continue;
-                }
-                let mut idx = [0usize; 3];
-                idx[m] = layer as usize;
-                idx[ab] = ib as usize;
-                idx[ac] = ic as usize;
-                let base = ((idx[0] * dims[1] + idx[1]) * dims[2] + idx[2]) * 3;
+        // The parts inside the grid (the rest leave it).
+        let (bs, cs) = (cells.inside(&pb, 1), cells.inside(&pc, 2));
+        for (&fb, ib) in pb.fraction[bs.clone()]
+            .iter()
+            .zip(pb.first + bs.start as i64..)
+        {
+            let row = layer_base + ib as usize * cells.stride[1];
+            for (&fc, ic) in pc.fraction[cs.clone()]
+                .iter()
+                .zip(pc.first + cs.start as i64..)
+            {
                 let f = fb * fc;
                 tile.put(
                     [ib, ic],
-                    base,
+                    row + ic as usize * cells.stride[2],
                     fluence.map(|w| w * f),
                     (along * f).to_array(),
                 );
             }
         }
+    }
+}
+
+/// The grid's cells as a [`tube`] walks them: its axes (major, then the
+/// two minor ones, [`axes`]), the cells along each and the counters
+/// between neighbours along each (the flat index of cell `(i, j, k)`'s
+/// first counter is `((i ny + j) nz + k) 3`).
+struct Cells {
+    axes: [usize; 3],
+    dims: [i64; 3],
+    stride: [usize; 3],
+}
+
+impl Cells {
+    fn new(g: &GridGeometry, axes: [usize; 3]) -> Self {
+        let d = g.dims;
+        let flat = [d[1] * d[2] * 3, d[2] * 3, 3];
+        Self {
+            axes,
+            dims: axes.map(|a| d[a] as i64),
+            stride: axes.map(|a| flat[a]),
+        }
+    }
+
+    /// Which of the swept parts `p` along the `k`-th of [`Self::axes`]
+    /// lie inside the grid.
+    #[inline]
+    fn inside(&self, p: &SweptParts, k: usize) -> std::ops::Range<usize> {
+        let lo = (-p.first).clamp(0, p.count as i64) as usize;
+        let hi = (self.dims[k] - p.first).clamp(lo as i64, p.count as i64) as usize;
+        lo..hi
     }
 }
 
