@@ -174,6 +174,8 @@ impl MeshSolid {
     fn find_sides(&mut self) {
         let [nx, ny, nz] = self.dims;
         let mut side = vec![HOLDS; nx * ny * nz];
+        // Per bucket of a row, the triangles met walking +x from it.
+        let mut ahead = vec![0usize; nx];
         for j in 0..ny {
             for k in 0..nz {
                 let y = self.lo.y + (j as f64 + 0.5) * self.cell.y;
@@ -195,7 +197,6 @@ impl MeshSolid {
                 // Which way from each bucket with triangles reaches a bucket
                 // of known side (or the row's end) past fewer of them.
                 let row = |i: usize| (i * ny + j) * nz + k;
-                let mut ahead = vec![0usize; nx];
                 let mut run = 0;
                 for i in (0..nx).rev() {
                     run = if side[row(i)] == HOLDS {

@@ -805,12 +805,14 @@ impl Cells {
     }
 
     /// Which of the swept parts `p` along the `k`-th of [`Self::axes`]
-    /// lie inside the grid.
+    /// lie inside the grid (saturating: a footprint's first cell is
+    /// `i64::MIN` or `MAX` for a centre beyond the `i64` range).
     #[inline]
     fn inside(&self, p: &SweptParts, k: usize) -> std::ops::Range<usize> {
-        let lo = (-p.first).clamp(0, p.count as i64) as usize;
-        let hi = (self.dims[k] - p.first).clamp(lo as i64, p.count as i64) as usize;
-        lo..hi
+        let n = p.count as i64;
+        let lo = 0i64.saturating_sub(p.first).clamp(0, n);
+        let hi = self.dims[k].saturating_sub(p.first).clamp(lo, n);
+        lo as usize..hi as usize
     }
 }
 
