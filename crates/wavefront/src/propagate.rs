@@ -375,7 +375,7 @@ fn uniform_run(
         for _ in 1..k {
             last = advance(last);
         }
-        if refine::retained_along(grid, &rules, &seen(x0, 0), &seen(last, k - 1)) {
+        if refine::retained_along(grid, &rules, &x0, &seen(last, k - 1)) {
             from = advance(last);
             taken = k;
         }

@@ -295,8 +295,9 @@ impl Seen {
 const ALONG_MARGIN: f64 = 1e-9;
 
 /// Whether [`Seen::fate`] retains a patch at every step of a straight run
-/// from `first` to `last` (corners moving along straight lines at constant
-/// speed, flux falling), proved from the two ends alone; `false` where
+/// from corners `first` to the state `last` (corners moving along
+/// straight lines at constant speed, flux falling, the tessellation depth
+/// the same), proved from the two ends alone; `false` where
 /// that cannot be shown (the caller then asks at each step). Each test of
 /// the analysis is bounded over the run:
 /// - a corner inside the grid at both ends (with a margin) is inside
@@ -310,7 +311,7 @@ const ALONG_MARGIN: f64 = 1e-9;
 pub(crate) fn retained_along(
     grid: &GridGeometry,
     rules: &Rules,
-    first: &Seen,
+    first: &[glam::DVec3; 4],
     last: &Seen,
 ) -> bool {
     if rules.cull_caustics {
@@ -319,7 +320,7 @@ pub(crate) fn retained_along(
     let up = 1.0 + ALONG_MARGIN;
     let pad = (grid.max - grid.min) * ALONG_MARGIN;
     let inner = |x: glam::DVec3| x.cmpge(grid.min + pad).all() && x.cmple(grid.max - pad).all();
-    if !(0..4).any(|c| inner(first.x[c]) && inner(last.x[c])) {
+    if !(0..4).any(|c| inner(first[c]) && inner(last.x[c])) {
         return false;
     }
     let (f, f0) = (last.flux, last.flux0);
@@ -334,8 +335,8 @@ pub(crate) fn retained_along(
                 power,
                 cone: None,
             } => {
-                let mid = |s: &Seen| (s.x[0] + s.x[1] + s.x[2] + s.x[3]) * 0.25;
-                let (a, b) = (mid(first), mid(last));
+                let mid = |x: &[glam::DVec3; 4]| (x[0] + x[1] + x[2] + x[3]) * 0.25;
+                let (a, b) = (mid(first), mid(&last.x));
                 let d = b - a;
                 let t = if d.length_squared() > 0.0 {
                     ((position - a).dot(d) / d.length_squared()).clamp(0.0, 1.0)
@@ -355,7 +356,7 @@ pub(crate) fn retained_along(
         }
     }
     let limit = rules.split_span * (1.0 + SPLIT_SLACK) * (1.0 - ALONG_MARGIN);
-    first.depth >= rules.max_depth || (span(&first.x) <= limit && span(&last.x) <= limit)
+    last.depth >= rules.max_depth || (span(first) <= limit && span(&last.x) <= limit)
 }
 
 /// Analyse every patch of `p`, rebuild the list into `next` through the
@@ -635,7 +636,7 @@ mod tests {
                 at.push(std::array::from_fn(|c| at[j - 1][c] + v[c]));
             }
             let every = (1..k).all(|j| seen(at[j], j).fate(&grid, &rules) == Fate::Retain);
-            let bound = retained_along(&grid, &rules, &seen(x0, 0), &seen(at[k - 1], k - 1));
+            let bound = retained_along(&grid, &rules, &x0, &seen(at[k - 1], k - 1));
             wrong += (bound && !every) as usize;
             proved += bound as usize;
             quiet += every as usize;
