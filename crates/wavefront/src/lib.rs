@@ -601,6 +601,7 @@ impl Plan {
                 } else {
                     FAINT * h * h
                 },
+                corner_rays: deposit::corner_ray_span(h),
             },
             dt,
             max_steps: opts

@@ -55,7 +55,7 @@ pub struct Ended {
 }
 
 /// Fate of one patch (the GPU's `FATE_*` are these values).
-#[derive(Clone, Copy, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(u32)]
 pub(crate) enum Fate {
     Exit,
@@ -98,8 +98,14 @@ pub struct Rules {
     pub incident: Incident,
     /// Eliminate a patch whose flux is below this many times the
     /// unobstructed irradiance at its midpoint in every channel ([`below`];
-    /// an area, world units^2; 0: never).
+    /// an area, world units^2; 0: never); for a patch over
+    /// [`Rules::corner_rays`] across, a quarter of its flux at each corner
+    /// ([`Seen::faint`]).
     pub faint: f64,
+    /// The span (world units) over which a patch's tube goes along its
+    /// four corner rays ([`crate::deposit::corner_ray_span`]; infinite:
+    /// never).
+    pub corner_rays: f64,
 }
 
 /// The irradiance per colour channel (of those a wavefront carries) a
@@ -265,13 +271,14 @@ impl Seen {
         // The light's own irradiance at the midpoint, once for both tests
         // (a point light's costs a square root and its cone).
         let incident = rules.incident.at(mid);
-        if rules.faint > 0.0 && below(&f, rules.faint, &incident) {
+        let wide = span(&x);
+        if rules.faint > 0.0 && self.faint(grid, rules, &incident, wide) {
             return Fate::Faint;
         }
         if rules.cull_caustics && normal(&x).dot(dir()) <= 0.0 {
             return Fate::Caustic;
         }
-        if span(&x) > rules.split_span * (1.0 + SPLIT_SLACK) && self.depth < rules.max_depth {
+        if wide > rules.split_span * (1.0 + SPLIT_SLACK) && self.depth < rules.max_depth {
             if rules.dim > 0.0 {
                 // A patch spread so thin that its irradiance is a small part
                 // of what the light would give there unobstructed adds little
@@ -286,6 +293,32 @@ impl Seen {
         } else {
             Fate::Retain
         }
+    }
+
+    /// Whether the patch, `span` across, is too faint to follow
+    /// ([`Rules::faint`]): its flux below `faint` times the light's
+    /// irradiance at its midpoint, `incident`. A patch over
+    /// [`Rules::corner_rays`] across deposits a quarter of its flux along
+    /// each of its corner rays and nothing between them (`deposit::tube`),
+    /// so it is too faint where each corner inside the grid carries its
+    /// quarter below that limit of the irradiance there, and each corner
+    /// outside has left for good: its midpoint may lie far from all of
+    /// them (a patch torn across an object's silhouette, one corner held
+    /// inside the object by total internal reflection while the others
+    /// went on past it).
+    fn faint(&self, grid: &GridGeometry, rules: &Rules, incident: &[f64; 3], span: f64) -> bool {
+        if span <= rules.corner_rays {
+            return below(&self.flux, rules.faint, incident);
+        }
+        let quarter = self.flux.map(|f| 0.25 * f);
+        (0..4).all(|c| {
+            let x = self.x[c];
+            if grid.contains(x) {
+                below(&quarter, rules.faint, &rules.incident.at(x))
+            } else {
+                gone(grid, x, self.v[c])
+            }
+        })
     }
 }
 
@@ -315,6 +348,12 @@ pub(crate) fn retained_along(
     last: &Seen,
 ) -> bool {
     if rules.cull_caustics {
+        return false;
+    }
+    // (A patch over the corner rays' span is faint by its corners; the
+    // span along a straight run is largest at an end.)
+    let wide = rules.corner_rays * (1.0 - ALONG_MARGIN);
+    if rules.faint > 0.0 && (span(first) > wide || span(&last.x) > wide) {
         return false;
     }
     let up = 1.0 + ALONG_MARGIN;
@@ -570,6 +609,84 @@ mod tests {
         assert!(below(&[0.0; 3], 0.1, &[0.0; 3]));
     }
 
+    /// A patch over the corner rays' span is faint by its corners: one
+    /// corner held near a point light inside the grid while the other three
+    /// have gone on far beyond it (a patch torn across a silhouette) ends
+    /// once the quarter that corner carries is below the faint limit there,
+    /// however dim the light at its far-off midpoint; it stays while that
+    /// quarter is above it, or while a corner outside the grid is still
+    /// heading back in. A patch within the span keeps the midpoint's test.
+    #[test]
+    fn a_patch_wider_than_the_corner_rays_is_faint_by_its_corners() {
+        let grid = GridGeometry::new([10, 10, 10], DVec3::ZERO, DVec3::ONE);
+        let h = grid.voxel_size();
+        let light = DVec3::new(0.5, 0.5, -0.5);
+        let rules = Rules {
+            split_span: h,
+            threshold: 1e-9,
+            max_patches: usize::MAX,
+            max_depth: 0,
+            cull_caustics: false,
+            dim: 0.0,
+            incident: Incident::Point {
+                position: light,
+                power: [1.0; 3],
+                cone: None,
+            },
+            faint: 1e-4 * h * h,
+            corner_rays: crate::deposit::corner_ray_span(h),
+        };
+        let limit = |x: DVec3| rules.faint * rules.incident.at(x)[0];
+        // Corner 0 inside the grid; the others far out and heading away.
+        let held = DVec3::new(0.5, 0.5, 0.3);
+        let x = [
+            held,
+            DVec3::new(6.0, 0.5, 0.3),
+            DVec3::new(6.0, 6.0, 0.3),
+            DVec3::new(0.5, 6.0, 0.3),
+        ];
+        let away = [DVec3::Z, DVec3::X, DVec3::new(1.0, 1.0, 0.0), DVec3::Y];
+        let mid = (x[0] + x[1] + x[2] + x[3]) * 0.25;
+        assert!(span(&x) > rules.corner_rays);
+        // Twice the midpoint's limit, a third of the held corner's.
+        let flux = 2.0 * limit(mid);
+        assert!(flux * 0.25 < limit(held) && flux > limit(mid));
+        let seen = |x: [DVec3; 4], v: [DVec3; 4], f: f64| Seen {
+            x,
+            v,
+            flux: [f; 3],
+            flux0: [1.0; 3],
+            depth: 0,
+        };
+        assert_eq!(seen(x, away, flux).fate(&grid, &rules), Fate::Faint);
+        // Its quarter above the limit at the held corner: followed.
+        let bright = 4.0 * limit(held) * 1.01;
+        assert_eq!(seen(x, away, bright).fate(&grid, &rules), Fate::Retain);
+        // A corner outside coming back in may yet light the grid.
+        let back = [DVec3::Z, -DVec3::X, DVec3::new(1.0, 1.0, 0.0), DVec3::Y];
+        assert_eq!(seen(x, back, flux).fate(&grid, &rules), Fate::Retain);
+        // Faint at the held corner, but not at a second corner inside the
+        // grid farther from the light: followed.
+        let quarter = 0.99 * limit(held);
+        let two = [x[0], DVec3::new(0.5, 0.5, 0.95), x[2], x[3]];
+        assert!(quarter > limit(two[1]));
+        assert_eq!(
+            seen(two, away, 4.0 * quarter).fate(&grid, &rules),
+            Fate::Retain
+        );
+        assert_eq!(
+            seen(x, away, 4.0 * quarter).fate(&grid, &rules),
+            Fate::Faint
+        );
+        // Within the span, the midpoint's test as before.
+        let small = x.map(|c| held + (c - held) * (0.9 * rules.corner_rays / span(&x)));
+        let m = (small[0] + small[1] + small[2] + small[3]) * 0.25;
+        for (f, fate) in [(0.99, Fate::Faint), (1.01, Fate::Retain)] {
+            let s = seen(small, away, f * limit(m));
+            assert_eq!(s.fate(&grid, &rules), fate, "{f} of the midpoint's limit");
+        }
+    }
+
     /// Where [`retained_along`] proves a straight run retained from its
     /// ends, the analysis asked at every step of it retains the patch: runs
     /// of patches that grow, shrink, fold, leave the grid, fade and pass a
@@ -601,6 +718,13 @@ mod tests {
                 dim: 0.05,
                 incident,
                 faint: 1e-3 * h * h,
+                // Some patches grow past the corner rays' span within
+                // the run (their faint test then reads the corners).
+                corner_rays: if case % 4 == 0 {
+                    h * (0.5 + u())
+                } else {
+                    4.0 * h
+                },
             };
             // A patch about a split span across, anywhere in or near the
             // grid, its corners on their own straight lines.

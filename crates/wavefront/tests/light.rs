@@ -435,6 +435,7 @@ fn runs_deposit_what_their_steps_do(scene: &str, material: &str, saving: f64) {
         dim: 0.0,
         incident: eikon_wavefront::refine::Incident::Uniform([1.0; 3]),
         faint: 0.0,
+        corner_rays: f64::INFINITY,
     };
     let (runs, calls_runs, absorbed_runs) = volume(propagate::Run {
         max_steps: propagate::MAX_RUN,

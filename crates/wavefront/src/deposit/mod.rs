@@ -357,6 +357,14 @@ pub const SUBPATCHES_PER_SIDE: usize = 2;
 /// three from one step to the next, and the two backends would disagree).
 pub const SUBPATCH_SLACK: f64 = 1e-4;
 
+/// The span (world units, the longest edge, [`crate::patch::span`]) over
+/// which a patch's [`tube`] surely goes along its four corner rays: a side
+/// over [`MAX_SUBPATCHES`] sub-patches long ([`counts`]), on a grid of
+/// `voxel` spacing.
+pub fn corner_ray_span(voxel: f64) -> f64 {
+    MAX_SUBPATCHES as f64 * SUBPATCH_SIZE * voxel / (1.0 - SUBPATCH_SLACK) * (1.0 + 1e-9)
+}
+
 /// Sub-patches of [`SUBPATCH_SIZE`] along the two sides of a patch whose
 /// corners sweep from `x0` to `x1`: enough that none exceeds
 /// [`SUBPATCH_SIZE`] voxels on the longer of each pair of opposite edges,
@@ -1289,6 +1297,32 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    /// [`corner_ray_span`] is where [`tube`] surely goes along the corner
+    /// rays: a patch whose longest edge is over it when a step begins is
+    /// never cut into sub-patches, whatever it does in the step, and one
+    /// just under it with all edges so before and after the step is.
+    #[test]
+    fn over_the_corner_ray_span_a_tube_goes_along_its_corner_rays() {
+        let voxel = 0.1;
+        let wide = corner_ray_span(voxel);
+        let mut rng = eikon_rng::SplitMix64::new(29);
+        let mut u = || rng.unit();
+        let mut rv = || DVec3::new(u(), u(), u()) - 0.5;
+        for _ in 0..5000 {
+            let (a, b) = (rv().normalize(), rv().normalize());
+            let side = |f: f64| [DVec3::ZERO, a * f, a * f + b * f, b * f];
+            let over = side(wide * (1.0 + 1e-7));
+            assert!(span(&over) > wide);
+            let moved = over.map(|x| x + rv() * voxel);
+            assert_eq!(cut(&over, &moved, voxel), None);
+            // A parallelogram just within the span, moved rigidly.
+            let within = side(wide * 0.999);
+            let shift = rv() * voxel;
+            let moved = within.map(|x| x + shift);
+            assert!(cut(&within, &moved, voxel).is_some());
         }
     }
 

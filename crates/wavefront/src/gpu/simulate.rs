@@ -275,9 +275,8 @@ layout! {
         pub front_len: u32,
         /// The torn patches' pieces (pass 2's threads).
         pub front_pieces: u32,
-        /// Padding (u32s: an array in a uniform block has a 16-byte
-        /// stride).
-        pub pad0: u32,
+        /// [`Rules::corner_rays`] (infinite: never).
+        pub corner_rays: f32,
         /// Padding.
         pub pad1: u32,
         /// Padding.
@@ -1600,6 +1599,7 @@ impl<'a> GpuSimulator<'a> {
             incident_kind: INCIDENT_UNIFORM,
             dim: rules.dim as f32,
             faint: rules.faint as f32,
+            corner_rays: rules.corner_rays as f32,
             dt: dt as f32,
             threshold: opts.threshold as f32,
             // The CPU's `span > split_span (1 + 1e-9)` with the tolerance

@@ -495,6 +495,28 @@ fn incident_at(x: vec3<f32>) -> vec3<f32> {
     return point_irradiance(x, P.incident_position, P.incident_power, P.incident_kind == INCIDENT_SPOT, P.cone_axis, P.cone_angle, P.cone_falloff);
 }
 
+// Whether patch i, `span` across, is too faint to follow
+// (`refine::Seen::faint`): its flux below `faint` of the light's irradiance
+// at its midpoint; over the corner rays' span, a quarter of it below that
+// at each corner inside the grid, and each corner outside gone.
+fn too_faint(i: u32, flux: vec3<f32>, mid: vec3<f32>, span: f32) -> bool {
+    if span <= P.corner_rays {
+        return below(flux, P.faint, incident_at(mid));
+    }
+    let quarter = 0.25 * flux;
+    for (var c = 0u; c < 4u; c++) {
+        let x = corner_x(i, c);
+        if grid_contains(P.grid, x) {
+            if !below(quarter, P.faint, incident_at(x)) {
+                return false;
+            }
+        } else if !gone(x, vel[4u * i + c].xyz) {
+            return false;
+        }
+    }
+    return true;
+}
+
 // `refine::fate`.
 fn fate_of(i: u32) -> u32 {
     // Shape measures relative to corner 0 (they do not depend on where).
@@ -524,7 +546,7 @@ fn fate_of(i: u32) -> u32 {
     if all(flux.xyz <= P.threshold * f0.xyz) {
         return FATE_ABSORBED;
     }
-    if P.faint > 0.0 && below(flux.xyz, P.faint, incident_at(mid)) {
+    if P.faint > 0.0 && too_faint(i, flux.xyz, mid, patch_span(p0, p1, p2, p3)) {
         // Still travelling, too faint to follow: trapped.
         return FATE_FAINT;
     }
