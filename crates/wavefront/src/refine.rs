@@ -648,7 +648,7 @@ mod tests {
         let away = [DVec3::Z, DVec3::X, DVec3::new(1.0, 1.0, 0.0), DVec3::Y];
         let mid = (x[0] + x[1] + x[2] + x[3]) * 0.25;
         assert!(span(&x) > rules.corner_rays);
-        // Twice the midpoint's limit, a third of the held corner's.
+        // Twice the midpoint's limit; its quarter below the held corner's.
         let flux = 2.0 * limit(mid);
         assert!(flux * 0.25 < limit(held) && flux > limit(mid));
         let seen = |x: [DVec3; 4], v: [DVec3; 4], f: f64| Seen {
