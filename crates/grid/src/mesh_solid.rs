@@ -20,7 +20,7 @@
 //!   bound is all the voxelizer needs: it supersamples every cell the bound
 //!   does not clear.
 
-use eikon_mesh::{bvh::closest_hit_among, Bvh, Hit, Mesh, Ray};
+use eikon_mesh::{bvh::closest_hit_among_with, Bvh, Hit, Mesh, Ray};
 use glam::DVec3;
 use std::sync::Arc;
 
@@ -61,6 +61,9 @@ pub struct MeshSolid {
     /// Bucket `b` lists `items[start[b]..start[b + 1]]`.
     start: Vec<u32>,
     items: Vec<u32>,
+    /// Per entry of `items`, its triangle's `yz` (read in order as
+    /// [`Self::contains`] walks a row, not looked up per triangle).
+    items_yz: Vec<[f64; 4]>,
     /// Per bucket: [`HOLDS`] or [`HOLDS_BACK`] where triangles touch it,
     /// else which side of the surface the whole bucket lies on
     /// ([`OUTSIDE`], [`INSIDE`]).
@@ -120,6 +123,7 @@ impl MeshSolid {
             dims,
             start: Vec::new(),
             items: Vec::new(),
+            items_yz: Vec::new(),
             side: Vec::new(),
             bvh,
         };
@@ -161,6 +165,7 @@ impl MeshSolid {
                 fill[b] += 1;
             });
         }
+        self.items_yz = items.iter().map(|&t| self.yz[t as usize]).collect();
         self.start = start;
         self.items = items;
     }
@@ -226,11 +231,7 @@ impl MeshSolid {
     /// outside it (strictly: on its edge the tie-break decides) misses.
     #[inline(always)]
     fn crosses_x(&self, t: u32, y: f64, z: f64) -> Option<f64> {
-        let [y0, y1, z0, z1] = self.yz[t as usize];
-        if y < y0 || y > y1 || z < z0 || z > z1 {
-            return None;
-        }
-        crossing_x(&self.tris[t as usize], y, z)
+        crosses_x_within(&self.yz[t as usize], &self.tris[t as usize], y, z)
     }
 
     /// The `x` range whose crossings bucket column `i` counts: its own,
@@ -304,7 +305,24 @@ impl MeshSolid {
                     }
                 });
                 if fits {
-                    return closest_hit_among(&self.mesh, ray, ids[..n].iter().copied());
+                    // A triangle over several buckets is listed in each:
+                    // tested once (the hit is the same either way).
+                    let ids = &mut ids[..n];
+                    ids.sort_unstable();
+                    let mut m = 0;
+                    for k in 0..ids.len() {
+                        if k == 0 || ids[k] != ids[m - 1] {
+                            ids[m] = ids[k];
+                            m += 1;
+                        }
+                    }
+                    let tris = &self.tris;
+                    return closest_hit_among_with(
+                        &self.mesh,
+                        |t| tris[t as usize],
+                        ray,
+                        ids[..m].iter().copied(),
+                    );
                 }
             }
         }
@@ -386,8 +404,11 @@ impl MeshSolid {
                 (true, true) => (x0, f64::INFINITY),
                 _ => (x0, x1),
             };
-            for &t in self.bucket([iu, j, k]) {
-                if let Some(x) = self.crosses_x(t, p.y, p.z) {
+            let b = at(iu);
+            let span = self.start[b] as usize..self.start[b + 1] as usize;
+            for (&t, bounds) in self.items[span.clone()].iter().zip(&self.items_yz[span]) {
+                // `crosses_x`, its bounds read in bucket order.
+                if let Some(x) = crosses_x_within(bounds, &self.tris[t as usize], p.y, p.z) {
                     let beyond = if back { x < p.x } else { x > p.x };
                     if beyond && x >= x0 && x < x1 {
                         inside = !inside;
@@ -491,6 +512,18 @@ fn edge(a: DVec3, b: DVec3, y: f64, z: f64) -> f64 {
     } else {
         e
     }
+}
+
+/// Where the line along x through `(y, z)` crosses triangle `t`
+/// ([`crossing_x`]), after the cheap test of the triangle's `yz` bounds
+/// `[y0, y1, z0, z1]`.
+#[inline]
+fn crosses_x_within(yz: &[f64; 4], t: &[DVec3; 3], y: f64, z: f64) -> Option<f64> {
+    let [y0, y1, z0, z1] = *yz;
+    if y < y0 || y > y1 || z < z0 || z > z1 {
+        return None;
+    }
+    crossing_x(t, y, z)
 }
 
 /// Where the line `{(x, y, z): x real}` crosses triangle `t`, if it does.

@@ -632,10 +632,22 @@ pub fn closest_hit_among(
     ray: &Ray,
     triangles: impl IntoIterator<Item = u32>,
 ) -> Option<Hit> {
+    closest_hit_among_with(mesh, |t| mesh.corners(t as usize), ray, triangles)
+}
+
+/// [`closest_hit_among`] with each triangle's corners from `corners` (a
+/// copy of `mesh`'s, [`Mesh::corners`], kept by the caller: no lookup
+/// through the vertex indices per test).
+pub fn closest_hit_among_with(
+    mesh: &Mesh,
+    corners: impl Fn(u32) -> [DVec3; 3],
+    ray: &Ray,
+    triangles: impl IntoIterator<Item = u32>,
+) -> Option<Hit> {
     let pr = Prepared::new(ray)?;
     let mut best: Option<(u32, f64, [f64; 3], [DVec3; 3])> = None;
     for t in triangles {
-        let corners = mesh.corners(t as usize);
+        let corners = corners(t);
         if let Some((th, bary)) = pr.hits_triangle(&corners, ray.t_min, ray.t_max) {
             if best.is_none_or(|(bt_id, bt, _, _)| th < bt || (th == bt && t < bt_id)) {
                 best = Some((t, th, bary, corners));
