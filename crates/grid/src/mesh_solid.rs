@@ -51,9 +51,6 @@ pub struct MeshSolid {
     mesh: Arc<Mesh>,
     smooth: bool,
     tris: Vec<[DVec3; 3]>,
-    /// Per triangle, its corners' least and greatest `y` and `z`: a line
-    /// along x outside them misses it ([`Self::crosses_x`]).
-    yz: Vec<[f64; 4]>,
     lo: DVec3,
     hi: DVec3,
     cell: DVec3,
@@ -61,8 +58,10 @@ pub struct MeshSolid {
     /// Bucket `b` lists `items[start[b]..start[b + 1]]`.
     start: Vec<u32>,
     items: Vec<u32>,
-    /// Per entry of `items`, its triangle's `yz` (read in order as
-    /// [`Self::contains`] walks a row, not looked up per triangle).
+    /// Per entry of `items`, its triangle's corners' least and greatest
+    /// `y` and `z`: a line along x outside them misses it
+    /// ([`Self::crossings`]). Kept beside the lists, in their order, for
+    /// the walks along a row.
     items_yz: Vec<[f64; 4]>,
     /// Per bucket: [`HOLDS`] or [`HOLDS_BACK`] where triangles touch it,
     /// else which side of the surface the whole bucket lies on
@@ -93,13 +92,6 @@ impl MeshSolid {
         let tris: Vec<[DVec3; 3]> = (0..mesh.triangle_count())
             .map(|t| mesh.corners(t))
             .collect();
-        let yz = tris
-            .iter()
-            .map(|t| {
-                let (a, b) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
-                [a.y, b.y, a.z, b.z]
-            })
-            .collect();
         let (mut lo, mut hi) = mesh.bounds();
         // Pad the box so that rounding at its faces never drops a triangle.
         let pad = (hi - lo).max_element().max(1e-300) * 1e-9;
@@ -116,7 +108,6 @@ impl MeshSolid {
             mesh,
             smooth,
             tris,
-            yz,
             lo,
             hi,
             cell,
@@ -165,7 +156,14 @@ impl MeshSolid {
                 fill[b] += 1;
             });
         }
-        self.items_yz = items.iter().map(|&t| self.yz[t as usize]).collect();
+        self.items_yz = items
+            .iter()
+            .map(|&t| {
+                let t = &self.tris[t as usize];
+                let (a, b) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
+                [a.y, b.y, a.z, b.z]
+            })
+            .collect();
         self.start = start;
         self.items = items;
     }
@@ -193,11 +191,11 @@ impl MeshSolid {
                         continue;
                     }
                     let (x0, x1) = self.row_span(i);
-                    for &t in self.bucket(b) {
-                        if self.crosses_x(t, y, z).is_some_and(|x| x >= x0 && x < x1) {
+                    self.crossings(b, y, z, |x| {
+                        if x >= x0 && x < x1 {
                             inside = !inside;
                         }
-                    }
+                    });
                 }
                 // Which way from each bucket with triangles reaches a bucket
                 // of known side (or the row's end) past fewer of them.
@@ -227,11 +225,22 @@ impl MeshSolid {
         self.side = side;
     }
 
-    /// [`crossing_x`] of triangle `t`, after a look at its box: a line
-    /// outside it (strictly: on its edge the tie-break decides) misses.
+    /// Hand `at` the `x` of each crossing of the line along x through
+    /// `(y, z)` with a triangle of bucket `b` ([`crossing_x`]), after a
+    /// look at each triangle's box: a line outside it (strictly: on its
+    /// edge the tie-break decides) misses.
     #[inline(always)]
-    fn crosses_x(&self, t: u32, y: f64, z: f64) -> Option<f64> {
-        crosses_x_within(&self.yz[t as usize], &self.tris[t as usize], y, z)
+    fn crossings(&self, [i, j, k]: [usize; 3], y: f64, z: f64, mut at: impl FnMut(f64)) {
+        let b = (i * self.dims[1] + j) * self.dims[2] + k;
+        let span = self.start[b] as usize..self.start[b + 1] as usize;
+        for (&t, &[y0, y1, z0, z1]) in self.items[span.clone()].iter().zip(&self.items_yz[span]) {
+            if y < y0 || y > y1 || z < z0 || z > z1 {
+                continue;
+            }
+            if let Some(x) = crossing_x(&self.tris[t as usize], y, z) {
+                at(x);
+            }
+        }
     }
 
     /// The `x` range whose crossings bucket column `i` counts: its own,
@@ -404,17 +413,12 @@ impl MeshSolid {
                 (true, true) => (x0, f64::INFINITY),
                 _ => (x0, x1),
             };
-            let b = at(iu);
-            let span = self.start[b] as usize..self.start[b + 1] as usize;
-            for (&t, bounds) in self.items[span.clone()].iter().zip(&self.items_yz[span]) {
-                // `crosses_x`, its bounds read in bucket order.
-                if let Some(x) = crosses_x_within(bounds, &self.tris[t as usize], p.y, p.z) {
-                    let beyond = if back { x < p.x } else { x > p.x };
-                    if beyond && x >= x0 && x < x1 {
-                        inside = !inside;
-                    }
+            self.crossings([iu, j, k], p.y, p.z, |x| {
+                let beyond = if back { x < p.x } else { x > p.x };
+                if beyond && x >= x0 && x < x1 {
+                    inside = !inside;
                 }
-            }
+            });
             i += way;
         }
         inside
@@ -512,18 +516,6 @@ fn edge(a: DVec3, b: DVec3, y: f64, z: f64) -> f64 {
     } else {
         e
     }
-}
-
-/// Where the line along x through `(y, z)` crosses triangle `t`
-/// ([`crossing_x`]), after the cheap test of the triangle's `yz` bounds
-/// `[y0, y1, z0, z1]`.
-#[inline]
-fn crosses_x_within(yz: &[f64; 4], t: &[DVec3; 3], y: f64, z: f64) -> Option<f64> {
-    let [y0, y1, z0, z1] = *yz;
-    if y < y0 || y > y1 || z < z0 || z > z1 {
-        return None;
-    }
-    crossing_x(t, y, z)
 }
 
 /// Where the line `{(x, y, z): x real}` crosses triangle `t`, if it does.
