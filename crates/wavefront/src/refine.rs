@@ -21,17 +21,39 @@
 use crate::histopyramid::HistoPyramid;
 use crate::patch::{area, normal, span, Patches, Split};
 use eikon_grid::{GridGeometry, IndexField, RayState};
-use eikon_shader::{nothing, Module};
+use eikon_shader::{Consts, Module};
 use rayon::prelude::*;
 
-/// The WGSL of [`below`] and of [`Incident::at`] for a point or spot
-/// light (`point_irradiance`), which the GPU's tessellation analysis calls.
+/// The WGSL of [`below`], of [`Incident::at`] (`refine_incident_at`, and
+/// `point_irradiance` for a point or spot light), of [`faint`]
+/// (`refine_faint`) and of `gone` (`refine_gone`), which the GPU's
+/// tessellation analysis calls.
 pub static WGSL: Module = Module {
     name: "refine",
-    requires: &[&eikon_shader::VECTOR, &eikon_optics::spot::WGSL],
-    declarations: nothing,
+    requires: &[
+        &eikon_shader::VECTOR,
+        &eikon_optics::spot::WGSL,
+        &eikon_grid::geometry::WGSL,
+    ],
+    declarations: refine_declarations,
     text: include_str!("refine.wgsl"),
 };
+
+/// What an [`Incident`] is, in WGSL's `Incident.kind`: a plane wave.
+pub const INCIDENT_UNIFORM: u32 = 0;
+/// A point light.
+pub const INCIDENT_POINT: u32 = 1;
+/// A spot light.
+pub const INCIDENT_SPOT: u32 = 2;
+
+fn refine_declarations() -> String {
+    Consts::new()
+        .u32("INCIDENT_UNIFORM", INCIDENT_UNIFORM)
+        .u32("INCIDENT_POINT", INCIDENT_POINT)
+        .u32("INCIDENT_SPOT", INCIDENT_SPOT)
+        .wgsl()
+        .to_owned()
+}
 
 /// Why patches left the list, and how much flux they took with them.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -272,7 +294,7 @@ impl Seen {
         // (a point light's costs a square root and its cone).
         let incident = rules.incident.at(mid);
         let wide = span(&x);
-        if rules.faint > 0.0 && self.faint(grid, rules, &incident, wide) {
+        if rules.faint > 0.0 && faint(grid, rules, &self.flux, &x, &self.v, wide, &incident) {
             return Fate::Faint;
         }
         if rules.cull_caustics && normal(&x).dot(dir()) <= 0.0 {
@@ -294,32 +316,40 @@ impl Seen {
             Fate::Retain
         }
     }
+}
 
-    /// Whether the patch, `span` across, is too faint to follow
-    /// ([`Rules::faint`]): its flux below `faint` times the light's
-    /// irradiance at its midpoint, `incident`. A patch over
-    /// [`Rules::corner_rays`] across deposits a quarter of its flux along
-    /// each of its corner rays and nothing between them (`deposit::tube`),
-    /// so it is too faint where each corner inside the grid carries its
-    /// quarter below that limit of the irradiance there, and each corner
-    /// outside has left for good: its midpoint may lie far from all of
-    /// them (a patch torn across an object's silhouette, one corner held
-    /// inside the object by total internal reflection while the others
-    /// went on past it).
-    fn faint(&self, grid: &GridGeometry, rules: &Rules, incident: &[f64; 3], span: f64) -> bool {
-        if span <= rules.corner_rays {
-            return below(&self.flux, rules.faint, incident);
-        }
-        let quarter = self.flux.map(|f| 0.25 * f);
-        (0..4).all(|c| {
-            let x = self.x[c];
-            if grid.contains(x) {
-                below(&quarter, rules.faint, &rules.incident.at(x))
-            } else {
-                gone(grid, x, self.v[c])
-            }
-        })
+/// Whether a patch with corners `x` moving along `v`, carrying `flux` and
+/// `span` across, is too faint to follow ([`Rules::faint`]): its flux
+/// below `faint` times the light's irradiance at its midpoint, `incident`
+/// ([`below`]). A patch over [`Rules::corner_rays`] across deposits a
+/// quarter of its flux along each of its corner rays and nothing between
+/// them (`deposit::tube`), so it is too faint where each corner inside the
+/// grid carries its quarter below that limit of the irradiance there, and
+/// each corner outside has left for good: its midpoint may lie far from
+/// all of them (a patch torn across an object's silhouette, one corner
+/// held inside the object by total internal reflection while the others
+/// went on past it). The GPU's `refine_faint` (`refine.wgsl`) is the same
+/// rule.
+pub fn faint(
+    grid: &GridGeometry,
+    rules: &Rules,
+    flux: &[f64; 3],
+    x: &[glam::DVec3; 4],
+    v: &[glam::DVec3; 4],
+    span: f64,
+    incident: &[f64; 3],
+) -> bool {
+    if span <= rules.corner_rays {
+        return below(flux, rules.faint, incident);
     }
+    let quarter = flux.map(|f| 0.25 * f);
+    (0..4).all(|c| {
+        if grid.contains(x[c]) {
+            below(&quarter, rules.faint, &rules.incident.at(x[c]))
+        } else {
+            gone(grid, x[c], v[c])
+        }
+    })
 }
 
 /// Relative margin of [`retained_along`]'s bounds: far above the rounding

@@ -816,6 +816,245 @@ fn irradiance(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgro
     );
 }
 
+// ---------------------------------------------------------------------
+// The faint rule as a whole (`refine::faint`): the midpoint's test, or a
+// wide patch's corners one by one, some inside the grid and some outside
+// it, heading away or back.
+
+fn the_faint_rule_matches_the_cpu(gpu: &Gpu) {
+    let main = format!(
+        "{IO}
+@group(0) @binding(2) var<uniform> G: GridGpu;
+
+// Input: (flux, k), (position, kind), (power, angle), (axis, falloff),
+// the corners (x, span or corner_rays in w of the first two) and their
+// velocities.
+@compute @workgroup_size(WORKGROUP)
+fn faint(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if 12u * i >= arrayLength(&input) {{
+        return;
+    }}
+    let a = input[12u * i];
+    let p = input[12u * i + 1u];
+    let w = input[12u * i + 2u];
+    let ax = input[12u * i + 3u];
+    let light = Incident(u32(p.w), w.xyz, p.xyz, ax.xyz, w.w, ax.w);
+    var x: array<vec3<f32>, 4>;
+    var v: array<vec3<f32>, 4>;
+    for (var c = 0u; c < 4u; c++) {{
+        x[c] = input[12u * i + 4u + c].xyz;
+        v[c] = input[12u * i + 8u + c].xyz;
+    }}
+    let mid = 0.25 * (x[0] + x[1] + x[2] + x[3]);
+    let span = input[12u * i + 4u].w;
+    let corner_rays = input[12u * i + 5u].w;
+    let f = refine_faint(G, light, a.w, corner_rays, a.xyz, x, v, span, refine_incident_at(light, mid));
+    output[12u * i] = vec4<f32>(select(0.0, 1.0, f));
+}}
+"
+    );
+    let source = compose("", &[&DISPATCH, &GRID, &refine::WGSL], &main);
+    let g = grid();
+    let mut r = Cases::new(61);
+    let f = |x: f64| x as f32 as f64;
+    let centre = (g.min + g.max) * 0.5;
+    struct Case {
+        rules: refine::Rules,
+        kind: u32,
+        flux: [f64; 3],
+        x: [DVec3; 4],
+        v: [DVec3; 4],
+        span: f64,
+    }
+    let mut cases = Vec::new();
+    for k in 0..6000 {
+        // A plane wave, a point light or a spot aimed near the grid.
+        let kind = [
+            refine::INCIDENT_UNIFORM,
+            refine::INCIDENT_POINT,
+            refine::INCIDENT_SPOT,
+        ][k % 3];
+        let position = f32s(centre + r.v(-1.0, 1.0).normalize() * r.f(3.0, 5.0));
+        let power = f32s(DVec3::new(r.f(0.5, 5.0), r.f(0.5, 5.0), r.f(0.5, 5.0)));
+        let axis = f32s((centre + r.v(-1.0, 1.0) - position).normalize());
+        let (angle, falloff) = (f(r.f(10.0, 40.0)), f(r.f(0.0, 8.0)));
+        let incident = match kind {
+            refine::INCIDENT_UNIFORM => refine::Incident::Uniform(power.to_array()),
+            _ => refine::Incident::Point {
+                position,
+                power: power.to_array(),
+                cone: (kind == refine::INCIDENT_SPOT).then_some((axis, angle, falloff)),
+            },
+        };
+        // A patch around the grid: its corners inside, across a face or
+        // all outside, spread over up to two units.
+        let o = centre + r.v(-1.0, 1.0) * (g.max - g.min) * 0.7;
+        let size = r.f(0.05, 2.0);
+        let x = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)].map(|(s, t)| {
+            f32s(o + DVec3::new(s * size, t * size * 0.8, 0.3 * s * size) + r.v(-0.3, 0.3) * size)
+        });
+        // Corners heading back towards the grid or away from it.
+        let v = x.map(|p| {
+            let d = if r.f(0.0, 1.0) < 0.5 {
+                centre - p + r.v(-0.5, 0.5)
+            } else {
+                p - centre + r.v(-0.5, 0.5)
+            };
+            f32s(d.normalize())
+        });
+        let span = f(span(&x));
+        // The midpoint's test for half, the corners' for the rest.
+        let corner_rays = f(span * if k % 2 == 0 { 1.3 } else { 0.7 });
+        let faint = f(r.f(0.01, 0.5));
+        // A flux about the limit at the midpoint (its quarter, for a
+        // wide patch), or anywhere well below or above it.
+        let mid = (x[0] + x[1] + x[2] + x[3]) * 0.25;
+        let at = incident.at(mid);
+        let share = if k % 2 == 0 { 1.0 } else { 4.0 };
+        let scale = if r.f(0.0, 1.0) < 0.6 {
+            r.f(0.7, 1.4)
+        } else {
+            r.f(0.0, 3.0)
+        };
+        let flux = at.map(|e| f(share * faint * e * scale));
+        let rules = refine::Rules {
+            split_span: 1.0,
+            threshold: 0.0,
+            max_patches: usize::MAX,
+            max_depth: 0,
+            cull_caustics: false,
+            dim: 0.0,
+            incident,
+            faint,
+            corner_rays,
+        };
+        cases.push(Case {
+            rules,
+            kind,
+            flux,
+            x,
+            v,
+            span,
+        });
+    }
+    let inputs: Vec<[f32; 4]> = cases
+        .iter()
+        .flat_map(|c| {
+            let (position, power, axis, angle, falloff) = match c.rules.incident {
+                refine::Incident::Uniform(e) => (DVec3::ZERO, e, DVec3::Z, 0.0, 0.0),
+                refine::Incident::Point {
+                    position,
+                    power,
+                    cone,
+                } => {
+                    let (axis, angle, falloff) = cone.unwrap_or((DVec3::Z, 0.0, 0.0));
+                    (position, power, axis, angle, falloff)
+                }
+            };
+            let mut row = vec![
+                v4(DVec3::from_array(c.flux), c.rules.faint),
+                v4(position, c.kind as f64),
+                v4(DVec3::from_array(power), angle),
+                v4(axis, falloff),
+            ];
+            let w = [c.span, c.rules.corner_rays, 0.0, 0.0];
+            row.extend((0..4).map(|k| v4(c.x[k], w[k])));
+            row.extend(c.v.iter().map(|&d| v4(d, 0.0)));
+            row
+        })
+        .collect();
+    let grid_buf = gpu.uniform("grid", &[GridGpu::new(&g)]);
+    let out = gpu
+        .eval(
+            &source,
+            "faint",
+            &inputs,
+            12,
+            &[grid_buf.as_entire_binding()],
+        )
+        .unwrap();
+    // A case is compared where the CPU's answer stands when the flux moves
+    // by the f32 rounding of the irradiance (and, for a spot, by how far
+    // its cone weight may stray, `cone_tolerance`) and the grid's faces
+    // move by a ten-thousandth of its size: a corner on a face, a ray
+    // grazing an edge or a flux at the limit may fall either way.
+    let (mut counted, mut yes, mut no, mut by_corners, mut outside) = (0, 0, 0, 0, 0);
+    for (n, c) in cases.iter().enumerate() {
+        let want = refine::faint(
+            &g,
+            &c.rules,
+            &c.flux,
+            &c.x,
+            &c.v,
+            c.span,
+            &c.rules
+                .incident
+                .at((c.x[0] + c.x[1] + c.x[2] + c.x[3]) * 0.25),
+        );
+        let mut tol = 1e-4;
+        if let refine::Incident::Point {
+            position,
+            cone: Some((axis, angle, falloff)),
+            ..
+        } = c.rules.incident
+        {
+            let mid = (c.x[0] + c.x[1] + c.x[2] + c.x[3]) * 0.25;
+            let mut worst = Some(0.0f64);
+            for p in c.x.iter().chain([&mid]) {
+                worst = worst
+                    .zip(cone_tolerance(
+                        (*p - position).normalize(),
+                        axis,
+                        angle,
+                        falloff,
+                    ))
+                    .map(|(a, b)| a.max(b));
+            }
+            let Some(w) = worst else {
+                continue;
+            };
+            tol += w;
+        }
+        let pad = (g.max - g.min) * 1e-4;
+        let stands = [-1.0, 1.0].iter().all(|&s| {
+            let grown = GridGeometry::new(g.dims, g.min - pad * s, g.max + pad * s);
+            let flux = c.flux.map(|x| x * (1.0 + s * tol));
+            let incident = c
+                .rules
+                .incident
+                .at((c.x[0] + c.x[1] + c.x[2] + c.x[3]) * 0.25);
+            refine::faint(&grown, &c.rules, &c.flux, &c.x, &c.v, c.span, &incident) == want
+                && refine::faint(&g, &c.rules, &flux, &c.x, &c.v, c.span, &incident) == want
+        });
+        if !stands {
+            continue;
+        }
+        let got = out[12 * n][0] == 1.0;
+        assert_eq!(
+            got,
+            want,
+            "case {n}: {} corners inside",
+            c.x.iter().filter(|&&p| g.contains(p)).count()
+        );
+        counted += 1;
+        if want {
+            yes += 1;
+        } else {
+            no += 1;
+        }
+        if c.span > c.rules.corner_rays {
+            by_corners += 1;
+            outside += usize::from(c.x.iter().any(|&p| !g.contains(p)));
+        }
+    }
+    println!("{counted} cases: {yes} faint, {no} not; {by_corners} by their corners, {outside} of them with a corner outside");
+    assert!(
+        yes > 600 && no > 600 && by_corners > 1500 && outside > 1000,
+        "{yes} faint, {no} not, {by_corners} by their corners, {outside} with a corner outside"
+    );
+}
+
 fn main() {
     Tests::new()
         .gpu(
@@ -841,6 +1080,10 @@ fn main() {
         .gpu(
             "the_faint_test_and_a_point_lights_irradiance_match_the_cpu",
             the_faint_test_and_a_point_lights_irradiance_match_the_cpu,
+        )
+        .gpu(
+            "the_faint_rule_matches_the_cpu",
+            the_faint_rule_matches_the_cpu,
         )
         .run()
 }

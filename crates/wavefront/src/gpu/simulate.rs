@@ -165,7 +165,7 @@
 
 use crate::deposit::{self, Counters};
 use crate::patch::{self, Patches};
-use crate::refine::{Fate, Incident, Rules};
+use crate::refine::{Fate, Incident, Rules, INCIDENT_POINT, INCIDENT_SPOT, INCIDENT_UNIFORM};
 use crate::{crossings_bound, power_bound, units_per_crossing, DepositRule, Summary};
 use crate::{histopyramid, propagate, refine, Error, LightVolume, Options};
 use eikon_gpu::{
@@ -417,10 +417,6 @@ const PLAN_BYTES: u64 = (PLAN_ARGS_AT + PLAN_SLOTS as u64 * 12).next_multiple_of
 /// its steps doubles the next, up to `MOST_STEPS_PER_SUBMISSION`.
 const FIRST_STEPS_PER_SUBMISSION: usize = 8;
 const MOST_STEPS_PER_SUBMISSION: usize = 64;
-/// What `Incident` is, for `incident_at`.
-const INCIDENT_UNIFORM: u32 = 0;
-const INCIDENT_POINT: u32 = 1;
-const INCIDENT_SPOT: u32 = 2;
 /// Cells a thread sums before its atomic adds (a list, where the CPU's
 /// `deposit::Tile` holds a layer: private memory per thread is small).
 const LOCAL_CELLS: u32 = 16;
@@ -462,9 +458,6 @@ fn declarations() -> String {
         .u32("FATE_CAUSTIC", Fate::Caustic as u32)
         .u32("FATE_RETAIN", Fate::Retain as u32)
         .u32("FATE_SPLIT", Fate::Split as u32)
-        .u32("INCIDENT_UNIFORM", INCIDENT_UNIFORM)
-        .u32("INCIDENT_POINT", INCIDENT_POINT)
-        .u32("INCIDENT_SPOT", INCIDENT_SPOT)
         .u32("NONE", u32::MAX)
         .u32("PL_HALT", PL_HALT as u32)
         .u32("PL_STEPS", PL_STEPS as u32)

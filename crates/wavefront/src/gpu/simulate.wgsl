@@ -482,39 +482,28 @@ fn tube(sw: Swept) {
 
 // Whether a ray at x going along d has left the bounds for good.
 fn gone(x: vec3<f32>, d: vec3<f32>) -> bool {
-    let clip = grid_clip_line(P.grid, x, d);
-    return !grid_contains(P.grid, x) && (!clip.hit || clip.t1 <= 0.0);
+    return refine_gone(P.grid, x, d);
 }
 
-// The light's unobstructed irradiance per channel at x
-// (`refine::Incident::at`).
+// The light the tessellation compares with (`Rules::incident`).
+fn incident_light() -> Incident {
+    return Incident(P.incident_kind, P.incident_power, P.incident_position, P.cone_axis, P.cone_angle, P.cone_falloff);
+}
+
+// The light's unobstructed irradiance per channel at x.
 fn incident_at(x: vec3<f32>) -> vec3<f32> {
-    if P.incident_kind == INCIDENT_UNIFORM {
-        return P.incident_power;
-    }
-    return point_irradiance(x, P.incident_position, P.incident_power, P.incident_kind == INCIDENT_SPOT, P.cone_axis, P.cone_angle, P.cone_falloff);
+    return refine_incident_at(incident_light(), x);
 }
 
-// Whether patch i, `span` across, is too faint to follow
-// (`refine::Seen::faint`): its flux below `faint` of the light's irradiance
-// at its midpoint; over the corner rays' span, a quarter of it below that
-// at each corner inside the grid, and each corner outside gone.
+// Whether patch i, `span` across, is too faint to follow (`refine::faint`).
 fn too_faint(i: u32, flux: vec3<f32>, mid: vec3<f32>, span: f32) -> bool {
-    if span <= P.corner_rays {
-        return below(flux, P.faint, incident_at(mid));
-    }
-    let quarter = 0.25 * flux;
+    var x: array<vec3<f32>, 4>;
+    var v: array<vec3<f32>, 4>;
     for (var c = 0u; c < 4u; c++) {
-        let x = corner_x(i, c);
-        if grid_contains(P.grid, x) {
-            if !below(quarter, P.faint, incident_at(x)) {
-                return false;
-            }
-        } else if !gone(x, vel[4u * i + c].xyz) {
-            return false;
-        }
+        x[c] = corner_x(i, c);
+        v[c] = vel[4u * i + c].xyz;
     }
-    return true;
+    return refine_faint(P.grid, incident_light(), P.faint, P.corner_rays, flux, x, v, span, incident_at(mid));
 }
 
 // `refine::fate`.
