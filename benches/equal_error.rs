@@ -398,8 +398,8 @@ fn main() {
     for o in &results {
         let how = match o.photons.reach {
             Reach::Measured { .. } | Reach::AtMost => "measured",
-            Reach::Fitted { .. } => "extrapolated",
-            Reach::Never { .. } => "not reached",
+            Reach::Fitted { .. } | Reach::Floored { .. } => "extrapolated",
+            Reach::Never { .. } | Reach::BelowFloor { .. } => "not reached",
         };
         println!(
             "   {:<10} {:>10.3e} {:>9.3}s {:>12.3e} {:>12} {:>8.1}x  {how}",

@@ -76,6 +76,13 @@ pub enum Reach {
     Fitted { a: f64, b: f64, from: u32 },
     /// The fitted error does not fall.
     Never { b: f64 },
+    /// Beyond the last run, against a reference of `reference` photons of
+    /// the same tracer: `e^2 = a (1/N + 1/reference)` fitted on the last
+    /// runs from 2^`from` ([`equal_error_against_photons`]).
+    Floored { a: f64, reference: f64, from: u32 },
+    /// Below what the reference's own noise allows at any count.
+    #[allow(dead_code)]
+    BelowFloor { a: f64, reference: f64 },
 }
 
 /// The photon count at which the error reaches a target.
@@ -132,6 +139,46 @@ pub fn equal_error(runs: &[(u64, f64)], target: f64) -> Equal {
     }
 }
 
+/// [`equal_error`] for a sweep scored against a reference that is itself
+/// `reference` photons of the same tracer (independent of the sweep's):
+/// between two measured runs the same log-log interpolation; beyond the
+/// last run, not a power law but the model the two noises make. Each
+/// cell's relative error is the sweep's noise minus the reference's, both
+/// photon noise of one tracer, with variances `k_i^2 / N` and
+/// `k_i^2 / reference` in the same proportion over the cells; so the mean
+/// absolute error is `sqrt(a (1/N + 1/reference))` for one `a`. A power
+/// law fitted where the reference's noise already counts falls too slowly
+/// and puts the count too low. The model's `a` also predicts how far two
+/// reference runs differ, which a bench can check against the seeds.
+#[allow(dead_code)]
+pub fn equal_error_against_photons(runs: &[(u64, f64)], target: f64, reference: f64) -> Equal {
+    let measured = equal_error(runs, target);
+    if !matches!(measured.reach, Reach::Fitted { .. } | Reach::Never { .. }) {
+        return measured;
+    }
+    let last = &runs[runs.len().saturating_sub(FIT_POINTS)..];
+    let a = last
+        .iter()
+        .map(|&(n, e)| e * e / (1.0 / n as f64 + 1.0 / reference))
+        .sum::<f64>()
+        / last.len() as f64;
+    let inverse = target * target / a - 1.0 / reference;
+    if inverse <= 0.0 {
+        return Equal {
+            count: f64::INFINITY,
+            reach: Reach::BelowFloor { a, reference },
+        };
+    }
+    Equal {
+        count: 1.0 / inverse,
+        reach: Reach::Floored {
+            a,
+            reference,
+            from: last[0].0.trailing_zeros(),
+        },
+    }
+}
+
 /// `e` in words; `last` is the sweep's last count as a power of two.
 pub fn describe(e: &Equal, last: u32) -> String {
     match e.reach {
@@ -144,5 +191,12 @@ pub fn describe(e: &Equal, last: u32) -> String {
              over 2^{from}..2^{last}"
         ),
         Reach::Never { b } => format!("not reached: the fitted slope {b:.3} does not fall"),
+        Reach::Floored { a, reference, from } => format!(
+            "EXTRAPOLATED beyond the last run (2^{last}) with the reference's noise: \
+             error^2 = {a:.3e} (1/N + 1/{reference:.3e}) over 2^{from}..2^{last}"
+        ),
+        Reach::BelowFloor { a, reference } => {
+            format!("not reached: below the reference's own noise, sqrt({a:.3e} / {reference:.3e})")
+        }
     }
 }
