@@ -270,10 +270,23 @@ fn swept(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
     }}
 }}
 
+// Input (e1, major axis), (e2, 0), (moves, 0): the footprint's widths in
+// the layer.
+@compute @workgroup_size(WORKGROUP)
+fn widths(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if 3u * i >= arrayLength(&input) {{
+        return;
+    }}
+    let a = input[3u * i];
+    output[3u * i] = vec4<f32>(deposit_layer_widths(a.xyz, input[3u * i + 1u].xyz, input[3u * i + 2u].xyz, u32(a.w)), 0.0);
+}}
+
 fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>) {{}}
 "
     );
     let source = compose("", &[&DISPATCH, &GRID, &patch::WGSL, &deposit::WGSL], &main);
+    layer_widths_match_the_cpu(gpu, &source);
     let mut r = Cases::new(5);
     let voxel = 0.25;
     let mut tubes = Vec::new();
@@ -385,6 +398,51 @@ fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>) {{}}
         }
     }
     assert!(checked > 3800, "{checked}");
+}
+
+/// `deposit::layer_widths` against the kernel `widths` of `source`: edges
+/// and motions in every direction, some moving nearly along the layer.
+fn layer_widths_match_the_cpu(gpu: &Gpu, source: &str) {
+    let mut r = Cases::new(29);
+    let cases: Vec<(DVec3, DVec3, DVec3, usize)> = (0..3000)
+        .map(|k| {
+            let m = k % 3;
+            let mut moves = r.v(-2.0, 2.0);
+            if k % 4 == 0 {
+                // Nearly along the layer: about the guard's quarter.
+                moves[m] *= r.f(0.0, 0.6);
+            }
+            (f32s(r.v(-1.0, 1.0)), f32s(r.v(-1.0, 1.0)), f32s(moves), m)
+        })
+        .collect();
+    let inputs: Vec<[f32; 4]> = cases
+        .iter()
+        .flat_map(|&(e1, e2, mv, m)| [v4(e1, m as f64), v4(e2, 0.0), v4(mv, 0.0)])
+        .collect();
+    let out = gpu.eval(source, "widths", &inputs, 3, &[]).unwrap();
+    let (mut checked, mut oblique) = (0, 0);
+    for (k, &(e1, e2, mv, m)) in cases.iter().enumerate() {
+        // Within f32 rounding of the guard, either projection may be taken.
+        let ratio = mv[m].abs() / mv.abs().max_element();
+        if (ratio - 0.25).abs() < 1e-4 {
+            continue;
+        }
+        let want = deposit::layer_widths(e1, e2, mv, m);
+        let got = xyz(out[3 * k]);
+        // The projection divides by the motion along the axis: f32's
+        // rounding grows with the stretch it gives.
+        let stretch = 1.0 + (e1.length() + e2.length()) / mv[m].abs().max(1e-3);
+        assert!(
+            (got - want).length() < 2e-6 * stretch * (1.0 + want.length()),
+            "case {k}: {got} vs {want}"
+        );
+        checked += 1;
+        oblique += usize::from(ratio >= 0.25);
+    }
+    assert!(
+        checked > 2900 && oblique > 2000 && checked - oblique > 300,
+        "{checked} checked, {oblique} projected along the motion"
+    );
 }
 
 fn a_chords_pieces_match_the_cpu_deposit(gpu: &Gpu) {

@@ -282,6 +282,22 @@ fn deposit_in_layer(l: DepositLane, m: u32, layer: i32) -> vec2<f32> {
     return vec2<f32>(1.0, 0.0);
 }
 
+// `deposit::layer_widths`: the box footprint's width per axis of a
+// sub-patch of edges e1, e2 moving along `moves` as it crosses a layer of
+// the major axis m: its edges projected along its motion onto the layer's
+// plane (the straight projection where it moves nearly along the layer).
+fn deposit_layer_widths(e1: vec3<f32>, e2: vec3<f32>, moves: vec3<f32>, m: u32) -> vec3<f32> {
+    var p1 = e1;
+    var p2 = e2;
+    let a = abs(moves);
+    if a[m] >= 0.25 * max(a.x, max(a.y, a.z)) && moves[m] != 0.0 {
+        let k = 1.0 / moves[m];
+        p1 = e1 - moves * (e1[m] * k);
+        p2 = e2 - moves * (e2[m] * k);
+    }
+    return sqrt(p1 * p1 + p2 * p2);
+}
+
 // `Lane::deposit`: the piece [ta, tb] of the lane in `layer`, its swept
 // box footprint across the minor axes.
 fn deposit_lane_piece(g: GridGpu, l: DepositLane, ta: f32, tb: f32, depth: vec3<f32>, axes: vec3<u32>, layer: i32) {
@@ -296,7 +312,7 @@ fn deposit_lane_piece(g: GridGpu, l: DepositLane, ta: f32, tb: f32, depth: vec3<
     let c = l.at + l.moves * t;
     let e1 = l.e1 + l.de1 * t;
     let e2 = l.e2 + l.de2 * t;
-    let width = sqrt(e1 * e1 + e2 * e2);
+    let width = deposit_layer_widths(e1, e2, l.moves, m);
     let weight = deposit_attenuated(depth, ta, tb);
     let fl = l.w * weight;
     let along = l.u * dot(l.wf, weight);
@@ -344,10 +360,11 @@ fn deposit_tube(g: GridGpu, sc: ChordScales, x0: array<vec3<f32>, 4>, x1: array<
     // The axis the tube runs along most (in cells) and the other two.
     let run = ((x1[0] + x1[1] + x1[2] + x1[3]) - (x0[0] + x0[1] + x0[2] + x0[3])) * g.inv_spacing;
     let r = abs(run);
+    let tie = 1.0 - AXIS_TIE;
     var m = 2u;
-    if r.x >= r.y && r.x >= r.z {
+    if r.x >= r.y * tie && r.x >= r.z * tie {
         m = 0u;
-    } else if r.y >= r.z {
+    } else if r.y >= r.z * tie {
         m = 1u;
     }
     let axes = vec3<u32>(m, (m + 1u) % 3u, (m + 2u) % 3u);

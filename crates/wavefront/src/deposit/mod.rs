@@ -310,6 +310,7 @@ fn deposit_declarations() -> String {
         .u32("WHOLE_SUBPATCHES", WHOLE_SUBPATCHES as u32)
         .f32("SUBPATCH_SIZE", SUBPATCH_SIZE as f32)
         .f32("SUBPATCH_SLACK", SUBPATCH_SLACK as f32)
+        .f32("AXIS_TIE", AXIS_TIE as f32)
         .u32("MAX_PARTS", MAX_PARTS as u32)
         .u32("MAX_SWEPT", MAX_SWEPT as u32)
         .u32("MAX_CUTS", MAX_CUTS as u32)
@@ -536,14 +537,24 @@ fn edges(q: &[DVec3; 4]) -> (DVec3, DVec3) {
     )
 }
 
+/// How near two axes' runs must be for [`axes`] to take them as tied, and
+/// the first: the tubes of one wave must all be cut along the same axis,
+/// since their footprints in a layer only add up evenly with their
+/// neighbours' in the same layers, and a wave at 45 degrees to two axes
+/// would otherwise pick either by the rounding of its corners (on the GPU
+/// in f32).
+pub const AXIS_TIE: f64 = 1e-4;
+
 /// The axis a tube from `x0` to `x1` runs along most, in cells, first
 /// (footprints lie across the other two), then those two.
 #[inline]
 fn axes(x0: &[DVec3; 4], x1: &[DVec3; 4], inv: DVec3) -> [usize; 3] {
     let run = ((x1[0] + x1[1] + x1[2] + x1[3]) - (x0[0] + x0[1] + x0[2] + x0[3])) * inv;
-    let major = if run.x.abs() >= run.y.abs() && run.x.abs() >= run.z.abs() {
+    let r = run.abs();
+    let tie = 1.0 - AXIS_TIE;
+    let major = if r.x >= r.y * tie && r.x >= r.z * tie {
         0
-    } else if run.y.abs() >= run.z.abs() {
+    } else if r.y >= r.z * tie {
         1
     } else {
         2
@@ -762,7 +773,8 @@ impl Lane {
         let t = 0.5 * (ta + tb);
         let c = self.at + self.moves * t;
         let (e1, e2) = (self.e1 + self.de1 * t, self.e2 + self.de2 * t);
-        let width = |ax: usize| (e1[ax] * e1[ax] + e2[ax] * e2[ax]).sqrt();
+        let widths = layer_widths(e1, e2, self.moves, cells.axes[0]);
+        let width = |ax: usize| widths[ax];
         let weight = attenuated(depth, ta, tb);
         let fluence: [f64; 3] = std::array::from_fn(|ch| self.fluence[ch] * weight[ch]);
         let along = self.u * (0..3).map(|ch| self.flux[ch] * weight[ch]).sum::<f64>();
@@ -789,6 +801,31 @@ impl Lane {
             }
         }
     }
+}
+
+/// The width (cells, per axis) of the box footprint of a sub-patch of
+/// edges `e1`, `e2` moving along `moves` (cell coordinates) as it crosses
+/// a layer of the major axis `m`: its edges projected along its motion
+/// onto the layer's plane (the cross-section of its tube there, which the
+/// piece then sweeps across the layer), each axis' width that of the box
+/// with that parallelogram's second moment. Projected straight onto the
+/// plane instead (the patch as it stands), a tube that crosses the layers
+/// at `theta` to the axis would be `cos^2 theta` too narrow, and the
+/// footprints of neighbouring tubes would no longer add up evenly: a plane
+/// wave at 45 degrees read 4% high and low in alternate cells. A motion
+/// nearly along the layer (below a quarter of its largest component) keeps
+/// the straight projection, whose cross-section would be unbounded
+/// (wide footprints are narrowed to [`MAX_PARTS`] - 1 cells in any case).
+/// The GPU's `deposit_layer_widths`.
+#[inline]
+pub fn layer_widths(e1: DVec3, e2: DVec3, moves: DVec3, m: usize) -> DVec3 {
+    let (p1, p2) = if moves[m].abs() >= 0.25 * moves.abs().max_element() && moves[m] != 0.0 {
+        let k = 1.0 / moves[m];
+        (e1 - moves * (e1[m] * k), e2 - moves * (e2[m] * k))
+    } else {
+        (e1, e2)
+    };
+    DVec3::from_array((p1 * p1 + p2 * p2).to_array().map(f64::sqrt))
 }
 
 /// The grid's cells as a [`tube`] walks them: its axes (major, then the
@@ -1353,6 +1390,29 @@ mod tests {
             let got = total(&t);
             assert!((got - want).abs() < 1e-9, "tau {tau}: {got} vs {want}");
         }
+    }
+
+    #[test]
+    fn a_tilted_tubes_footprint_is_its_cross_section_in_the_layer() {
+        // A square of side a perpendicular to a light tilted by theta from
+        // the y axis within the x-y plane, crossing layers of y: its tube
+        // cuts a layer's plane in an a / cos(theta) by a rectangle.
+        let a = 0.5;
+        for degrees in [0.0f64, 20.0, 40.0, 44.0] {
+            let t = degrees.to_radians();
+            let d = DVec3::new(t.sin(), -t.cos(), 0.0);
+            let e1 = DVec3::new(t.cos(), t.sin(), 0.0) * a;
+            let e2 = DVec3::Z * a;
+            let w = layer_widths(e1, e2, d * 0.3, 1);
+            assert!((w.x - a / t.cos()).abs() < 1e-12, "{degrees}: {w}");
+            assert!((w.z - a).abs() < 1e-12, "{degrees}: {w}");
+            assert!(w.y.abs() < 1e-12, "{degrees}: {w}");
+        }
+        // Moving nearly along the layer, the patch as it stands.
+        let (e1, e2) = (DVec3::new(0.3, 0.2, 0.0), DVec3::new(0.0, 0.1, 0.4));
+        let w = layer_widths(e1, e2, DVec3::new(1.0, 0.2, 0.0), 1);
+        let straight = DVec3::new(0.3, (0.04f64 + 0.01).sqrt(), 0.4);
+        assert!((w - straight).length() < 1e-12, "{w}");
     }
 
     #[test]
