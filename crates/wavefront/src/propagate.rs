@@ -1149,7 +1149,10 @@ fn sharp_patch(
     // side, not half and half); the patch loses the corners' mean.
     let mut first: [Option<Crossed>; 4] = [None; 4];
     let mut factor = 1.0;
-    let mut depth = DVec3::ZERO;
+    // Each corner's optical depth over the step, and where its path first
+    // bent (refracted or reflected at a surface).
+    let mut depths = [DVec3::ZERO; 4];
+    let mut bends: [Option<Bend>; 4] = [None; 4];
     for (k, s) in moved.iter_mut().enumerate() {
         let mut ray = SharpRay {
             s: *s,
@@ -1165,7 +1168,7 @@ fn sharp_patch(
             left -= st.used;
             // A crossing leaves the ray on the surface: the piece ends there.
             let xb = ray.s.x;
-            depth += step_depth(
+            depths[k] += step_depth(
                 &medium.geometry,
                 xa,
                 xb,
@@ -1174,6 +1177,13 @@ fn sharp_patch(
                 st.used,
             );
             if let Some(ev) = st.event {
+                if first[k].is_none() {
+                    bends[k] = Some(Bend {
+                        at: xb,
+                        depth: depths[k],
+                        time: (dt - left) / dt,
+                    });
+                }
                 first[k].get_or_insert(Crossed {
                     surface: ev.surface,
                     total: ev.total,
@@ -1238,9 +1248,9 @@ fn sharp_patch(
     // (Until its corners have all crossed, the patch's reflected share is
     // charged the absorption beyond the surface with the rest; it is given
     // back when the crossing is done, `crossing_done`.)
-    let depth = depth * 0.25;
+    let depth = (depths[0] + depths[1] + depths[2] + depths[3]) * 0.25;
     if let Some(t) = tally {
-        deposit::tube(t, &x0, &x1, flux, depth, group);
+        bent_tube(t, (&x0, &x1), &bends, &depths, flux, group);
     }
     for ch in 0..3 {
         let k = flux[ch] * (-depth[ch]).exp();
@@ -1251,6 +1261,62 @@ fn sharp_patch(
         *kept *= factor;
     }
     Some(moved)
+}
+
+/// Where a corner's path first bent in a step, at a surface it crossed
+/// or reflected from totally.
+#[derive(Clone, Copy)]
+struct Bend {
+    /// The point on the surface.
+    at: DVec3,
+    /// The optical depth [Ihrke07 eq 18] the corner lost before it.
+    depth: DVec3,
+    /// The share of the step's time it took to get there.
+    time: f64,
+}
+
+/// Deposit the tube of a sharp step whose corners went from `x0` to `x1`,
+/// carrying `flux`, where a corner's path may have bent at a surface
+/// (`bends`, its first bend; `depths`, each corner's optical depth over
+/// the step). A bent path is longer than the chord from its start to its
+/// end, and lies off it: a straight tube would deposit too little light
+/// beside the surface, on both sides (about `L delta^2 / 12` of a step `L`
+/// turned by `delta`, averaged over where the bend falls), and put some in
+/// the wrong cells. So the tube goes in two pieces, through each corner's
+/// bend; a corner that did not bend goes straight, its midpoint where the
+/// bent corners' mean share of the step's time puts it. Each piece loses
+/// the corners' mean optical depth over it, as the whole step loses their
+/// mean. Later bends within the step (a second surface within a step) are
+/// cut straight.
+fn bent_tube(
+    t: &Counters,
+    (x0, x1): (&[DVec3; 4], &[DVec3; 4]),
+    bends: &[Option<Bend>; 4],
+    depths: &[DVec3; 4],
+    flux: &[f64; 3],
+    group: Option<usize>,
+) {
+    let depth = (depths[0] + depths[1] + depths[2] + depths[3]) * 0.25;
+    let bent = bends.iter().flatten().count();
+    if bent == 0 {
+        deposit::tube(t, x0, x1, flux, depth, group);
+        return;
+    }
+    let time = bends.iter().flatten().map(|b| b.time).sum::<f64>() / bent as f64;
+    let mut mid = [DVec3::ZERO; 4];
+    let mut before = DVec3::ZERO;
+    for k in 0..4 {
+        let (at, d) = match bends[k] {
+            Some(b) => (b.at, b.depth),
+            None => (x0[k] + (x1[k] - x0[k]) * time, depths[k] * time),
+        };
+        mid[k] = at;
+        before += d * 0.25;
+    }
+    let after = (depth - before).max(DVec3::ZERO);
+    deposit::tube(t, x0, &mid, flux, before, group);
+    let through: [f64; 3] = std::array::from_fn(|c| flux[c] * (-before[c]).exp());
+    deposit::tube(t, &mid, x1, &through, after, group);
 }
 
 /// The first surface a corner crossed in a step.
@@ -1279,6 +1345,60 @@ pub(crate) const MAX_SPLIT_LEVEL: u32 = 8;
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_bent_tube_deposits_the_bent_paths_length() {
+        // A thin patch whose corners all bend at one point: its fluence
+        // (times the cell volume) adds up to the two legs' length, not the
+        // chord's, and each leg loses its own optical depth.
+        let g = GridGeometry::new([8, 8, 8], DVec3::splat(-1.0), DVec3::splat(1.0));
+        let tally = Counters::new(&g, 1, [1.0; 3], 1e9);
+        let thin = |p: DVec3| {
+            let e = 1e-5;
+            [
+                p,
+                p + DVec3::X * e,
+                p + DVec3::new(e, 0.0, e),
+                p + DVec3::Z * e,
+            ]
+        };
+        let (a, b, c) = (
+            DVec3::new(-0.6, 0.5, 0.1),
+            DVec3::new(0.05, 0.02, 0.13),
+            DVec3::new(0.7, 0.1, -0.4),
+        );
+        let bend = Bend {
+            at: b,
+            depth: DVec3::new(0.3, 0.0, 0.0),
+            time: 0.4,
+        };
+        let bends = thin(b).map(|at| Some(Bend { at, ..bend }));
+        let depths = [DVec3::new(0.5, 0.0, 0.0); 4];
+        bent_tube(
+            &tally,
+            (&thin(a), &thin(c)),
+            &bends,
+            &depths,
+            &[1.0; 3],
+            None,
+        );
+        let v = tally.into_volume();
+        let cell = (2.0f64 / 8.0).powi(3);
+        let sum = |ch: usize| v.fluence.slice(ndarray::s![.., .., .., ch]).sum() as f64 * cell;
+        let (l1, l2) = ((b - a).length(), (c - b).length());
+        // Channel 1 loses nothing: the legs' length.
+        assert!(
+            (sum(1) / (l1 + l2) - 1.0).abs() < 1e-5,
+            "{} vs {}",
+            sum(1),
+            l1 + l2
+        );
+        assert!((l1 + l2) / (c - a).length() > 1.1, "the path bends");
+        // Channel 0: the first leg loses 0.3, the second 0.2 after it.
+        let leg = |l: f64, tau: f64| l * (1.0 - (-tau).exp()) / tau;
+        let want = leg(l1, 0.3) + (-0.3f64).exp() * leg(l2, 0.2);
+        assert!((sum(0) / want - 1.0).abs() < 1e-5, "{} vs {want}", sum(0));
+    }
 
     #[test]
     fn a_step_into_the_volume_is_charged_for_its_part_inside() {

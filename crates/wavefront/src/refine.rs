@@ -122,7 +122,7 @@ pub struct Rules {
     /// unobstructed irradiance at its midpoint in every channel ([`below`];
     /// an area, world units^2; 0: never); for a patch over
     /// [`Rules::corner_rays`] across, a quarter of its flux at each corner
-    /// ([`Seen::faint`]).
+    /// ([`faint`]).
     pub faint: f64,
     /// The span (world units) over which a patch's tube goes along its
     /// four corner rays ([`crate::deposit::corner_ray_span`]; infinite:

@@ -403,6 +403,85 @@ fn luneburg_lens_focuses_on_its_far_surface(b: &Backend) {
     }
 }
 
+/// A plane wave at 40 degrees onto the flat top face of a clear glass
+/// slab, Fresnel off (nothing reflected, `T = 1`): above the face every
+/// cell reads the incident irradiance (1 across the beam), below it the
+/// refracted beam's `cos i / cos t` (Snell, the beam widened), and in the
+/// cells the face cuts, on average, the track length of the bent rays:
+/// the part of the cell above the face at the one, the part below at the
+/// other.
+fn an_oblique_wave_reads_its_irradiance_on_both_sides_of_a_face(b: &Backend) {
+    // The glass from the face down past the grid's bottom.
+    let (top, bottom) = (0.29, -1.5);
+    let theta = 40f64.to_radians();
+    let (scene, m) = medium(&format!(
+        "{}[[object]]\nshape = {{ type = \"box\", center = [0.0, {}, 0.0], size = [4.0, {}, 4.0] }}\n\
+         index = 1.5\n\
+         [[light]]\ntype = \"directional\"\ndirection = [{}, {}, 0.0]\npower = [1, 1, 1]\n",
+        grid(32),
+        0.5 * (top + bottom),
+        top - bottom,
+        theta.sin(),
+        -theta.cos()
+    ));
+    let regions = eikon_grid::Regions::new(&scene).clear_of(&m);
+    let opts = Options {
+        fresnel: false,
+        ..fluence()
+    };
+    let (vol, _) = b
+        .simulate_sharp(&scene.lights[0], &m, regions, &opts)
+        .unwrap();
+    let g = &m.geometry;
+    let h = g.spacing().y;
+    let cos_t = (1.0 - (theta.sin() / 1.5).powi(2)).sqrt();
+    let glass = theta.cos() / cos_t;
+    // The face lies inside a layer of cells, not on a cell face.
+    let cut = (top - g.min.y) / h;
+    assert!((cut - cut.round()).abs() > 0.2, "the face cuts its cells");
+    let (mut worst_cut, mut worst_clear, mut cells) = (0.0f64, 0.0f64, 0);
+    let mut cut_sum = 0.0;
+    for ((i, j, k), _) in vol.fluence.slice(ndarray::s![.., .., .., 0]).indexed_iter() {
+        // Away from the grid's sides, and from the light that enters its
+        // side x = -1 below the face, already in the glass (it does not
+        // reach x > -0.25 above y = -0.5).
+        if !(12..28).contains(&i) || !(8..24).contains(&k) || !(10..28).contains(&j) {
+            continue;
+        }
+        let y = g.voxel_center(i, j, k).y;
+        let above = ((y + 0.5 * h - top) / h).clamp(0.0, 1.0);
+        let want = above + (1.0 - above) * glass;
+        let err = (vol.fluence[[i, j, k, 0]] as f64 / want - 1.0).abs();
+        if above > 0.0 && above < 1.0 {
+            cut_sum += vol.fluence[[i, j, k, 0]] as f64 / want;
+            worst_cut = worst_cut.max(err);
+            cells += 1;
+        } else {
+            worst_clear = worst_clear.max(err);
+        }
+    }
+    let cut_mean = cut_sum / cells as f64 - 1.0;
+    println!(
+        "oblique face ({}): {cells} cells cut by the face, mean relative error {cut_mean:+.2e}, \
+         worst {worst_cut:.2e} (air above {:.2} of each, glass {glass:.4}); the other cells \
+         {worst_clear:.2e}",
+        b.name(),
+        1.0 - (cut - cut.floor())
+    );
+    assert!(cells >= 200, "{cells} cells cut by the face");
+    // Above and below the face the footprints tile the layers exactly
+    // (`deposit::layer_widths`).
+    assert!(worst_clear < 1e-4, "away from the face: {worst_clear}");
+    // The layer the face cuts holds its track length on average; cell by
+    // cell it scatters, as each patch straddles the face for several
+    // steps, its footprint between the air's and the glass's.
+    assert!(
+        cut_mean.abs() < 5e-3,
+        "mean in the cells the face cuts: {cut_mean}"
+    );
+    assert!(worst_cut < 0.03, "in the cells the face cuts: {worst_cut}");
+}
+
 fn main() {
     Tests::new()
         .both("inverse_square", inverse_square)
@@ -414,6 +493,10 @@ fn main() {
         .both(
             "absorbing_slab_absorbs_within_its_faces",
             absorbing_slab_absorbs_within_its_faces,
+        )
+        .both(
+            "an_oblique_wave_reads_its_irradiance_on_both_sides_of_a_face",
+            an_oblique_wave_reads_its_irradiance_on_both_sides_of_a_face,
         )
         .both(
             "luneburg_lens_focuses_on_its_far_surface",

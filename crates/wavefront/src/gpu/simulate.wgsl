@@ -1136,8 +1136,13 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
     var beyond: array<u32, 4>;
     var kept = 1.0;
     // The optical depth of each corner's pieces, each in the region it
-    // crosses (`sharp_patch`); the patch loses the corners' mean.
-    var depth = vec3<f32>(0.0);
+    // crosses (`sharp_patch`); the patch loses the corners' mean. Where
+    // each corner's path first bent, the depth before it and the share of
+    // the step's time it took (`propagate::Bend`).
+    var depths = array<vec3<f32>, 4>(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));
+    var bend_at: array<vec3<f32>, 4>;
+    var bend_depth: array<vec3<f32>, 4>;
+    var bend_time: array<f32, 4>;
     for (var k = 0u; k < 4u; k++) {
         var ray = RegionRay(q.x[k], q.v[k], q.opl[k], region_owner(q.x[k]));
         var left = dt;
@@ -1148,9 +1153,12 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
             let st = region_step(&ray, FORM_EQUAL_TIME, P.integrator, left, P.channel, P.sharp_eps);
             on_surface = st.at_surface;
             left -= st.used;
-            depth += step_depth(P.grid, xa, ray.x, sharp_extinction_per_index(ra, xa), sharp_extinction_per_index(ra, ray.x), st.used);
+            depths[k] += step_depth(P.grid, xa, ray.x, sharp_extinction_per_index(ra, xa), sharp_extinction_per_index(ra, ray.x), st.used);
             if st.c.event {
                 if !has[k] {
+                    bend_at[k] = ray.x;
+                    bend_depth[k] = depths[k];
+                    bend_time[k] = (dt - left) / dt;
                     has[k] = true;
                     surf[k] = st.surface;
                     total[k] = st.c.total;
@@ -1226,9 +1234,42 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
             }
         }
     }
-    depth *= 0.25;
+    let depth = (depths[0] + depths[1] + depths[2] + depths[3]) * 0.25;
     if write && P.fluence != 0u {
-        tube(Swept(q.x, out.q.x, flux, depth));
+        // `propagate::bent_tube`: through each corner's first bend, in two
+        // pieces, a corner that did not bend straight (one call site of the
+        // deposit: each is inlined).
+        var bent = 0u;
+        var time = 0.0;
+        for (var k = 0u; k < 4u; k++) {
+            if has[k] {
+                bent += 1u;
+                time += bend_time[k];
+            }
+        }
+        var sw = Swept(q.x, out.q.x, flux, depth);
+        var mid = out.q.x;
+        var before = vec3<f32>(0.0);
+        if bent > 0u {
+            time /= f32(bent);
+            for (var k = 0u; k < 4u; k++) {
+                if has[k] {
+                    mid[k] = bend_at[k];
+                    before += bend_depth[k] * 0.25;
+                } else {
+                    mid[k] = q.x[k] + (out.q.x[k] - q.x[k]) * time;
+                    before += depths[k] * (time * 0.25);
+                }
+            }
+            sw.x1 = mid;
+            sw.depth = before;
+        }
+        for (var piece = 0u; piece < 1u + min(bent, 1u); piece++) {
+            if piece == 1u {
+                sw = Swept(mid, out.q.x, flux * exp(-before), max(depth - before, vec3<f32>(0.0)));
+            }
+            tube(sw);
+        }
     }
     let through = flux * exp(-depth);
     if write {
