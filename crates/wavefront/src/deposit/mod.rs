@@ -812,7 +812,8 @@ impl Lane {
 /// plane instead (the patch as it stands), a tube that crosses the layers
 /// at `theta` to the axis would be `cos^2 theta` too narrow, and the
 /// footprints of neighbouring tubes would no longer add up evenly: a plane
-/// wave at 45 degrees read 4% high and low in alternate cells. A motion
+/// wave at 40 degrees to the axis read up to 4% high and low from cell to
+/// cell, at 45 degrees up to 9%. A motion
 /// nearly along the layer (below a quarter of its largest component) keeps
 /// the straight projection, whose cross-section would be unbounded
 /// (wide footprints are narrowed to [`MAX_PARTS`] - 1 cells in any case).
