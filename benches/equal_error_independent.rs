@@ -444,12 +444,8 @@ fn glass() -> Vec<Outcome> {
         // The noise model's check: what it says two reference runs differ
         // by, beside what they did.
         let photons = 2.0 * (1u64 << ref_log2) as f64;
-        let tail = &runs[runs.len().saturating_sub(equal::FIT_POINTS)..];
-        let a = tail
-            .iter()
-            .map(|r| r.error * r.error / (1.0 / r.count as f64 + 1.0 / photons))
-            .sum::<f64>()
-            / tail.len() as f64;
+        let points: Vec<(u64, f64)> = runs.iter().map(|r| (r.count, r.error)).collect();
+        let a = equal::photon_noise(&points, photons);
         println!(
             "   photon noise model error^2 = a (1/N + 1/{photons:.3e}), a = {a:.3e} from the last \
              runs: two reference runs would differ by {:.3e} (they differ by {:.3e}); the \

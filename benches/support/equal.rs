@@ -157,11 +157,7 @@ pub fn equal_error_against_photons(runs: &[(u64, f64)], target: f64, reference: 
         return measured;
     }
     let last = &runs[runs.len().saturating_sub(FIT_POINTS)..];
-    let a = last
-        .iter()
-        .map(|&(n, e)| e * e / (1.0 / n as f64 + 1.0 / reference))
-        .sum::<f64>()
-        / last.len() as f64;
+    let a = photon_noise(runs, reference);
     let inverse = target * target / a - 1.0 / reference;
     if inverse <= 0.0 {
         return Equal {
@@ -177,6 +173,17 @@ pub fn equal_error_against_photons(runs: &[(u64, f64)], target: f64, reference: 
             from: last[0].0.trailing_zeros(),
         },
     }
+}
+
+/// The `a` of [`equal_error_against_photons`]' model, `error^2 = a (1/N +
+/// 1/reference)`, from the last [`FIT_POINTS`] runs of `(photons, error)`.
+#[allow(dead_code)]
+pub fn photon_noise(runs: &[(u64, f64)], reference: f64) -> f64 {
+    let last = &runs[runs.len().saturating_sub(FIT_POINTS)..];
+    last.iter()
+        .map(|&(n, e)| e * e / (1.0 / n as f64 + 1.0 / reference))
+        .sum::<f64>()
+        / last.len() as f64
 }
 
 /// `e` in words; `last` is the sweep's last count as a power of two.

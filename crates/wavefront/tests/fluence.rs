@@ -186,7 +186,7 @@ power = [2, 1, 0.5]
 /// every cell reads the irradiance to f32 rounding. A tube crosses the
 /// layers of cells obliquely, and its footprint in a layer is its
 /// cross-section there, the patch projected along the light onto the
-/// layer's plane (`deposit::layer_widths`); projected straight onto the
+/// layer's plane (`deposit::onto_layer`); projected straight onto the
 /// plane, the footprints of neighbouring tubes did not add up evenly (at
 /// 45 degrees 3.9% off on average, 8.9% at worst).
 #[test]

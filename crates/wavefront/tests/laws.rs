@@ -470,7 +470,7 @@ fn an_oblique_wave_reads_its_irradiance_on_both_sides_of_a_face(b: &Backend) {
     );
     assert!(cells >= 200, "{cells} cells cut by the face");
     // Above and below the face the footprints tile the layers exactly
-    // (`deposit::layer_widths`).
+    // (`deposit::onto_layer`).
     assert!(worst_clear < 1e-4, "away from the face: {worst_clear}");
     // The layer the face cuts holds its track length on average; cell by
     // cell it scatters, as each patch straddles the face for several

@@ -270,23 +270,25 @@ fn swept(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
     }}
 }}
 
-// Input (e1, major axis), (e2, 0), (moves, 0): the footprint's widths in
-// the layer.
+// Input (e1, major axis), (e2, 0), (moves, 0): both edges projected onto
+// the layer's plane.
 @compute @workgroup_size(WORKGROUP)
-fn widths(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+fn onto_layer(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
     let i = item(id, groups);
     if 3u * i >= arrayLength(&input) {{
         return;
     }}
     let a = input[3u * i];
-    output[3u * i] = vec4<f32>(deposit_layer_widths(a.xyz, input[3u * i + 1u].xyz, input[3u * i + 2u].xyz, u32(a.w)), 0.0);
+    let moves = input[3u * i + 2u].xyz;
+    output[3u * i] = vec4<f32>(deposit_onto_layer(a.xyz, moves, u32(a.w)), 0.0);
+    output[3u * i + 1u] = vec4<f32>(deposit_onto_layer(input[3u * i + 1u].xyz, moves, u32(a.w)), 0.0);
 }}
 
 fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>) {{}}
 "
     );
     let source = compose("", &[&DISPATCH, &GRID, &patch::WGSL, &deposit::WGSL], &main);
-    layer_widths_match_the_cpu(gpu, &source);
+    onto_layer_matches_the_cpu(gpu, &source);
     let mut r = Cases::new(5);
     let voxel = 0.25;
     let mut tubes = Vec::new();
@@ -400,9 +402,9 @@ fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>) {{}}
     assert!(checked > 3800, "{checked}");
 }
 
-/// `deposit::layer_widths` against the kernel `widths` of `source`: edges
+/// `deposit::onto_layer` against the kernel `onto_layer` of `source`: edges
 /// and motions in every direction, some moving nearly along the layer.
-fn layer_widths_match_the_cpu(gpu: &Gpu, source: &str) {
+fn onto_layer_matches_the_cpu(gpu: &Gpu, source: &str) {
     let mut r = Cases::new(29);
     let cases: Vec<(DVec3, DVec3, DVec3, usize)> = (0..3000)
         .map(|k| {
@@ -419,7 +421,7 @@ fn layer_widths_match_the_cpu(gpu: &Gpu, source: &str) {
         .iter()
         .flat_map(|&(e1, e2, mv, m)| [v4(e1, m as f64), v4(e2, 0.0), v4(mv, 0.0)])
         .collect();
-    let out = gpu.eval(source, "widths", &inputs, 3, &[]).unwrap();
+    let out = gpu.eval(source, "onto_layer", &inputs, 3, &[]).unwrap();
     let (mut checked, mut oblique) = (0, 0);
     for (k, &(e1, e2, mv, m)) in cases.iter().enumerate() {
         // Within f32 rounding of the guard, either projection may be taken.
@@ -427,15 +429,17 @@ fn layer_widths_match_the_cpu(gpu: &Gpu, source: &str) {
         if (ratio - 0.25).abs() < 1e-4 {
             continue;
         }
-        let want = deposit::layer_widths(e1, e2, mv, m);
-        let got = xyz(out[3 * k]);
         // The projection divides by the motion along the axis: f32's
         // rounding grows with the stretch it gives.
         let stretch = 1.0 + (e1.length() + e2.length()) / mv[m].abs().max(1e-3);
-        assert!(
-            (got - want).length() < 2e-6 * stretch * (1.0 + want.length()),
-            "case {k}: {got} vs {want}"
-        );
+        for (e, o) in [(e1, 0), (e2, 1)] {
+            let want = deposit::onto_layer(e, mv, m);
+            let got = xyz(out[3 * k + o]);
+            assert!(
+                (got - want).length() < 2e-6 * stretch * (1.0 + want.length()),
+                "case {k}, edge {o}: {got} vs {want}"
+            );
+        }
         checked += 1;
         oblique += usize::from(ratio >= 0.25);
     }

@@ -282,20 +282,16 @@ fn deposit_in_layer(l: DepositLane, m: u32, layer: i32) -> vec2<f32> {
     return vec2<f32>(1.0, 0.0);
 }
 
-// `deposit::layer_widths`: the box footprint's width per axis of a
-// sub-patch of edges e1, e2 moving along `moves` as it crosses a layer of
-// the major axis m: its edges projected along its motion onto the layer's
-// plane (the straight projection where it moves nearly along the layer).
-fn deposit_layer_widths(e1: vec3<f32>, e2: vec3<f32>, moves: vec3<f32>, m: u32) -> vec3<f32> {
-    var p1 = e1;
-    var p2 = e2;
+// `deposit::onto_layer`: a sub-patch's edge e as its footprint in a layer
+// of the major axis m has it, for a sub-patch moving along `moves`: e
+// projected along the motion onto the layer's plane (as it stands where it
+// moves nearly along the layer).
+fn deposit_onto_layer(e: vec3<f32>, moves: vec3<f32>, m: u32) -> vec3<f32> {
     let a = abs(moves);
     if a[m] >= 0.25 * max(a.x, max(a.y, a.z)) && moves[m] != 0.0 {
-        let k = 1.0 / moves[m];
-        p1 = e1 - moves * (e1[m] * k);
-        p2 = e2 - moves * (e2[m] * k);
+        return e - moves * (e[m] / moves[m]);
     }
-    return sqrt(p1 * p1 + p2 * p2);
+    return e;
 }
 
 // `Lane::deposit`: the piece [ta, tb] of the lane in `layer`, its swept
@@ -312,7 +308,7 @@ fn deposit_lane_piece(g: GridGpu, l: DepositLane, ta: f32, tb: f32, depth: vec3<
     let c = l.at + l.moves * t;
     let e1 = l.e1 + l.de1 * t;
     let e2 = l.e2 + l.de2 * t;
-    let width = deposit_layer_widths(e1, e2, l.moves, m);
+    let width = sqrt(e1 * e1 + e2 * e2);
     let weight = deposit_attenuated(depth, ta, tb);
     let fl = l.w * weight;
     let along = l.u * dot(l.wf, weight);
@@ -401,10 +397,12 @@ fn deposit_tube(g: GridGpu, sc: ChordScales, x0: array<vec3<f32>, 4>, x1: array<
             let e2 = (p3 - p0 + p2 - p1) * 0.5;
             let f1 = (q1 - q0 + q2 - q3) * 0.5;
             let f2 = (q3 - q0 + q2 - q1) * 0.5;
-            l.e1 = e1 * g.inv_spacing;
-            l.de1 = (f1 - e1) * g.inv_spacing;
-            l.e2 = e2 * g.inv_spacing;
-            l.de2 = (f2 - e2) * g.inv_spacing;
+            // Edges projected along the lane's motion onto the layers'
+            // plane (`deposit::onto_layer`).
+            l.e1 = deposit_onto_layer(e1 * g.inv_spacing, l.moves, m);
+            l.de1 = deposit_onto_layer((f1 - e1) * g.inv_spacing, l.moves, m);
+            l.e2 = deposit_onto_layer(e2 * g.inv_spacing, l.moves, m);
+            l.de2 = deposit_onto_layer((f2 - e2) * g.inv_spacing, l.moves, m);
             // The part of the centre's path inside the grid along the
             // major axis.
             if l.moves[m] != 0.0 {

@@ -582,7 +582,8 @@ struct Tube<'a> {
 }
 
 /// One sub-patch of a [`tube`], in cell coordinates: its centre at the
-/// start and how far it moves, its edges at the start and how they change,
+/// start and how far it moves, its edges at the start and how they change
+/// (projected along its motion onto the layers' plane, [`onto_layer`]),
 /// the part of its path inside the grid along the major axis, and what it
 /// deposits per unit of the tube's parameter (fluence units per channel,
 /// flux-vector units per channel along `u`).
@@ -647,13 +648,14 @@ impl Tube<'_> {
                     continue;
                 }
                 let (fluence, flux) = tally.weights(&share, len, self.group);
+                let layer = |e: DVec3| onto_layer(e * inv, moves, m);
                 lanes.push(Lane {
                     at,
                     moves,
-                    e1: e1 * inv,
-                    de1: (f1 - e1) * inv,
-                    e2: e2 * inv,
-                    de2: (f2 - e2) * inv,
+                    e1: layer(e1),
+                    de1: layer(f1 - e1),
+                    e2: layer(e2),
+                    de2: layer(f2 - e2),
                     lo,
                     hi,
                     fluence,
@@ -773,8 +775,7 @@ impl Lane {
         let t = 0.5 * (ta + tb);
         let c = self.at + self.moves * t;
         let (e1, e2) = (self.e1 + self.de1 * t, self.e2 + self.de2 * t);
-        let widths = layer_widths(e1, e2, self.moves, cells.axes[0]);
-        let width = |ax: usize| widths[ax];
+        let width = |ax: usize| (e1[ax] * e1[ax] + e2[ax] * e2[ax]).sqrt();
         let weight = attenuated(depth, ta, tb);
         let fluence: [f64; 3] = std::array::from_fn(|ch| self.fluence[ch] * weight[ch]);
         let along = self.u * (0..3).map(|ch| self.flux[ch] * weight[ch]).sum::<f64>();
@@ -803,30 +804,28 @@ impl Lane {
     }
 }
 
-/// The width (cells, per axis) of the box footprint of a sub-patch of
-/// edges `e1`, `e2` moving along `moves` (cell coordinates) as it crosses
-/// a layer of the major axis `m`: its edges projected along its motion
-/// onto the layer's plane (the cross-section of its tube there, which the
-/// piece then sweeps across the layer), each axis' width that of the box
-/// with that parallelogram's second moment. Projected straight onto the
-/// plane instead (the patch as it stands), a tube that crosses the layers
-/// at `theta` to the axis would be `cos^2 theta` too narrow, and the
-/// footprints of neighbouring tubes would no longer add up evenly: a plane
-/// wave at 40 degrees to the axis read up to 4% high and low from cell to
-/// cell, at 45 degrees up to 9%. A motion
-/// nearly along the layer (below a quarter of its largest component) keeps
-/// the straight projection, whose cross-section would be unbounded
-/// (wide footprints are narrowed to [`MAX_PARTS`] - 1 cells in any case).
-/// The GPU's `deposit_layer_widths`.
+/// A sub-patch's edge `e` (cell coordinates) as its footprint in a layer
+/// of the major axis `m` has it, for a sub-patch moving along `moves`: `e`
+/// projected along the motion onto the layer's plane (the cross-section of
+/// its tube there, which the piece then sweeps across the layer). Projected
+/// straight onto the plane instead (the patch as it stands), a tube that
+/// crosses the layers at `theta` to the axis would be `cos^2 theta` too
+/// narrow, and the footprints of neighbouring tubes would no longer add up
+/// evenly: a plane wave at 40 degrees to the axis read up to 4% high and
+/// low from cell to cell, at 45 degrees up to 9%. A motion nearly along
+/// the layer (below a quarter of its largest component) keeps the straight
+/// projection, whose cross-section would be unbounded (wide footprints are
+/// narrowed to [`MAX_PARTS`] - 1 cells in any case). The projection is
+/// linear and the motion is the lane's own, so a lane's edges and their
+/// change over the step are projected once. The GPU's
+/// `deposit_onto_layer`.
 #[inline]
-pub fn layer_widths(e1: DVec3, e2: DVec3, moves: DVec3, m: usize) -> DVec3 {
-    let (p1, p2) = if moves[m].abs() >= 0.25 * moves.abs().max_element() && moves[m] != 0.0 {
-        let k = 1.0 / moves[m];
-        (e1 - moves * (e1[m] * k), e2 - moves * (e2[m] * k))
+pub fn onto_layer(e: DVec3, moves: DVec3, m: usize) -> DVec3 {
+    if moves[m].abs() >= 0.25 * moves.abs().max_element() && moves[m] != 0.0 {
+        e - moves * (e[m] / moves[m])
     } else {
-        (e1, e2)
-    };
-    DVec3::from_array((p1 * p1 + p2 * p2).to_array().map(f64::sqrt))
+        e
+    }
 }
 
 /// The grid's cells as a [`tube`] walks them: its axes (major, then the
@@ -1402,18 +1401,17 @@ mod tests {
         for degrees in [0.0f64, 20.0, 40.0, 44.0] {
             let t = degrees.to_radians();
             let d = DVec3::new(t.sin(), -t.cos(), 0.0);
-            let e1 = DVec3::new(t.cos(), t.sin(), 0.0) * a;
-            let e2 = DVec3::Z * a;
-            let w = layer_widths(e1, e2, d * 0.3, 1);
-            assert!((w.x - a / t.cos()).abs() < 1e-12, "{degrees}: {w}");
-            assert!((w.z - a).abs() < 1e-12, "{degrees}: {w}");
-            assert!(w.y.abs() < 1e-12, "{degrees}: {w}");
+            let e1 = onto_layer(DVec3::new(t.cos(), t.sin(), 0.0) * a, d * 0.3, 1);
+            let e2 = onto_layer(DVec3::Z * a, d * 0.3, 1);
+            assert!(
+                (e1 - DVec3::X * (a / t.cos())).length() < 1e-12,
+                "{degrees}: {e1}"
+            );
+            assert!((e2 - DVec3::Z * a).length() < 1e-12, "{degrees}: {e2}");
         }
         // Moving nearly along the layer, the patch as it stands.
-        let (e1, e2) = (DVec3::new(0.3, 0.2, 0.0), DVec3::new(0.0, 0.1, 0.4));
-        let w = layer_widths(e1, e2, DVec3::new(1.0, 0.2, 0.0), 1);
-        let straight = DVec3::new(0.3, (0.04f64 + 0.01).sqrt(), 0.4);
-        assert!((w - straight).length() < 1e-12, "{w}");
+        let e = DVec3::new(0.3, 0.2, 0.1);
+        assert_eq!(onto_layer(e, DVec3::new(1.0, 0.2, 0.0), 1), e);
     }
 
     #[test]
