@@ -1250,7 +1250,7 @@ fn sharp_patch(
     // back when the crossing is done, `crossing_done`.)
     let depth = (depths[0] + depths[1] + depths[2] + depths[3]) * 0.25;
     if let Some(t) = tally {
-        bent_tube(t, (&x0, &x1), &bends, &depths, flux, group);
+        bent_tube(t, (&x0, &x1), &bends, (&depths, depth), flux, group);
     }
     for ch in 0..3 {
         let k = flux[ch] * (-depth[ch]).exp();
@@ -1278,7 +1278,7 @@ struct Bend {
 /// Deposit the tube of a sharp step whose corners went from `x0` to `x1`,
 /// carrying `flux`, where a corner's path may have bent at a surface
 /// (`bends`, its first bend; `depths`, each corner's optical depth over
-/// the step). A bent path is longer than the chord from its start to its
+/// the step, and `depth`, their mean, what the patch loses). A bent path is longer than the chord from its start to its
 /// end, and lies off it: a straight tube would deposit too little light
 /// beside the surface, on both sides (about `L delta^2 / 12` of a step `L`
 /// turned by `delta`, averaged over where the bend falls), and put some in
@@ -1292,11 +1292,10 @@ fn bent_tube(
     t: &Counters,
     (x0, x1): (&[DVec3; 4], &[DVec3; 4]),
     bends: &[Option<Bend>; 4],
-    depths: &[DVec3; 4],
+    (depths, depth): (&[DVec3; 4], DVec3),
     flux: &[f64; 3],
     group: Option<usize>,
 ) {
-    let depth = (depths[0] + depths[1] + depths[2] + depths[3]) * 0.25;
     let bent = bends.iter().flatten().count();
     if bent == 0 {
         deposit::tube(t, x0, x1, flux, depth, group);
@@ -1378,7 +1377,7 @@ mod tests {
             &tally,
             (&thin(a), &thin(c)),
             &bends,
-            &depths,
+            (&depths, depths[0]),
             &[1.0; 3],
             None,
         );
