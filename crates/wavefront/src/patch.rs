@@ -42,15 +42,31 @@ pub struct Patches {
     pub flux0: Vec<[f64; 3]>,
     /// Area when emitted (the patch's share of it after tessellation).
     pub area0: Vec<f64>,
-    /// While the patch straddles a sharp interface, the product of the
-    /// Fresnel factors its corners (or, for a piece of a torn patch, its
-    /// ancestor's) took as they crossed, not yet applied: the patch carries
-    /// all its light on until every corner has crossed, when it is split
-    /// into what the surface lets through and its reflection
-    /// (`propagate::crossing_done`). 1 between crossings.
-    pub kept: Vec<f64>,
+    /// The crossing of a sharp interface the patch is in, if any.
+    pub crossing: Vec<Crossing>,
     /// Times the patch's ancestors were tessellated (0 when emitted).
     pub depth: Vec<u8>,
+}
+
+/// A patch's crossing of a sharp interface, while its corners straddle
+/// it: the patch carries all its light on until every corner has crossed,
+/// when it is split into what the surface lets through and its reflection
+/// (`propagate::crossing_done`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Crossing {
+    /// The product of the Fresnel factors `(1 - R)^(1/4)` its corners (or,
+    /// for a piece of a torn patch, its ancestor's) took as they crossed,
+    /// not yet applied. 1 between crossings.
+    pub kept: f64,
+    /// The region its corners cross into (`propagate::region_code`; 0
+    /// between crossings): a corner there has crossed, and the light about
+    /// it is what the surface let through (`propagate::straddle_weights`).
+    pub into: u32,
+}
+
+impl Crossing {
+    /// Between crossings.
+    pub const NONE: Crossing = Crossing { kept: 1.0, into: 0 };
 }
 
 impl Patches {
@@ -63,7 +79,8 @@ impl Patches {
         * 2
         * (4 * std::mem::size_of::<RayState>()
             + 2 * std::mem::size_of::<[f64; 3]>()
-            + 2 * std::mem::size_of::<f64>()
+            + std::mem::size_of::<f64>()
+            + std::mem::size_of::<Crossing>()
             + std::mem::size_of::<u8>());
 
     /// Number of patches.
@@ -82,7 +99,7 @@ impl Patches {
         self.flux.clear();
         self.flux0.clear();
         self.area0.clear();
-        self.kept.clear();
+        self.crossing.clear();
         self.depth.clear();
     }
 
@@ -95,7 +112,7 @@ impl Patches {
         self.flux.push(flux);
         self.flux0.push(flux);
         self.area0.push(area);
-        self.kept.push(1.0);
+        self.crossing.push(Crossing::NONE);
         self.depth.push(0);
     }
 

@@ -18,7 +18,7 @@
 //! (`step_depth`).
 
 use crate::deposit::{self, Counters};
-use crate::patch::{area, span, Patches, Split};
+use crate::patch::{area, span, Crossing, Patches, Split};
 use crate::refine;
 use eikon_grid::interface::Interfaces;
 use eikon_grid::ray::{step_euler_on_shell, step_rk4_on_shell};
@@ -619,8 +619,8 @@ struct Piece {
     flux: [f64; 3],
     flux0: [f64; 3],
     area0: f64,
-    /// [`Patches::kept`].
-    kept: f64,
+    /// [`Patches::crossing`].
+    crossing: Crossing,
 }
 
 /// [`propagate`] with sharp interfaces (see [`Sharp`]). A patch split
@@ -632,7 +632,7 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
     // One patch: `None` where it carries on alone in its slot, else its
     // pieces for after the list.
     #[allow(clippy::type_complexity)]
-    let one = |(a, b, c, d, flux, flux0, area0, kept, depth): (
+    let one = |(a, b, c, d, flux, flux0, area0, crossing, depth): (
         &mut RayState,
         &mut RayState,
         &mut RayState,
@@ -640,7 +640,7 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
         &mut [f64; 3],
         &mut [f64; 3],
         &mut f64,
-        &mut f64,
+        &mut Crossing,
         &mut u8,
     ),
                lost: &mut Loss|
@@ -650,12 +650,20 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
             flux0: *flux0,
             depth: *depth,
         };
-        let before = *kept;
-        if let Some(moved) = sharp_patch(step, sharp, &corners, flux, kept, kin, lost) {
+        let before = *crossing;
+        if let Some(moved) = sharp_patch(step, sharp, &corners, flux, crossing, kin, lost) {
             [*a, *b, *c, *d] = moved;
             let start = corners.map(|c| c.x);
-            let piece =
-                crossing_done(step, sharp, &start, &moved, (flux, flux0), kept, true, lost)?;
+            let piece = crossing_done(
+                step,
+                sharp,
+                &start,
+                &moved,
+                (flux, flux0),
+                crossing,
+                true,
+                lost,
+            )?;
             return Some(vec![Piece {
                 flux0: *flux0,
                 area0: *area0,
@@ -692,7 +700,7 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
         *flux = p.flux;
         *flux0 = p.flux0;
         *area0 = p.area0;
-        *kept = p.kept;
+        *crossing = p.crossing;
         Some(pieces)
     };
     let extra: Vec<Vec<(usize, Vec<Piece>)>> = (
@@ -700,14 +708,14 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
         patches.flux.par_chunks_mut(CHUNK),
         patches.flux0.par_chunks_mut(CHUNK),
         patches.area0.par_chunks_mut(CHUNK),
-        patches.kept.par_chunks_mut(CHUNK),
+        patches.crossing.par_chunks_mut(CHUNK),
         patches.depth.par_chunks_mut(CHUNK),
         losses.par_iter_mut(),
     )
         .into_par_iter()
         .enumerate()
         .map(
-            |(chunk, ((a, b, c, d), flux, flux0, area0, kept, depth, sum))| {
+            |(chunk, ((a, b, c, d), flux, flux0, area0, crossing, depth, sum))| {
                 let mut extra = Vec::new();
                 for k in 0..a.len() {
                     let mut lost = Loss::default();
@@ -719,7 +727,7 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
                         &mut flux[k],
                         &mut flux0[k],
                         &mut area0[k],
-                        &mut kept[k],
+                        &mut crossing[k],
                         &mut depth[k],
                     );
                     if let Some(pieces) = one(patch, &mut lost) {
@@ -740,16 +748,17 @@ fn propagate_sharp(patches: &mut Patches, step: &Step, sharp: &Sharp, losses: &m
             patches.flux.push(p.flux);
             patches.flux0.push(p.flux0);
             patches.area0.push(p.area0);
-            patches.kept.push(p.kept);
+            patches.crossing.push(p.crossing);
             patches.depth.push(depth);
         }
     }
 }
 
 /// The Fresnel split of a patch whose corners have all crossed a surface
-/// (`kept` below 1, the product of the factors `(1 - R)^(1/4)` its corners
-/// took as they crossed, [`Patches::kept`]; nothing else to do while they
-/// have not). Until then the patch carries all its light on: its corners
+/// (`crossing.kept` below 1, the product of the factors `(1 - R)^(1/4)`
+/// its corners took as they crossed, [`Crossing::kept`]; nothing else to do
+/// while they have not; the crossing is over either way once they are in
+/// one region). Until then the patch carries all its light on: its corners
 /// cross at different steps, and the share the surface lets through is
 /// Fresnel's transmittance over the whole patch from all four corners'
 /// incidence, [`Reflection::transmitted`]. The factors, their geometric
@@ -775,17 +784,23 @@ fn crossing_done(
     start: &[DVec3; 4],
     moved: &[RayState; 4],
     (flux, flux0): (&mut [f64; 3], &[f64; 3]),
-    kept: &mut f64,
+    crossing: &mut Crossing,
     trace: bool,
     lost: &mut Loss,
 ) -> Option<Piece> {
-    let through = *kept;
-    let regions = sharp.regions;
-    let to = regions.at(moved[0].x);
-    if through == 1.0 || moved[1..].iter().any(|c| regions.at(c.x) != to) {
+    if *crossing == Crossing::NONE {
         return None;
     }
-    *kept = 1.0;
+    let regions = sharp.regions;
+    let to = regions.at(moved[0].x);
+    if moved[1..].iter().any(|c| regions.at(c.x) != to) {
+        return None;
+    }
+    let through = crossing.kept;
+    *crossing = Crossing::NONE;
+    if through == 1.0 {
+        return None;
+    }
     // (A patch that began the step in `to` crossed nothing in it.)
     let r = if start.iter().all(|&x| regions.at(x) == to) {
         None
@@ -829,7 +844,7 @@ fn crossing_done(
         flux: out,
         flux0: [0.0; 3],
         area0: 0.0,
-        kept: 1.0,
+        crossing: Crossing::NONE,
     })
 }
 
@@ -1005,7 +1020,7 @@ fn split_and_trace(
     flux: [f64; 3],
     kin: Kin,
     area0: f64,
-    kept: f64,
+    crossing: Crossing,
     level: u32,
     out: &mut Vec<Piece>,
     lost: &mut Loss,
@@ -1026,7 +1041,7 @@ fn split_and_trace(
                   moved: &[RayState; 4],
                   f: &mut [f64; 3],
                   flux0: &[f64; 3],
-                  through: &mut f64,
+                  through: &mut Crossing,
                   lost: &mut Loss| {
         let start = start.map(|c| c.x);
         crossing_done(step, sharp, &start, moved, (f, flux0), through, false, lost);
@@ -1037,7 +1052,7 @@ fn split_and_trace(
     };
     if span(&corners.map(|c| c.x)) <= sharp.min_span {
         let thin = thin_about_centre(corners, sharp.min_span * THIN_SPAN, &field);
-        let (mut f, mut through) = (flux, kept);
+        let (mut f, mut through) = (flux, crossing);
         match sharp_patch(step, sharp, &thin, &mut f, &mut through, kin, lost) {
             Some(moved) => {
                 settle(&thin, &moved, &mut f, &kin.flux0, &mut through, lost);
@@ -1046,7 +1061,7 @@ fn split_and_trace(
                     flux: f,
                     flux0: kin.flux0,
                     area0,
-                    kept: through,
+                    crossing: through,
                 })
             }
             None => drop(lost),
@@ -1071,7 +1086,7 @@ fn split_and_trace(
         };
         // A piece carries its parent's share of the flux through the
         // surface it straddles (its own corners take this step's factors).
-        let mut through = kept;
+        let mut through = crossing;
         match sharp_patch(step, sharp, &child, &mut f, &mut through, part, lost) {
             Some(moved) => {
                 settle(&child, &moved, &mut f, &part.flux0, &mut through, lost);
@@ -1080,7 +1095,7 @@ fn split_and_trace(
                     flux: f,
                     flux0: part.flux0,
                     area0: area0 * share,
-                    kept: through,
+                    crossing: through,
                 })
             }
             None => split_and_trace(
@@ -1090,7 +1105,7 @@ fn split_and_trace(
                 f,
                 part,
                 area0 * share,
-                kept,
+                crossing,
                 level + 1,
                 out,
                 lost,
@@ -1114,15 +1129,15 @@ fn thin_about_centre(c: &[RayState; 4], thin: f64, field: &RegionIndex) -> [RayS
 
 /// One step of one patch with sharp interfaces: the corners moved, its flux
 /// attenuated [Ihrke07 eq 18], its tube deposited, and the Fresnel factors
-/// of the corners that crossed a surface taken into `kept` (the patch is
-/// split when all have crossed, [`crossing_done`]); `None` (nothing
+/// of the corners that crossed a surface taken into `crossing` (the patch
+/// is split when all have crossed, [`crossing_done`]); `None` (nothing
 /// changed) when its corners disagree.
 fn sharp_patch(
     step: &Step,
     sharp: &Sharp,
     corners: &[RayState; 4],
     flux: &mut [f64; 3],
-    kept: &mut f64,
+    crossing: &mut Crossing,
     kin: Kin,
     lost: &mut Loss,
 ) -> Option<[RayState; 4]> {
@@ -1149,6 +1164,8 @@ fn sharp_patch(
     // side, not half and half); the patch loses the corners' mean.
     let mut first: [Option<Crossed>; 4] = [None; 4];
     let mut factor = 1.0;
+    // Each corner's Fresnel transmittance over the step's crossings.
+    let mut passed = [1.0; 4];
     // Each corner's optical depth over the step, and where its path first
     // bent (refracted or reflected at a surface).
     let mut depths = [DVec3::ZERO; 4];
@@ -1192,6 +1209,7 @@ fn sharp_patch(
                 });
                 if !ev.total {
                     factor *= (1.0 - ev.reflectance).powf(0.25);
+                    passed[k] *= 1.0 - ev.reflectance;
                 }
             }
             if !st.at_surface || left <= 0.0 {
@@ -1250,17 +1268,76 @@ fn sharp_patch(
     // back when the crossing is done, `crossing_done`.)
     let depth = (depths[0] + depths[1] + depths[2] + depths[3]) * 0.25;
     if let Some(t) = tally {
-        bent_tube(t, (&x0, &x1), &bends, (&depths, depth), flux, group);
+        let passed = if sharp.fresnel { passed } else { [1.0; 4] };
+        let weights = straddle_weights(regions, &x0, *crossing, &passed);
+        bent_tube(
+            t,
+            (&x0, &x1),
+            &bends,
+            (&depths, depth),
+            flux,
+            &weights,
+            group,
+        );
     }
     for ch in 0..3 {
         let k = flux[ch] * (-depth[ch]).exp();
         lost.absorbed[ch] += flux[ch] - k;
         flux[ch] = k;
     }
+    if crossing.into == 0 {
+        if let Some(c) = first.iter().flatten().find(|c| !c.total) {
+            crossing.into = region_code(c.to);
+        }
+    }
     if sharp.fresnel {
-        *kept *= factor;
+        crossing.kept *= factor;
     }
     Some(moved)
+}
+
+/// A region as [`Crossing::into`] names it (0 names none).
+pub fn region_code(r: Region) -> u32 {
+    match r {
+        None => 1,
+        Some(i) => i as u32 + 2,
+    }
+}
+
+/// Per corner, the share of a patch's light about it, before and after
+/// its path bends in a step, while the patch straddles a surface
+/// (`crossing` as the step began, [`Crossing`]): 1 where the corner has not
+/// crossed, and beyond the surface what it let through, `1 - R`. The
+/// patch carries all its light on until its corners have all crossed
+/// ([`crossing_done`]), so without these its tube would put the reflected
+/// share beyond the surface too, in the cells the surface cuts. A corner
+/// that crossed before the step is one in the region the crossing goes
+/// into; its `1 - R` is found from the factors `(1 - R)^(1/4)` the corners
+/// there took, `crossing.kept`, as their geometric mean (exact for a whole
+/// patch; a piece of a torn patch or a child of a split holds its
+/// ancestor's factors). A corner that crosses in the step takes its own
+/// transmittance over it, `passed`, after its bend.
+fn straddle_weights(
+    regions: &Regions,
+    x0: &[DVec3; 4],
+    crossing: Crossing,
+    passed: &[f64; 4],
+) -> ([f64; 4], [f64; 4]) {
+    let mut before = [1.0; 4];
+    if crossing.into != 0 && crossing.kept < 1.0 {
+        let beyond = x0.map(|x| region_code(regions.at(x)) == crossing.into);
+        let m = beyond.iter().filter(|&&b| b).count();
+        if m > 0 {
+            let w = crossing.kept.powf(4.0 / m as f64);
+            for (b, &is) in before.iter_mut().zip(&beyond) {
+                if is {
+                    *b = w;
+                }
+            }
+        }
+    }
+    let after = std::array::from_fn(|k| before[k] * passed[k]);
+    (before, after)
 }
 
 /// Where a corner's path first bent in a step, at a surface it crossed
@@ -1284,21 +1361,30 @@ struct Bend {
 /// turned by `delta`, averaged over where the bend falls), and put some in
 /// the wrong cells. So the tube goes in two pieces, through each corner's
 /// bend; a corner that did not bend goes straight, its midpoint where the
-/// bent corners' mean share of the step's time puts it. Each piece loses
+/// bent corners' mean share of the step's time puts it. The two pieces are
+/// cut into the same sub-patches (the more of the two each would take), so
+/// that each sub-patch's path runs on through the bend: cut apart, a
+/// sub-patch of the first piece would end between two of the second's, and
+/// where the corners move apart (some refracted, some not) the paths of
+/// one and of two sub-patches lie differently across the layers: the cell
+/// a surface cuts and the one above it traded light. Each piece loses
 /// the corners' mean optical depth over it, as the whole step loses their
 /// mean. Later bends within the step (a second surface within a step) are
-/// cut straight.
+/// cut straight. The light over the patch is weighted per corner by
+/// `weights` before and after the bends ([`straddle_weights`]).
 fn bent_tube(
     t: &Counters,
     (x0, x1): (&[DVec3; 4], &[DVec3; 4]),
     bends: &[Option<Bend>; 4],
     (depths, depth): (&[DVec3; 4], DVec3),
     flux: &[f64; 3],
+    (before_w, after_w): &([f64; 4], [f64; 4]),
     group: Option<usize>,
 ) {
     let bent = bends.iter().flatten().count();
     if bent == 0 {
-        deposit::tube(t, x0, x1, flux, depth, group);
+        let n = deposit::cut(x0, x1, t.voxel());
+        deposit::tube_cut(t, (x0, x1), flux, before_w, depth, group, n);
         return;
     }
     let time = bends.iter().flatten().map(|b| b.time).sum::<f64>() / bent as f64;
@@ -1313,9 +1399,19 @@ fn bent_tube(
         before += d * 0.25;
     }
     let after = (depth - before).max(DVec3::ZERO);
-    deposit::tube(t, x0, &mid, flux, before, group);
+    // Both pieces in the same sub-patches, so that each runs on through
+    // the bend (see above).
+    let v = t.voxel();
+    let (a, b) = match (deposit::cut(x0, &mid, v), deposit::cut(&mid, x1, v)) {
+        (Some(a), Some(b)) => {
+            let n = Some((a.0.max(b.0), a.1.max(b.1)));
+            (n, n)
+        }
+        other => other,
+    };
+    deposit::tube_cut(t, (x0, &mid), flux, before_w, before, group, a);
     let through: [f64; 3] = std::array::from_fn(|c| flux[c] * (-before[c]).exp());
-    deposit::tube(t, &mid, x1, &through, after, group);
+    deposit::tube_cut(t, (&mid, x1), &through, after_w, after, group, b);
 }
 
 /// The first surface a corner crossed in a step.
@@ -1379,6 +1475,7 @@ mod tests {
             &bends,
             (&depths, depths[0]),
             &[1.0; 3],
+            &([1.0; 4], [1.0; 4]),
             None,
         );
         let v = tally.into_volume();

@@ -19,7 +19,7 @@
 //! splitting conserves it exactly.
 
 use crate::histopyramid::HistoPyramid;
-use crate::patch::{area, normal, span, Patches, Split};
+use crate::patch::{area, normal, span, Crossing, Patches, Split};
 use eikon_grid::{GridGeometry, IndexField, RayState};
 use eikon_shader::{Consts, Module};
 use rayon::prelude::*;
@@ -552,8 +552,8 @@ fn rebuild<F: IndexField + ?Sized>(
     next.flux0.resize(total, [0.0; 3]);
     next.area0.clear();
     next.area0.resize(total, 0.0);
-    next.kept.clear();
-    next.kept.resize(total, 1.0);
+    next.crossing.clear();
+    next.crossing.resize(total, Crossing::NONE);
     next.depth.clear();
     next.depth.resize(total, 0);
 
@@ -567,18 +567,18 @@ fn rebuild<F: IndexField + ?Sized>(
         next.flux.par_iter_mut(),
         next.flux0.par_iter_mut(),
         next.area0.par_iter_mut(),
-        next.kept.par_iter_mut(),
+        next.crossing.par_iter_mut(),
         next.depth.par_iter_mut(),
         scratch.source.par_iter(),
         scratch.part.par_iter(),
     )
         .into_par_iter()
         .for_each(
-            |(a, b, c, d, flux, flux0, area0, kept, depth, &src, &part)| {
+            |(a, b, c, d, flux, flux0, area0, crossing, depth, &src, &part)| {
                 let i = src as usize;
                 // A child keeps its parent's share of the flux through a
                 // surface it straddles.
-                *kept = p.kept[i];
+                *crossing = p.crossing[i];
                 let parent = [0, 1, 2, 3].map(|k| p.corner[k][i]);
                 if counts[i] == 1 {
                     [*a, *b, *c, *d] = parent;

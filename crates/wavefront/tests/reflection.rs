@@ -229,6 +229,47 @@ fn oblique_waves_reflect_and_refract_by_fresnel() {
     }
 }
 
+/// The layer of cells a glass surface cuts, and the next layer on the
+/// incident side, at normal incidence from either side and at 40 degrees
+/// from the air: each cell reads the exact average of the two sides'
+/// waves (`Slab::cut_layers`). A patch carries all its light on until its
+/// corners have all crossed, so the light it puts beyond the surface is
+/// weighted by what the surface let through
+/// (`propagate::straddle_weights`); unweighted, the cut cells read 0.8%
+/// high at normal incidence. In the step that bends a patch's corners the
+/// two pieces of its tube are cut into the same sub-patches
+/// (`propagate::bent_tube`); cut apart, at 40 degrees the layer above the
+/// cut one read 2% high and the cut one 2.7% low. The cut layer reads
+/// within 5e-4 at normal incidence and within 5e-3 at 40 degrees, where
+/// each sub-patch's path through the bend is the straight interpolation of
+/// its corners', which cuts the corner of the bent rays; every other layer
+/// within 5e-4.
+#[test]
+fn the_cells_a_surface_cuts_read_what_it_lets_through() {
+    for (deg, from_air, cut_tolerance) in
+        [(0.0, true, 5e-4), (0.0, false, 5e-4), (40.0, true, 5e-3)]
+    {
+        for reflections in [true, false] {
+            let slab = Slab { deg, from_air };
+            let (v, s) = sharp(&slab.scene(), reflections);
+            let [[want, read], [want_next, read_next]] = slab.cut_layers(&v, reflections);
+            println!(
+                "{deg} degrees, from the air {from_air}, reflections {reflections}: cut layer \
+                 {read:.5} (want {want:.5}), next {read_next:.5} (want {want_next:.5})"
+            );
+            assert!(
+                (read / want - 1.0).abs() < cut_tolerance,
+                "{deg} {from_air} {reflections}: {read}, want {want}"
+            );
+            assert!(
+                (read_next / want_next - 1.0).abs() < 5e-4,
+                "{deg} {from_air} {reflections}: next {read_next}, want {want_next}"
+            );
+            assert!(s.energy_imbalance() < 1e-9, "{s:?}");
+        }
+    }
+}
+
 /// eikon's own photons (`--method photons`) branch at a sharp crossing:
 /// the reflected part goes on as a photon of its own. On the slab of
 /// `a_plane_wave_on_glass_is_reflected_by_fresnel` (60 degrees from the

@@ -335,21 +335,28 @@ fn deposit_lane_piece(g: GridGpu, l: DepositLane, ta: f32, tb: f32, depth: vec3<
     }
 }
 
-// `deposit::tube`: the tube a patch sweeps along straight corner paths,
-// corners from x0 to x1, carrying `flux` at the start and losing `depth`
-// over the way. Sub-patch by sub-patch (the CPU goes layer by layer over
+// `deposit::tube_cut`, cut as `deposit::cut` finds: the tube a patch
+// sweeps along straight corner paths, corners from x0 to x1, carrying
+// `flux` at the start, times the bilinear interpolation of the per-corner
+// `weights`, and losing `depth` over the way. Sub-patch by sub-patch (the CPU goes layer by layer over
 // all of them, which only orders the same pieces differently), each
 // followed layer by layer along the major axis and cut where its centre
 // crosses a face of the minor axes.
-fn deposit_tube(g: GridGpu, sc: ChordScales, x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, flux: vec3<f32>, depth: vec3<f32>) {
-    let k = deposit_cut(x0, x1, g.voxel);
+fn deposit_tube(g: GridGpu, sc: ChordScales, x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, flux: vec3<f32>, weights: vec4<f32>, depth: vec3<f32>) {
+    deposit_tube_cut(g, sc, x0, x1, flux, weights, depth, deposit_cut(x0, x1, g.voxel));
+}
+
+// `deposit::tube_cut`: `deposit_tube` cut into k.x x k.y sub-patches, or
+// along its four corner rays where k.x is 0.
+fn deposit_tube_cut(g: GridGpu, sc: ChordScales, x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, flux: vec3<f32>, weights: vec4<f32>, depth: vec3<f32>, k: vec2<u32>) {
     if k.x == 0u {
         // Along its four corner rays, a quarter each.
         for (var c = 0u; c < 4u; c++) {
-            deposit_chord(g, sc, x0[c], x1[c], flux * 0.25, depth);
+            deposit_chord(g, sc, x0[c], x1[c], flux * (0.25 * weights[c]), depth);
         }
         return;
     }
+    let uniform = all(weights == vec4<f32>(weights.x));
     let ns = k.x;
     let nt = k.y;
     let share = flux / f32(ns * nt);
@@ -419,11 +426,16 @@ fn deposit_tube(g: GridGpu, sc: ChordScales, x0: array<vec3<f32>, 4>, x1: array<
             if !(l.hi > l.lo) {
                 continue;
             }
-            l.w = share * len * sc.fluence;
-            l.wf = share * (len * sc.flux / 3.0);
+            // (`deposit::weight_at`: the weight itself where all are one.)
+            var mine = share * weights.x;
+            if !uniform {
+                mine = share * (weights[0] * ((1.0 - sm) * (1.0 - tm)) + weights[1] * (sm * (1.0 - tm)) + weights[2] * (sm * tm) + weights[3] * ((1.0 - sm) * tm));
+            }
+            l.w = mine * len * sc.fluence;
+            l.wf = mine * (len * sc.flux / 3.0);
             if sc.group >= 0 {
                 l.wf = vec3<f32>(0.0);
-                l.wf[sc.group] = share[sc.group] * len * sc.flux;
+                l.wf[sc.group] = mine[sc.group] * len * sc.flux;
             }
             l.u = (b - a) / len;
             // Clamped before the conversion (see `grid_cell_of`).

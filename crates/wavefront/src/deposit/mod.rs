@@ -217,6 +217,11 @@ impl Counters {
         (w, wf)
     }
 
+    /// The edge of a voxel, as [`cut`] measures patches.
+    pub fn voxel(&self) -> f64 {
+        self.grid.voxel_size()
+    }
+
     /// The fixed-point scales: fluence units per watt-unit of length, per
     /// channel, and flux-vector units per watt-unit of length (what a
     /// piece's amounts are multiplied by before they are rounded).
@@ -448,9 +453,31 @@ pub fn tube(
     depth: DVec3,
     group: Option<usize>,
 ) {
-    let Some(n) = cut(x0, x1, tally.grid.voxel_size()) else {
-        let f = flux.map(|x| x * 0.25);
+    let n = cut(x0, x1, tally.voxel());
+    tube_cut(tally, (x0, x1), flux, &[1.0; 4], depth, group, n);
+}
+
+/// [`tube`] cut into `n` sub-patches (`ns x nt`), or along its four corner
+/// rays where `n` is `None` (as [`cut`] finds, or as the other piece of a
+/// path bent within a step asks, `propagate::bent_tube`), for a patch
+/// whose light need not be uniform over it: the flux per unit of its
+/// bilinear parameters is `flux` times the bilinear interpolation of
+/// `weights` (one per corner), each sub-patch's share taken at its centre,
+/// a corner ray's at its corner. A patch that straddles a surface carries
+/// on beyond it only what the surface let through
+/// (`propagate::straddle_weights`).
+pub fn tube_cut(
+    tally: &Counters,
+    (x0, x1): (&[DVec3; 4], &[DVec3; 4]),
+    flux: &[f64; 3],
+    weights: &[f64; 4],
+    depth: DVec3,
+    group: Option<usize>,
+    n: Option<(usize, usize)>,
+) {
+    let Some(n) = n else {
         for c in 0..4 {
+            let f = flux.map(|x| x * 0.25 * weights[c]);
             tally.chord(x0[c], x1[c], &f, depth, group);
         }
         return;
@@ -461,6 +488,7 @@ pub fn tube(
             x0,
             x1,
             flux,
+            weights,
             depth,
             group,
             axes: axes(x0, x1, tally.inv_spacing),
@@ -528,6 +556,19 @@ fn bilinear(p: &[DVec3; 4], s: f64, t: f64) -> DVec3 {
         + p[3] * ((1.0 - s) * t)
 }
 
+/// The bilinear interpolation of per-corner `weights` at `(s, t)`; the
+/// weight itself, exactly, where all four are one.
+#[inline]
+fn weight_at(w: &[f64; 4], s: f64, t: f64) -> f64 {
+    if w[1] == w[0] && w[2] == w[0] && w[3] == w[0] {
+        return w[0];
+    }
+    w[0] * ((1.0 - s) * (1.0 - t))
+        + w[1] * (s * (1.0 - t))
+        + w[2] * (s * t)
+        + w[3] * ((1.0 - s) * t)
+}
+
 /// The two edge vectors of the parallelogram nearest a quad `q`.
 #[inline]
 fn edges(q: &[DVec3; 4]) -> (DVec3, DVec3) {
@@ -575,6 +616,8 @@ struct Tube<'a> {
     x0: &'a [DVec3; 4],
     x1: &'a [DVec3; 4],
     flux: &'a [f64; 3],
+    /// Per corner, the weight of the flux ([`tube_cut`]).
+    weights: &'a [f64; 4],
     depth: DVec3,
     group: Option<usize>,
     /// Its major axis, then the two minor ones ([`axes`]).
@@ -647,7 +690,8 @@ impl Tube<'_> {
                 if hi.is_nan() || hi <= lo {
                     continue;
                 }
-                let (fluence, flux) = tally.weights(&share, len, self.group);
+                let w = weight_at(self.weights, sm, tm);
+                let (fluence, flux) = tally.weights(&share.map(|f| f * w), len, self.group);
                 let layer = |e: DVec3| onto_layer(e * inv, moves, m);
                 lanes.push(Lane {
                     at,

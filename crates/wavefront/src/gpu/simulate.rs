@@ -1668,8 +1668,11 @@ impl<'a> GpuSimulator<'a> {
             }
             let (f, f0, e) = (p.flux[i], p.flux0[i], p.irradiance(i));
             aux.extend([f[0], f[1], f[2], p.area0[i]].map(|v| v as f32));
+            // (Patches start on the device between crossings: their
+            // region codes, `Crossing::into`, are the CPU's own.)
+            debug_assert_eq!(p.crossing[i].into, 0, "uploaded mid-crossing");
             aux.extend([f0[0], f0[1], f0[2], p.depth[i] as f64].map(|v| v as f32));
-            aux.extend([e[0], e[1], e[2], p.kept[i]].map(|v| v as f32));
+            aux.extend([e[0], e[1], e[2], p.crossing[i].kept].map(|v| v as f32));
         }
         gpu.queue
             .write_buffer(&sets[0].pos, 0, bytemuck::cast_slice(&pos));

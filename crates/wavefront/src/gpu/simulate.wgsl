@@ -19,10 +19,12 @@
 //                   (a plane wave's patches stay exactly square)
 //   vel[4 i + c] = (corner c eikonal gradient v, |v| = n; 0)
 //   aux[3 i + 0] = (RGB flux, W; area0)
-//   aux[3 i + 1] = (RGB flux0; tessellation depth)
+//   aux[3 i + 1] = (RGB flux0; tessellation depth + 256 x the region its
+//                   corners cross into, region_owner + 1, 0 between
+//                   crossings: `Crossing::into`, patch_depth, patch_into)
 //   aux[3 i + 2] = (RGB differential irradiance, W/m^2; the share of its
 //                   flux the surface it straddles has let through so far,
-//                   1 between crossings: `Patches::kept`)
+//                   1 between crossings: `Crossing::kept`)
 // The medium: the index channel (n, grad(n^2 / 2)) and the RGB extinction
 // as 3D textures; with Fresnel, the interface sides of the index channel
 // and the boundary indicator as a third, (n_lo, n_hi, delta, 0) per cell
@@ -261,12 +263,16 @@ fn transmittance(p: vec3<f32>, v: vec3<f32>, dx: vec3<f32>) -> f32 {
 }
 
 // What a patch swept in one step, for the track-length deposit: its
-// corners before and after, its flux before, the step's optical depth.
+// corners before and after, its flux before, the step's optical depth, and
+// the share of the flux about each corner (`deposit::tube_cut`).
 struct Swept {
     x0: array<vec3<f32>, 4>,
     x1: array<vec3<f32>, 4>,
     flux: vec3<f32>,
     depth: vec3<f32>,
+    weights: vec4<f32>,
+    // Its sub-patches (`deposit_cut`'s), or (0, 0): as it is cut alone.
+    cut: vec2<u32>,
 }
 
 // One step of patch i: `propagate::propagate` and, for the paper's
@@ -278,6 +284,8 @@ fn propagate_patch(i: u32) -> Swept {
     var out: Swept;
     out.flux = flux.xyz;
     out.depth = vec3<f32>(0.0);
+    out.weights = vec4<f32>(1.0);
+    out.cut = vec2<u32>(0u);
     for (var c = 0u; c < 4u; c++) {
         out.x0[c] = corner_x(i, c);
     }
@@ -472,7 +480,11 @@ fn deposit_put(cell: u32, fl: vec3<f32>, fx: vec3<f32>) {
 // Deposit the tube a patch swept (`deposit::tube`).
 fn tube(sw: Swept) {
     local_len = 0u;
-    deposit_tube(P.grid, ChordScales(P.fl_scale, P.flux_scale, P.group), sw.x0, sw.x1, sw.flux, sw.depth);
+    var k = sw.cut;
+    if all(k == vec2<u32>(0u)) {
+        k = deposit_cut(sw.x0, sw.x1, P.grid.voxel);
+    }
+    deposit_tube_cut(P.grid, ChordScales(P.fl_scale, P.flux_scale, P.group), sw.x0, sw.x1, sw.flux, sw.weights, sw.depth, k);
     local_flush();
 }
 
@@ -542,7 +554,7 @@ fn fate_of(i: u32) -> u32 {
     if P.fluence == 0u && dot(patch_normal(p0, p1, p2, p3), dir) <= 0.0 {
         return FATE_CAUSTIC;
     }
-    if patch_span(p0, p1, p2, p3) > P.split_span && u32(f0.w) < P.max_depth {
+    if patch_span(p0, p1, p2, p3) > P.split_span && patch_depth(f0.w) < P.max_depth {
         // Too dim to be worth more patches (`Rules::dim`).
         if P.dim > 0.0 && below(flux.xyz, P.dim * patch_area(p0, p1, p2, p3), incident_at(mid)) {
             return FATE_RETAIN;
@@ -1096,14 +1108,31 @@ struct Tried {
     flux: vec3<f32>,
     // The Fresnel factor the step took from the flux (1 without).
     kept: f32,
+    // The region the crossing it is in goes into (`Crossing::into`).
+    into: u32,
 }
 
-// `propagate::sharp_patch`: one step of the patch q carrying `flux`; with
+// The tessellation depth and the region code of a crossing packed into
+// aux[3 i + 1].w, and back.
+fn patch_depth(w: f32) -> u32 {
+    return u32(w) & 0xffu;
+}
+
+fn patch_into(w: f32) -> u32 {
+    return u32(w) >> 8u;
+}
+
+fn pack_depth(depth: u32, into: u32) -> f32 {
+    return f32(depth | (into << 8u));
+}
+
+// `propagate::sharp_patch`: one step of the patch q carrying `flux`, in
+// the crossing (`into`, `kept`: `Crossing`) it began the step in; with
 // `write`, its tube deposited and its losses tallied. Not ok (and nothing
 // done) when its corners part ways.
-fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
+fn sharp_patch(q: Quad, flux: vec3<f32>, into: u32, kept_before: f32, write: bool) -> Tried {
     let dt = P.dt;
-    var out = Tried(true, q, flux, 1.0);
+    var out = Tried(true, q, flux, 1.0, into);
     let m0 = (q.x[0] + q.x[1] + q.x[2] + q.x[3]) * 0.25;
     let ne = empty_at(m0);
     if ne >= 0.0 {
@@ -1122,7 +1151,7 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
                 out.q.opl[c] = q.opl[c] + dt;
             }
             if write && P.fluence != 0u {
-                tube(Swept(q.x, out.q.x, flux, vec3<f32>(0.0)));
+                tube(Swept(q.x, out.q.x, flux, vec3<f32>(0.0), vec4<f32>(1.0), vec2<u32>(0u)));
             }
             return out;
         }
@@ -1143,8 +1172,13 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
     var bend_at: array<vec3<f32>, 4>;
     var bend_depth: array<vec3<f32>, 4>;
     var bend_time: array<f32, 4>;
+    // Each corner's Fresnel transmittance over the step's crossings, and
+    // its region as the step began.
+    var passed = vec4<f32>(1.0);
+    var owner: array<u32, 4>;
     for (var k = 0u; k < 4u; k++) {
         var ray = RegionRay(q.x[k], q.v[k], q.opl[k], region_owner(q.x[k]));
+        owner[k] = ray.region;
         var left = dt;
         var on_surface = false;
         for (var s = 0u; s < MAX_CROSSINGS; s++) {
@@ -1167,6 +1201,7 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
                 }
                 if !st.c.total {
                     kept *= pow(max(1.0 - st.c.reflectance, 0.0), 0.25);
+                    passed[k] *= max(1.0 - st.c.reflectance, 0.0);
                 }
             }
             if !st.at_surface || left <= 0.0 {
@@ -1247,7 +1282,26 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
                 time += bend_time[k];
             }
         }
-        var sw = Swept(q.x, out.q.x, flux, depth);
+        // `propagate::straddle_weights`: the light about a corner that has
+        // crossed is what the surface let through.
+        var before_w = vec4<f32>(1.0);
+        if into != 0u && kept_before < 1.0 {
+            var m = 0u;
+            for (var k = 0u; k < 4u; k++) {
+                m += select(0u, 1u, owner[k] + 1u == into);
+            }
+            if m > 0u {
+                let w = pow(kept_before, 4.0 / f32(m));
+                for (var k = 0u; k < 4u; k++) {
+                    before_w[k] = select(1.0, w, owner[k] + 1u == into);
+                }
+            }
+        }
+        var after_w = before_w;
+        if P.fresnel != 0u {
+            after_w *= passed;
+        }
+        var sw = Swept(q.x, out.q.x, flux, depth, before_w, vec2<u32>(0u));
         var mid = out.q.x;
         var before = vec3<f32>(0.0);
         if bent > 0u {
@@ -1263,10 +1317,16 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
             }
             sw.x1 = mid;
             sw.depth = before;
+            // Both pieces in the same sub-patches (`bent_tube`).
+            let ka = deposit_cut(q.x, mid, P.grid.voxel);
+            let kb = deposit_cut(mid, out.q.x, P.grid.voxel);
+            if ka.x != 0u && kb.x != 0u {
+                sw.cut = max(ka, kb);
+            }
         }
         for (var piece = 0u; piece < 1u + min(bent, 1u); piece++) {
             if piece == 1u {
-                sw = Swept(mid, out.q.x, flux * exp(-before), max(depth - before, vec3<f32>(0.0)));
+                sw = Swept(mid, out.q.x, flux * exp(-before), max(depth - before, vec3<f32>(0.0)), after_w, sw.cut);
             }
             tube(sw);
         }
@@ -1276,27 +1336,29 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, write: bool) -> Tried {
         add_energy3(E_ABSORBED, flux - through);
     }
     out.flux = through;
+    // A crossing begins with the first corner that refracts.
+    if into == 0u {
+        for (var k = 0u; k < 4u; k++) {
+            if out.into == 0u && has[k] && !total[k] {
+                out.into = beyond[k] + 1u;
+            }
+        }
+    }
     if P.fresnel != 0u {
         out.kept = kept;
     }
     return out;
 }
 
-// `propagate::crossing_kept`: a patch's share through the surface it
-// straddles after a step that left it with `through`, back to 1 once its
-// corners are in one region.
-fn crossing_kept(q: Quad, through: f32) -> f32 {
-    if through < 1.0 {
-        let r = region_owner(q.x[0]);
-        var one = true;
-        for (var c = 1u; c < 4u; c++) {
-            one = one && region_owner(q.x[c]) == r;
-        }
-        if one {
-            return 1.0;
-        }
+// Whether the corners of q are in one region (`propagate::crossing_done`:
+// a crossing is over).
+fn one_region(q: Quad) -> bool {
+    let r = region_owner(q.x[0]);
+    var one = true;
+    for (var c = 1u; c < 4u; c++) {
+        one = one && region_owner(q.x[c]) == r;
     }
-    return through;
+    return one;
 }
 
 // Where a patch's Fresnel reflection is (`propagate::reflection`).
@@ -1470,7 +1532,7 @@ fn traced_reflection(r: Reflected, came: vec3<f32>) -> vec3<f32> {
     let tallied = tallied_reflection(came, r);
     let f = reflected_flux(came, r);
     if P.fluence != 0u {
-        tube(Swept(r.hits, r.q.x, f, r.depth));
+        tube(Swept(r.hits, r.q.x, f, r.depth, vec4<f32>(1.0), vec2<u32>(0u)));
     }
     let out = f * exp(-r.depth);
     add_energy3(E_RESTORED, f - tallied);
@@ -1678,9 +1740,11 @@ fn sharp_work(k: u32, pass_id: u32) {
     let a = aux[3u * i];
     let f0 = aux[3u * i + 1u];
     let nd = patch_node(i, e.y);
-    var t = Tried(true, nd.q, nd.flux.xyz, 1.0);
+    // The crossing the patch (or its node, a torn patch's) began the
+    // step in.
+    var t = Tried(true, nd.q, nd.flux.xyz, 1.0, 0u);
     if pass_id != SHARP_REFLECTIONS {
-        t = sharp_patch(nd.q, nd.flux.xyz, pass_id != SHARP_LEVEL);
+        t = sharp_patch(nd.q, nd.flux.xyz, patch_into(f0.w), aux[3u * i + 2u].w, pass_id != SHARP_LEVEL);
     }
     // The share of the flux the surface it straddles has let through
     // (`Patches::kept`): the patch's (a torn patch's slot keeps it, for
@@ -1700,9 +1764,14 @@ fn sharp_work(k: u32, pass_id: u32) {
     // A patch (pass 0) or piece (pass 2) whose corners have all crossed a
     // surface is split by Fresnel (`propagate::crossing_done`); pass 1
     // traces the reflection of a patch pass 0 found to reflect.
+    // (The crossing is over once its corners are in one region, split or
+    // not.)
     var done = pass_id == SHARP_REFLECTIONS;
-    if (pass_id == SHARP_PATCHES || pass_id == SHARP_PIECES) && t.ok && through < 1.0 {
-        done = crossing_kept(moved, through) == 1.0;
+    var into = t.into;
+    if (pass_id == SHARP_PATCHES || pass_id == SHARP_PIECES) && t.ok && (through < 1.0 || into != 0u) {
+        let over = one_region(moved);
+        done = over && through < 1.0;
+        into = select(into, 0u, over);
     }
     var look = pass_id == SHARP_REFLECTIONS;
     var to = 0u;
@@ -1729,6 +1798,7 @@ fn sharp_work(k: u32, pass_id: u32) {
             aux[3u * i] = vec4<f32>(flux, a.w);
         }
         aux[3u * i + 2u] = vec4<f32>(quad_irradiance(t.q, flux), kept);
+        aux[3u * i + 1u] = vec4<f32>(f0.xyz, pack_depth(patch_depth(f0.w), into));
     }
     switch pass_id {
         case SHARP_PATCHES: {
@@ -1782,7 +1852,7 @@ fn sharp_work(k: u32, pass_id: u32) {
             aux[3u * i] = vec4<f32>(through_flux, a.w);
             aux[3u * i + 2u] = vec4<f32>(quad_irradiance(moved, through_flux), 1.0);
             let slot = P.n_old + hp_rank(P.pieces_base, P.n_old, i);
-            write_patch(slot, r.q, fl, f0.xyz, a.w, f0.w, 1.0);
+            write_patch(slot, r.q, fl, f0.xyz, a.w, pack_depth(patch_depth(f0.w), 0u), 1.0);
         }
         default: {
             let nth = k - first_piece_of(i, pieces_total());
@@ -1800,7 +1870,7 @@ fn sharp_work(k: u32, pass_id: u32) {
                 flux = untraced_split(t.flux, r);
                 kept = 1.0;
             }
-            write_patch(slot, t.q, flux, nd.flux0, nd.flux.w, f0.w + 1.0, kept);
+            write_patch(slot, t.q, flux, nd.flux0, nd.flux.w, pack_depth(patch_depth(f0.w) + 1u, into), kept);
         }
     }
 }

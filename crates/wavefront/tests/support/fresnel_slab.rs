@@ -48,15 +48,7 @@ impl Slab {
     /// and of the grid's faces, and clear of the light that enters the
     /// grid's side within the slab without crossing its top.
     pub fn measure(&self, v: &LightVolume, reflections: bool) -> ([f64; 2], [f64; 2]) {
-        let (n1, n2) = if self.from_air {
-            (1.0, N_SLAB)
-        } else {
-            (N_SLAB, 1.0)
-        };
-        let (s, c) = self.deg.to_radians().sin_cos();
-        let r = fresnel(c, n1, n2).0;
-        let st = s * n1 / n2;
-        let ct = (1.0 - st * st).sqrt();
+        let ((s, c), (st, ct)) = self.angles();
         let h = 2.0 / RES as f64;
         let ys = Y_SURFACE;
         let at = |i: usize, j: usize| (-1.0 + (i as f64 + 0.5) * h, -1.0 + (j as f64 + 0.5) * h);
@@ -102,8 +94,75 @@ impl Slab {
             assert!(count > 100, "{self:?}: {count} cells");
             sum / count as f64
         };
-        let want_near = if reflections { 1.0 + r } else { 1.0 };
-        let want_far = (1.0 - r) * c / ct;
+        let (want_near, want_far) = self.expected(reflections);
         ([want_near, mean(&near)], [want_far, mean(&far)])
+    }
+
+    /// The sines and cosines of the angles of incidence and refraction.
+    fn angles(&self) -> ((f64, f64), (f64, f64)) {
+        let (s, c) = self.deg.to_radians().sin_cos();
+        let st = s * self.indices().0 / self.indices().1;
+        ((s, c), (st, (1.0 - st * st).sqrt()))
+    }
+
+    /// The indices on the incident side and on the far side.
+    fn indices(&self) -> (f64, f64) {
+        if self.from_air {
+            (1.0, N_SLAB)
+        } else {
+            (N_SLAB, 1.0)
+        }
+    }
+
+    /// The fluence on the incident side and on the far side.
+    fn expected(&self, reflections: bool) -> (f64, f64) {
+        let ((_, c), (_, ct)) = self.angles();
+        let (n1, n2) = self.indices();
+        let r = fresnel(c, n1, n2).0;
+        (if reflections { 1.0 + r } else { 1.0 }, (1.0 - r) * c / ct)
+    }
+
+    /// The mean fluence expected and read (channel 0) in the layer of cells
+    /// the surface cuts and in the next layer on the incident side, wholly
+    /// there: each cell holds the incident side's fluence over its part on
+    /// that side and the far side's over the rest ([`Self::measure`]'s two
+    /// values, its exact cell average). Away from the grid's sides: at
+    /// normal incidence (either way), or from the air up to 45 degrees,
+    /// over the cells the light reaches through the grid's top.
+    pub fn cut_layers(&self, v: &LightVolume, reflections: bool) -> [[f64; 2]; 2] {
+        let oblique = self.deg != 0.0;
+        assert!(
+            !oblique || (self.from_air && self.deg <= 45.0),
+            "{self:?}: the cut layers are measured at normal incidence, or from the air up to 45 degrees"
+        );
+        let (near, far) = self.expected(reflections);
+        let h = 2.0 / RES as f64;
+        let j = ((Y_SURFACE + 1.0) / h).floor() as usize;
+        let below = (Y_SURFACE - (-1.0 + j as f64 * h)) / h;
+        assert!(below > 0.1 && below < 0.9, "the surface cuts layer {j}");
+        let (incident, next) = if self.from_air {
+            (1.0 - below, j + 1)
+        } else {
+            (below, j - 1)
+        };
+        let is = if oblique {
+            RES / 2..RES / 2 + 10
+        } else {
+            3..RES - 3
+        };
+        let layer = |j: usize| {
+            let (mut sum, mut count) = (0.0, 0);
+            for i in is.clone() {
+                for k in 3..RES - 3 {
+                    sum += f64::from(v.fluence[[i, j, k, 0]]);
+                    count += 1;
+                }
+            }
+            sum / count as f64
+        };
+        [
+            [incident * near + (1.0 - incident) * far, layer(j)],
+            [near, layer(next)],
+        ]
     }
 }
