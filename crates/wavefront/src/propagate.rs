@@ -917,7 +917,7 @@ pub fn reflection(
     let mut from = None;
     // Some corner meets the surface with R > 0 and none with R = 1: there
     // is a reflection (its flux is what the patch's own factors took,
-    // `Patches::kept`).
+    // `Crossing::kept`).
     let mut reflects = false;
     let mut corners = *moved;
     let mut hits = [DVec3::ZERO; 4];

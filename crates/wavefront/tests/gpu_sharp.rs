@@ -276,7 +276,7 @@ fn ball_lens_matches_the_cpu(gpu: &Gpu) {
 /// entered power. With reflections traced, the light the surfaces took
 /// and no traced reflection carried (`reflected_power`) agrees within 4%:
 /// a piece of a torn patch reflects what the surface took from it and its
-/// parent (`Patches::kept`, `aux[3 i + 2].w` on the GPU), not what its own
+/// parent (`Crossing::kept`, `aux[3 i + 2].w` on the GPU), not what its own
 /// corners' Fresnel factors would have (1.7% apart; 8% with the GPU's
 /// reflection made of its corners' factors). With reflections traced the account was off by 1e-5
 /// while one thread walked a torn patch's tree of pieces with their

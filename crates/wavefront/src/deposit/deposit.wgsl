@@ -338,10 +338,10 @@ fn deposit_lane_piece(g: GridGpu, l: DepositLane, ta: f32, tb: f32, depth: vec3<
 // `deposit::tube_cut`, cut as `deposit::cut` finds: the tube a patch
 // sweeps along straight corner paths, corners from x0 to x1, carrying
 // `flux` at the start, times the bilinear interpolation of the per-corner
-// `weights`, and losing `depth` over the way. Sub-patch by sub-patch (the CPU goes layer by layer over
-// all of them, which only orders the same pieces differently), each
-// followed layer by layer along the major axis and cut where its centre
-// crosses a face of the minor axes.
+// `weights`, and losing `depth` over the way. Sub-patch by sub-patch (the
+// CPU goes layer by layer over all of them, which only orders the same
+// pieces differently), each followed layer by layer along the major axis
+// and cut where its centre crosses a face of the minor axes.
 fn deposit_tube(g: GridGpu, sc: ChordScales, x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, flux: vec3<f32>, weights: vec4<f32>, depth: vec3<f32>) {
     deposit_tube_cut(g, sc, x0, x1, flux, weights, depth, deposit_cut(x0, x1, g.voxel));
 }

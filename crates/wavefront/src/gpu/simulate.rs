@@ -527,7 +527,7 @@ pub fn source() -> String {
 
 /// Bytes per patch of a list's arrays (see [`PatchSet`]): four corner
 /// positions with their optical path lengths, four gradients, and the
-/// flux, initial flux and irradiance (with area, depth and `Patches::kept`).
+/// flux, initial flux and irradiance (with area, depth and `Crossing::kept`).
 const POS_BYTES: u64 = 64;
 const VEL_BYTES: u64 = 64;
 const AUX_BYTES: u64 = 48;

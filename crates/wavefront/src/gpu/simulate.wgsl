@@ -1374,7 +1374,7 @@ struct Reflected {
     hits: array<vec3<f32>, 4>,
     // The share of the patch's flux the surface lets through, set by
     // `traced_reflection_of`: `tau` where found, else the corners' factors
-    // (`Patches::kept`).
+    // (`Crossing::kept`).
     kept: f32,
     // Fresnel's transmittance over the patch from its corners' incidence
     // (`fresnel_patch_transmittance`; `propagate::Reflection::transmitted`).
@@ -1747,7 +1747,7 @@ fn sharp_work(k: u32, pass_id: u32) {
         t = sharp_patch(nd.q, nd.flux.xyz, patch_into(f0.w), aux[3u * i + 2u].w, pass_id != SHARP_LEVEL);
     }
     // The share of the flux the surface it straddles has let through
-    // (`Patches::kept`): the patch's (a torn patch's slot keeps it, for
+    // (`Crossing::kept`): the patch's (a torn patch's slot keeps it, for
     // its pieces) times this step's factor; pass 1 reads what pass 0
     // stored.
     let through = aux[3u * i + 2u].w * t.kept;
