@@ -1164,8 +1164,10 @@ fn sharp_patch(
     // side, not half and half); the patch loses the corners' mean.
     let mut first: [Option<Crossed>; 4] = [None; 4];
     let mut factor = 1.0;
-    // Each corner's Fresnel transmittance over the step's crossings.
+    // Each corner's Fresnel transmittance over the step's crossings, and
+    // its region as the step began.
     let mut passed = [1.0; 4];
+    let mut owner: [Region; 4] = [None; 4];
     // Each corner's optical depth over the step, and where its path first
     // bent (refracted or reflected at a surface).
     let mut depths = [DVec3::ZERO; 4];
@@ -1176,6 +1178,7 @@ fn sharp_patch(
             region: regions.at(s.x),
             ahead: None,
         };
+        owner[k] = ray.region;
         let mut left = dt;
         let mut on_surface = false;
         for _ in 0..MAX_CROSSINGS {
@@ -1269,7 +1272,7 @@ fn sharp_patch(
     let depth = (depths[0] + depths[1] + depths[2] + depths[3]) * 0.25;
     if let Some(t) = tally {
         let passed = if sharp.fresnel { passed } else { [1.0; 4] };
-        let weights = straddle_weights(regions, &x0, *crossing, &passed);
+        let weights = straddle_weights(&owner, *crossing, &passed);
         bent_tube(
             t,
             (&x0, &x1),
@@ -1306,7 +1309,8 @@ pub fn region_code(r: Region) -> u32 {
 
 /// Per corner, the share of a patch's light about it, before and after
 /// its path bends in a step, while the patch straddles a surface
-/// (`crossing` as the step began, [`Crossing`]): 1 where the corner has not
+/// (`crossing` as the step began, [`Crossing`]; `owner`, each corner's
+/// region then): 1 where the corner has not
 /// crossed, and beyond the surface what it let through, `1 - R`. The
 /// patch carries all its light on until its corners have all crossed
 /// ([`crossing_done`]), so without these its tube would put the reflected
@@ -1318,14 +1322,13 @@ pub fn region_code(r: Region) -> u32 {
 /// ancestor's factors). A corner that crosses in the step takes its own
 /// transmittance over it, `passed`, after its bend.
 fn straddle_weights(
-    regions: &Regions,
-    x0: &[DVec3; 4],
+    owner: &[Region; 4],
     crossing: Crossing,
     passed: &[f64; 4],
 ) -> ([f64; 4], [f64; 4]) {
     let mut before = [1.0; 4];
     if crossing.into != 0 && crossing.kept < 1.0 {
-        let beyond = x0.map(|x| region_code(regions.at(x)) == crossing.into);
+        let beyond = owner.map(|r| region_code(r) == crossing.into);
         let m = beyond.iter().filter(|&&b| b).count();
         if m > 0 {
             let w = crossing.kept.powf(4.0 / m as f64);

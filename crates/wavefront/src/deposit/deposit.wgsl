@@ -145,7 +145,7 @@ fn deposit_subpatches(x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, voxel: f
     return deposit_counts(max(deposit_sides2(x0), deposit_sides2(x1)), voxel);
 }
 
-// `deposit::cut`: how `deposit_tube` cuts a patch sweeping from x0 to
+// `deposit::cut`: how `deposit_tube_cut` cuts a patch sweeping from x0 to
 // x1, (ns, nt) sub-patches, or (0, 0) for along its four corner rays.
 fn deposit_cut(x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, voxel: f32) -> vec2<u32> {
     let start = deposit_sides2(x0);
@@ -335,19 +335,15 @@ fn deposit_lane_piece(g: GridGpu, l: DepositLane, ta: f32, tb: f32, depth: vec3<
     }
 }
 
-// `deposit::tube_cut`, cut as `deposit::cut` finds: the tube a patch
-// sweeps along straight corner paths, corners from x0 to x1, carrying
-// `flux` at the start, times the bilinear interpolation of the per-corner
-// `weights`, and losing `depth` over the way. Sub-patch by sub-patch (the
-// CPU goes layer by layer over all of them, which only orders the same
-// pieces differently), each followed layer by layer along the major axis
-// and cut where its centre crosses a face of the minor axes.
-fn deposit_tube(g: GridGpu, sc: ChordScales, x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, flux: vec3<f32>, weights: vec4<f32>, depth: vec3<f32>) {
-    deposit_tube_cut(g, sc, x0, x1, flux, weights, depth, deposit_cut(x0, x1, g.voxel));
-}
-
-// `deposit::tube_cut`: `deposit_tube` cut into k.x x k.y sub-patches, or
-// along its four corner rays where k.x is 0.
+// `deposit::tube_cut`: the tube a patch sweeps along straight corner
+// paths, corners from x0 to x1, carrying `flux` at the start, times the
+// bilinear interpolation of the per-corner `weights`, and losing `depth`
+// over the way, cut into k.x x k.y sub-patches (`deposit_cut`'s, or the
+// other piece's of a bent tube), or along its four corner rays where k.x
+// is 0. Sub-patch by sub-patch (the CPU goes layer by layer over all of
+// them, which only orders the same pieces differently), each followed
+// layer by layer along the major axis and cut where its centre crosses a
+// face of the minor axes.
 fn deposit_tube_cut(g: GridGpu, sc: ChordScales, x0: array<vec3<f32>, 4>, x1: array<vec3<f32>, 4>, flux: vec3<f32>, weights: vec4<f32>, depth: vec3<f32>, k: vec2<u32>) {
     if k.x == 0u {
         // Along its four corner rays, a quarter each.

@@ -372,7 +372,7 @@ fn propagate_patch(i: u32) -> Swept {
 
 // ---------------------------------------------------------------------
 // The track-length deposit's counters: the `deposit` module cuts each
-// patch's tube into pieces per cell (`deposit_tube`); they are summed per
+// patch's tube into pieces per cell (`deposit_tube_cut`); they are summed per
 // cell in a small per-thread list (the CPU sums a layer's cells in
 // `deposit::Tile`) and added to 64-bit
 // fixed-point counters with two u32 atomics and a carry. Integer addition
