@@ -624,20 +624,23 @@ struct Tube<'a> {
     axes: [usize; 3],
 }
 
-/// One sub-patch of a [`tube`], in cell coordinates: its centre at the
-/// start and how far it moves, its edges at the start and how they change
-/// (projected along its motion onto the layers' plane, [`onto_layer`]),
-/// the part of its path inside the grid along the major axis, and what it
-/// deposits per unit of the tube's parameter (fluence units per channel,
-/// flux-vector units per channel along `u`).
+/// One sub-patch of a [`tube`], in cell coordinates along the tube's axes
+/// (major, then the two minor ones, [`axes`]): its centre at the start and
+/// how far it moves, the two minor components of its edges at the start
+/// and of how they change (projected along its motion onto the layers'
+/// plane, [`onto_layer`]), the part of its path inside the grid along the
+/// major axis, and what it deposits per unit of the tube's parameter
+/// (fluence units per channel, flux-vector units per channel along `u`,
+/// in world axes). Held in the tube's axis order, so the walk over layers
+/// indexes no vector by a runtime axis.
 #[derive(Clone, Copy)]
 struct Lane {
-    at: DVec3,
-    moves: DVec3,
-    e1: DVec3,
-    de1: DVec3,
-    e2: DVec3,
-    de2: DVec3,
+    at: [f64; 3],
+    moves: [f64; 3],
+    e1: [f64; 2],
+    de1: [f64; 2],
+    e2: [f64; 2],
+    de2: [f64; 2],
     lo: f64,
     hi: f64,
     fluence: [f64; 3],
@@ -692,14 +695,19 @@ impl Tube<'_> {
                 }
                 let w = weight_at(self.weights, sm, tm);
                 let (fluence, flux) = tally.weights(&share.map(|f| f * w), len, self.group);
-                let layer = |e: DVec3| onto_layer(e * inv, moves, m);
+                let [_, ab, ac] = self.axes;
+                let minor = |e: DVec3| {
+                    let p = onto_layer(e * inv, moves, m);
+                    [p[ab], p[ac]]
+                };
+                let along = |v: DVec3| self.axes.map(|a| v[a]);
                 lanes.push(Lane {
-                    at,
-                    moves,
-                    e1: layer(e1),
-                    de1: layer(f1 - e1),
-                    e2: layer(e2),
-                    de2: layer(f2 - e2),
+                    at: along(at),
+                    moves: along(moves),
+                    e1: minor(e1),
+                    de1: minor(f1 - e1),
+                    e2: minor(e2),
+                    de2: minor(f2 - e2),
                     lo,
                     hi,
                     fluence,
@@ -717,9 +725,9 @@ impl Tube<'_> {
             tally, depth, axes, ..
         } = self;
         let g = &tally.grid;
-        let [m, ab, ac] = axes;
+        let m = axes[0];
         let top = g.dims[m] as i64 - 1;
-        let layer = |l: &Lane, t: f64| (floor(l.at[m] + l.moves[m] * t) as i64).clamp(0, top);
+        let layer = |l: &Lane, t: f64| (floor(l.at[0] + l.moves[0] * t) as i64).clamp(0, top);
         let (first, last) = lanes.iter().fold((i64::MAX, i64::MIN), |(a, b), l| {
             let (p, q) = (layer(l, l.lo), layer(l, l.hi));
             (a.min(p).min(q), b.max(p).max(q))
@@ -729,7 +737,7 @@ impl Tube<'_> {
         for layer in first..=last {
             let layer_base = layer as usize * cells.stride[0];
             for lane in lanes {
-                let Some((ta, tb)) = lane.in_layer(m, layer) else {
+                let Some((ta, tb)) = lane.in_layer(layer) else {
                     continue;
                 };
                 // Cut where the centre crosses a face of the two minor
@@ -737,7 +745,7 @@ impl Tube<'_> {
                 let mut cuts = [0.0; 2 + 2 * MAX_CUTS];
                 let mut n = 1;
                 cuts[0] = ta;
-                for ax in [ab, ac] {
+                for ax in [1, 2] {
                     let ya = lane.at[ax] + lane.moves[ax] * ta;
                     let yb = lane.at[ax] + lane.moves[ax] * tb;
                     let (lo, hi) = (ya.min(yb), ya.max(yb));
@@ -779,10 +787,10 @@ pub const MAX_CUTS: usize = 4;
 
 impl Lane {
     /// The part `[ta, tb]` of the tube's parameter in layer `layer` of
-    /// the major axis `m`, if any.
+    /// the major axis, if any.
     #[inline]
-    fn in_layer(&self, m: usize, layer: i64) -> Option<(f64, f64)> {
-        let (g, d) = (self.at[m], self.moves[m]);
+    fn in_layer(&self, layer: i64) -> Option<(f64, f64)> {
+        let (g, d) = (self.at[0], self.moves[0]);
         let (l0, l1) = (layer as f64, (layer + 1) as f64);
         let (ta, tb) = if d > 0.0 {
             (((l0 - g) / d).max(self.lo), ((l1 - g) / d).min(self.hi))
@@ -815,16 +823,18 @@ impl Lane {
         if dt <= 0.0 {
             return;
         }
-        let [_, ab, ac] = cells.axes;
         let t = 0.5 * (ta + tb);
-        let c = self.at + self.moves * t;
-        let (e1, e2) = (self.e1 + self.de1 * t, self.e2 + self.de2 * t);
-        let width = |ax: usize| (e1[ax] * e1[ax] + e2[ax] * e2[ax]).sqrt();
+        let c = |k: usize| self.at[k] + self.moves[k] * t;
+        let edge = |e: [f64; 2], de: [f64; 2], k: usize| e[k] + de[k] * t;
+        let width = |k: usize| {
+            let (e1, e2) = (edge(self.e1, self.de1, k), edge(self.e2, self.de2, k));
+            (e1 * e1 + e2 * e2).sqrt()
+        };
         let weight = attenuated(depth, ta, tb);
         let fluence: [f64; 3] = std::array::from_fn(|ch| self.fluence[ch] * weight[ch]);
         let along = self.u * (0..3).map(|ch| self.flux[ch] * weight[ch]).sum::<f64>();
-        let pb = swept_parts(c[ab], width(ab), (self.moves[ab] * dt).abs());
-        let pc = swept_parts(c[ac], width(ac), (self.moves[ac] * dt).abs());
+        let pb = swept_parts(c(1), width(0), (self.moves[1] * dt).abs());
+        let pc = swept_parts(c(2), width(1), (self.moves[2] * dt).abs());
         // The parts inside the grid (the rest leave it).
         let (bs, cs) = (cells.inside(&pb, 1), cells.inside(&pc, 2));
         for (&fb, ib) in pb.fraction[bs.clone()]
@@ -872,12 +882,11 @@ pub fn onto_layer(e: DVec3, moves: DVec3, m: usize) -> DVec3 {
     }
 }
 
-/// The grid's cells as a [`tube`] walks them: its axes (major, then the
-/// two minor ones, [`axes`]), the cells along each and the counters
-/// between neighbours along each (the flat index of cell `(i, j, k)`'s
-/// first counter is `((i ny + j) nz + k) 3`).
+/// The grid's cells as a [`tube`] walks them: along each of its axes
+/// (major, then the two minor ones, [`axes`]), the cells and the counters
+/// between neighbours (the flat index of cell `(i, j, k)`'s first counter
+/// is `((i ny + j) nz + k) 3`).
 struct Cells {
-    axes: [usize; 3],
     dims: [i64; 3],
     stride: [usize; 3],
 }
@@ -887,7 +896,6 @@ impl Cells {
         let d = g.dims;
         let flat = [d[1] * d[2] * 3, d[2] * 3, 3];
         Self {
-            axes,
             dims: axes.map(|a| d[a] as i64),
             stride: axes.map(|a| flat[a]),
         }
@@ -953,7 +961,7 @@ pub struct SweptParts {
 /// exact (the distribution function is piecewise quadratic). A footprint
 /// wider than [`MAX_PARTS`] - 1 cells is narrowed to that, and a sweep to
 /// two cells.
-#[inline]
+#[inline(always)]
 pub fn swept_parts(centre: f64, width: f64, sweep: f64) -> SweptParts {
     let mut out = SweptParts {
         first: 0,
@@ -1058,10 +1066,14 @@ impl Counters {
     fn add(&self, base: usize, group: usize, fluence: [f64; 3], flux: [f64; 3]) {
         for (counter, x) in self.fluence[base..base + 3].iter().zip(fluence) {
             // Round to the nearest unit (truncation of a non-negative
-            // number, without a libm call).
-            let units = (x + 0.5) as u64;
+            // number, without a libm call). Through `i64`, which x86-64
+            // converts in one instruction (`u64` takes a branchy sequence):
+            // the same units below 2^63, far beyond what one cell of one
+            // layer of a tube holds ([`crate::units_per_crossing`] units per voxel
+            // crossed at the brightest flux).
+            let units = (x + 0.5) as i64;
             if units > 0 {
-                counter.fetch_add(units, Ordering::Relaxed);
+                counter.fetch_add(units as u64, Ordering::Relaxed);
             }
         }
         for (counter, x) in self.flux[group][base..base + 3].iter().zip(flux) {
