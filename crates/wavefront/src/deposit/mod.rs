@@ -700,10 +700,10 @@ impl Tube<'_> {
                     let p = onto_layer(e * inv, moves, m);
                     [p[ab], p[ac]]
                 };
-                let along = |v: DVec3| self.axes.map(|a| v[a]);
+                let in_axes = |v: DVec3| self.axes.map(|a| v[a]);
                 lanes.push(Lane {
-                    at: along(at),
-                    moves: along(moves),
+                    at: in_axes(at),
+                    moves: in_axes(moves),
                     e1: minor(e1),
                     de1: minor(f1 - e1),
                     e2: minor(e2),
@@ -1068,9 +1068,10 @@ impl Counters {
             // Round to the nearest unit (truncation of a non-negative
             // number, without a libm call). Through `i64`, which x86-64
             // converts in one instruction (`u64` takes a branchy sequence):
-            // the same units below 2^63, far beyond what one cell of one
-            // layer of a tube holds ([`crate::units_per_crossing`] units per voxel
-            // crossed at the brightest flux).
+            // the same units below 2^63, far beyond what one call adds (a
+            // cell's share of one layer of a tube, or of one chord's piece:
+            // [`crate::units_per_crossing`] units per voxel crossed at the
+            // brightest flux).
             let units = (x + 0.5) as i64;
             if units > 0 {
                 counter.fetch_add(units as u64, Ordering::Relaxed);
