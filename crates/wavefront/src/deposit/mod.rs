@@ -1472,6 +1472,57 @@ mod tests {
     }
 
     #[test]
+    fn a_beam_cut_in_two_along_its_line_deposits_as_one_tube() {
+        // A run of steps through uniform space is deposited as one tube,
+        // the same steps one by one as many: the two must agree. A tube's
+        // box footprint is wrong over its last layers (the patch is tilted
+        // to them: some of its rays have ended, others would run on), and
+        // a tube that goes on along the same line makes the opposite error
+        // over the same layers, wherever the joint falls within the cells
+        // (where the path bends they do not cancel: docs/PERFORMANCE.md,
+        // twenty-fourth session on issue 16).
+        let dims = [16, 16, 4];
+        let grid = GridGeometry::new(dims, DVec3::ZERO, DVec3::new(16.0, 16.0, 4.0));
+        let flux = [1.0, 0.5, 0.25];
+        for degrees in [20.0f64, 50.0, 70.0] {
+            let t = degrees.to_radians();
+            let d = DVec3::new(t.sin(), -t.cos(), 0.0);
+            for phase in [0.0, 0.2, 0.37] {
+                let (one, two) = (
+                    Counters::new(&grid, 1, flux, 1e12),
+                    Counters::new(&grid, 1, flux, 1e12),
+                );
+                // A plane wave's row of patches half a voxel across, each
+                // meeting the joint at the same height.
+                for k in 0..12 {
+                    let x = 2.0 + k as f64 * 0.5 / t.cos();
+                    let q1 = square(DVec3::new(x, 8.0 + phase, 2.0), d, 0.5);
+                    let q0 = q1.map(|p| p - d * 3.0);
+                    let q2 = q1.map(|p| p + d * 3.0);
+                    assert_eq!(cut(&q0, &q1, 1.0), cut(&q0, &q2, 1.0));
+                    tube(&one, &q0, &q2, &flux, DVec3::ZERO, None);
+                    tube(&two, &q0, &q1, &flux, DVec3::ZERO, None);
+                    tube(&two, &q1, &q2, &flux, DVec3::ZERO, None);
+                }
+                let (a, b) = (one.into_volume(), two.into_volume());
+                let top = a.fluence.iter().cloned().fold(0.0f32, f32::max);
+                // The joint's own cells are lit.
+                let at_joint = (0..16).map(|i| a.fluence[[i, 8, 2, 0]]).fold(0.0, f32::max);
+                assert!(
+                    at_joint > 0.5 * top,
+                    "{degrees} {phase}: {at_joint} of {top}"
+                );
+                for (x, y) in a.fluence.iter().zip(b.fluence.iter()) {
+                    assert!((x - y).abs() <= 1e-6 * top, "{degrees} {phase}: {x} vs {y}");
+                }
+                for (x, y) in a.flux[0].iter().zip(b.flux[0].iter()) {
+                    assert!((x - y).abs() <= 1e-6 * top, "{degrees} {phase}: {x} vs {y}");
+                }
+            }
+        }
+    }
+
+    #[test]
     fn a_swept_footprint_holds_what_the_moving_box_covers() {
         // The time-integrated mass of a box moving uniformly, by brute
         // force: the box at many positions along its sweep, each cut at
