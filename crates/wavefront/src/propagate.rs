@@ -31,7 +31,7 @@ use eikon_shader::{nothing, Module};
 use glam::DVec3;
 use rayon::prelude::*;
 
-/// The WGSL of [`step_depth`].
+/// The WGSL of [`step_depth`] and [`straddle_weights`].
 pub static WGSL: Module = Module {
     name: "propagate",
     requires: &[&eikon_grid::geometry::WGSL],
@@ -1320,8 +1320,9 @@ pub fn region_code(r: Region) -> u32 {
 /// there took, `crossing.kept`, as their geometric mean (exact for a whole
 /// patch; a piece of a torn patch or a child of a split holds its
 /// ancestor's factors). A corner that crosses in the step takes its own
-/// transmittance over it, `passed`, after its bend.
-fn straddle_weights(
+/// transmittance over it, `passed`, after its bend. The GPU's
+/// `straddle_weights` (`propagate.wgsl`).
+pub fn straddle_weights(
     owner: &[Region; 4],
     crossing: Crossing,
     passed: &[f64; 4],

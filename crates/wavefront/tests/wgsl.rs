@@ -9,12 +9,13 @@
 use eikon_gpu::Gpu;
 use eikon_gpu::DISPATCH;
 use eikon_grid::geometry::{GridGpu, WGSL as GRID};
+use eikon_grid::region::Region;
 use eikon_grid::GridGeometry;
 use eikon_shader::compose;
 use eikon_testkit::parity::{bits, f32s, v4, xyz, Cases, IO};
 use eikon_testkit::Tests;
 use eikon_wavefront::deposit::{self, Counters};
-use eikon_wavefront::patch::{area, normal, span, Split};
+use eikon_wavefront::patch::{area, normal, span, Crossing, Split};
 use eikon_wavefront::propagate::step_depth;
 use eikon_wavefront::{histopyramid, patch, propagate, refine, HistoPyramid};
 use glam::DVec3;
@@ -686,6 +687,122 @@ fn cone(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) g
     assert!(checked > 3800, "{checked}");
 }
 
+// ---------------------------------------------------------------------
+// A straddling patch's light per corner (`propagate::straddle_weights`)
+// and its interpolation over the patch (`deposit::weight_at`).
+
+fn straddle_weights_and_their_interpolation_match_the_cpu(gpu: &Gpu) {
+    let main = format!(
+        "{IO}
+// Input: the corners' region codes, (into, kept, s, t), passed.
+@compute @workgroup_size(WORKGROUP)
+fn weights(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {{
+    let i = item(id, groups);
+    if 3u * i >= arrayLength(&input) {{
+        return;
+    }}
+    let codes = vec4<u32>(input[3u * i]);
+    let c = input[3u * i + 1u];
+    let w = straddle_weights(codes, u32(c.x), c.y, input[3u * i + 2u]);
+    output[3u * i] = w.before;
+    output[3u * i + 1u] = w.after;
+    output[3u * i + 2u] = vec4<f32>(deposit_weight_at(w.after, c.z, c.w));
+}}
+
+fn deposit_put(cell: u32, fluence: vec3<f32>, flux: vec3<f32>) {{}}
+"
+    );
+    let source = compose(
+        "",
+        &[
+            &DISPATCH,
+            &GRID,
+            &patch::WGSL,
+            &deposit::WGSL,
+            &propagate::WGSL,
+        ],
+        &main,
+    );
+    let mut r = Cases::new(71);
+    let f = |x: f64| x as f32 as f64;
+    // Corners in the ambient region or in one of two objects; a crossing
+    // into one of them, none, or one whose corners have taken no factor;
+    // each corner's transmittance over the step, some 1.
+    let region = |r: &mut Cases| -> Region {
+        match r.next_u64() % 3 {
+            0 => None,
+            k => Some(k as usize - 1),
+        }
+    };
+    let cases: Vec<_> = (0..3000)
+        .map(|k| {
+            let owner = [0; 4].map(|_| region(&mut r));
+            let into = if k % 7 == 0 {
+                0
+            } else {
+                propagate::region_code(region(&mut r))
+            };
+            let kept = if k % 5 == 0 { 1.0 } else { f(r.f(0.3, 1.0)) };
+            // (Every fourth step crosses nothing.)
+            let passed = [0; 4].map(|_| {
+                if k % 4 == 0 || r.f(0.0, 1.0) < 0.4 {
+                    1.0
+                } else {
+                    f(r.f(0.5, 1.0))
+                }
+            });
+            let (s, t) = (f(r.f(0.0, 1.0)), f(r.f(0.0, 1.0)));
+            (owner, Crossing { kept, into }, passed, s, t)
+        })
+        .collect();
+    let inputs: Vec<[f32; 4]> = cases
+        .iter()
+        .flat_map(|(owner, c, passed, s, t)| {
+            [
+                owner.map(|o| propagate::region_code(o) as f32),
+                [c.into as f32, c.kept as f32, *s as f32, *t as f32],
+                passed.map(|p| p as f32),
+            ]
+        })
+        .collect();
+    let out = gpu.eval(&source, "weights", &inputs, 3, &[]).unwrap();
+    let (mut weighted, mut uniform) = (0, 0);
+    for (k, (owner, c, passed, s, t)) in cases.iter().enumerate() {
+        let (before, after) = propagate::straddle_weights(owner, *c, passed);
+        let near = |got: f32, want: f64| (got as f64 - want).abs() <= 2e-6 * want.max(1.0);
+        for corner in 0..4 {
+            assert!(
+                near(out[3 * k][corner], before[corner]),
+                "case {k} corner {corner}: before {} vs {}",
+                out[3 * k][corner],
+                before[corner]
+            );
+            assert!(
+                near(out[3 * k + 1][corner], after[corner]),
+                "case {k} corner {corner}: after {} vs {}",
+                out[3 * k + 1][corner],
+                after[corner]
+            );
+        }
+        let want = deposit::weight_at(&after, *s, *t);
+        let got = out[3 * k + 2][0];
+        assert!(near(got, want), "case {k}: weight {got} vs {want}");
+        if before.iter().any(|&w| w != 1.0) {
+            weighted += 1;
+        }
+        let gpu_after = out[3 * k + 1];
+        if after.iter().all(|&w| w == after[0]) && gpu_after.iter().all(|&w| w == gpu_after[0]) {
+            // Exactly the weight where all four are equal.
+            assert_eq!(got, gpu_after[0], "case {k}");
+            uniform += 1;
+        }
+    }
+    assert!(
+        weighted > 1000 && uniform > 100,
+        "{weighted} weighted, {uniform} uniform"
+    );
+}
+
 /// A spot's cone and a direction around its edge, `(dir, axis, angle,
 /// falloff)` (degrees; the vectors rounded to f32): the `k`th of a series
 /// in which every fourth cone has no falloff band.
@@ -1146,6 +1263,10 @@ fn main() {
         .gpu(
             "the_faint_rule_matches_the_cpu",
             the_faint_rule_matches_the_cpu,
+        )
+        .gpu(
+            "straddle_weights_and_their_interpolation_match_the_cpu",
+            straddle_weights_and_their_interpolation_match_the_cpu,
         )
         .run()
 }

@@ -335,6 +335,15 @@ fn deposit_lane_piece(g: GridGpu, l: DepositLane, ta: f32, tb: f32, depth: vec3<
     }
 }
 
+// `deposit::weight_at`: the bilinear interpolation of per-corner weights
+// at (s, t); the weight itself, exactly, where all four are equal.
+fn deposit_weight_at(w: vec4<f32>, s: f32, t: f32) -> f32 {
+    if all(w == vec4<f32>(w.x)) {
+        return w.x;
+    }
+    return w[0] * ((1.0 - s) * (1.0 - t)) + w[1] * (s * (1.0 - t)) + w[2] * (s * t) + w[3] * ((1.0 - s) * t);
+}
+
 // `deposit::tube_cut`: the tube a patch sweeps along straight corner
 // paths, corners from x0 to x1, carrying `flux` at the start, times the
 // bilinear interpolation of the per-corner `weights`, and losing `depth`
@@ -352,7 +361,6 @@ fn deposit_tube_cut(g: GridGpu, sc: ChordScales, x0: array<vec3<f32>, 4>, x1: ar
         }
         return;
     }
-    let uniform = all(weights == vec4<f32>(weights.x));
     let ns = k.x;
     let nt = k.y;
     let share = flux / f32(ns * nt);
@@ -422,11 +430,7 @@ fn deposit_tube_cut(g: GridGpu, sc: ChordScales, x0: array<vec3<f32>, 4>, x1: ar
             if !(l.hi > l.lo) {
                 continue;
             }
-            // (`deposit::weight_at`: the weight itself where all are one.)
-            var mine = share * weights.x;
-            if !uniform {
-                mine = share * (weights[0] * ((1.0 - sm) * (1.0 - tm)) + weights[1] * (sm * (1.0 - tm)) + weights[2] * (sm * tm) + weights[3] * ((1.0 - sm) * tm));
-            }
+            let mine = share * deposit_weight_at(weights, sm, tm);
             l.w = mine * len * sc.fluence;
             l.wf = mine * (len * sc.flux / 3.0);
             if sc.group >= 0 {

@@ -557,9 +557,10 @@ fn bilinear(p: &[DVec3; 4], s: f64, t: f64) -> DVec3 {
 }
 
 /// The bilinear interpolation of per-corner `weights` at `(s, t)`; the
-/// weight itself, exactly, where all four are one.
+/// weight itself, exactly, where all four are equal. The GPU's
+/// `deposit_weight_at`.
 #[inline]
-fn weight_at(w: &[f64; 4], s: f64, t: f64) -> f64 {
+pub fn weight_at(w: &[f64; 4], s: f64, t: f64) -> f64 {
     if w[1] == w[0] && w[2] == w[0] && w[3] == w[0] {
         return w[0];
     }

@@ -1282,26 +1282,11 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, into: u32, kept_before: f32, write: boo
                 time += bend_time[k];
             }
         }
-        // `propagate::straddle_weights`: the light about a corner that has
-        // crossed is what the surface let through.
-        var before_w = vec4<f32>(1.0);
-        if into != 0u && kept_before < 1.0 {
-            var m = 0u;
-            for (var k = 0u; k < 4u; k++) {
-                m += select(0u, 1u, owner[k] + 1u == into);
-            }
-            if m > 0u {
-                let w = pow(kept_before, 4.0 / f32(m));
-                for (var k = 0u; k < 4u; k++) {
-                    before_w[k] = select(1.0, w, owner[k] + 1u == into);
-                }
-            }
-        }
-        var after_w = before_w;
-        if P.fresnel != 0u {
-            after_w *= passed;
-        }
-        var sw = Swept(q.x, out.q.x, flux, depth, before_w, vec2<u32>(0u));
+        // The light about a corner that has crossed is what the surface
+        // let through.
+        let codes = vec4<u32>(owner[0], owner[1], owner[2], owner[3]) + vec4<u32>(1u);
+        let weights = straddle_weights(codes, into, kept_before, select(vec4<f32>(1.0), passed, P.fresnel != 0u));
+        var sw = Swept(q.x, out.q.x, flux, depth, weights.before, vec2<u32>(0u));
         var mid = out.q.x;
         var before = vec3<f32>(0.0);
         if bent > 0u {
@@ -1326,7 +1311,7 @@ fn sharp_patch(q: Quad, flux: vec3<f32>, into: u32, kept_before: f32, write: boo
         }
         for (var piece = 0u; piece < 1u + min(bent, 1u); piece++) {
             if piece == 1u {
-                sw = Swept(mid, out.q.x, flux * exp(-before), max(depth - before, vec3<f32>(0.0)), after_w, sw.cut);
+                sw = Swept(mid, out.q.x, flux * exp(-before), max(depth - before, vec3<f32>(0.0)), weights.after, sw.cut);
             }
             tube(sw);
         }
