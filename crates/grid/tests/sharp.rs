@@ -237,8 +237,11 @@ fn a_sharp_luneburg_lens_focuses_on_its_antipode() {
 fn nested_dielectrics_follow_the_exact_snell_tracer() {
     use eikon_exact::snell;
     const TOL: f64 = 1e-6;
-    let dir = std::env::temp_dir().join(format!("eikon-nested-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let tmp = tempfile::Builder::new()
+        .prefix("eikon-nested-")
+        .tempdir()
+        .unwrap();
+    let dir = tmp.path();
     let glass_profile = [
         [0.0, 0.0],
         [0.45, 0.0],
@@ -346,7 +349,6 @@ fn nested_dielectrics_follow_the_exact_snell_tracer() {
             want.dir
         );
     }
-    std::fs::remove_dir_all(&dir).ok();
     println!(
         "glass of water with ice, {compared} rays ({false_hits} false intersections on the way): exit points within {worst_x:.2e}, directions within {worst_d:.2e} rad of the exact Snell tracer"
     );

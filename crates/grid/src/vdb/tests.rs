@@ -1,13 +1,15 @@
 use super::*;
 use std::path::Path;
-use std::sync::atomic::{AtomicUsize, Ordering};
 
-/// A file path of its own in the temporary directory.
-fn temp(name: &str) -> PathBuf {
-    static N: AtomicUsize = AtomicUsize::new(0);
-    let dir = std::env::temp_dir().join(format!("eikon-vdb-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(format!("{}-{name}", N.fetch_add(1, Ordering::Relaxed)))
+/// A file path of its own in a temporary directory, removed with the
+/// returned guard.
+fn temp(name: &str) -> (tempfile::TempDir, PathBuf) {
+    let dir = tempfile::Builder::new()
+        .prefix("eikon-vdb-")
+        .tempdir()
+        .unwrap();
+    let path = dir.path().join(name);
+    (dir, path)
 }
 
 fn unit() -> Transform {
@@ -67,7 +69,7 @@ fn float_grids_round_trip_through_vdb_rs_exactly() {
         .collect();
     assert!(roots.len() >= 4, "{roots:?}");
     for zip in [false, true] {
-        let path = temp("scattered.vdb");
+        let (_dir, path) = temp("scattered.vdb");
         let mut g = Grid::float("scattered", tree.clone(), unit());
         g.class = GridClass::FogVolume;
         let report = write_file(&path, &[g], &WriteOptions { zip });
@@ -95,7 +97,7 @@ fn uniform_regions_become_tiles_and_read_back() {
     // 160^3 of one value: whole 16^3 nodes (128^3) become tiles of the
     // 32^3 node, the rest 8^3 tiles of 16^3 nodes.
     let tree = Tree::from_dense([160, 136, 130], [-8, 0, -2], 0.0, |_| 1.25f32);
-    let path = temp("uniform.vdb");
+    let (_dir, path) = temp("uniform.vdb");
     let report = write_file(
         &path,
         &[Grid::float("u", tree.clone(), unit())],
@@ -154,7 +156,7 @@ fn half_floats_round_to_half_precision() {
     let mut t = Tree::new(0.0f32);
     t.set([1, 2, 3], 0.1);
     t.set([-1, 2, 3], 1.0 / 3.0);
-    let path = temp("half.vdb");
+    let (_dir, path) = temp("half.vdb");
     let mut g = Grid::float("h", t, unit());
     g.half = true;
     write_file(&path, &[g], &WriteOptions { zip: false });
@@ -177,7 +179,7 @@ fn half_floats_round_to_half_precision() {
     );
 }
 
-fn sample_file(zip: bool) -> (PathBuf, Vec<u8>) {
+fn sample_file(zip: bool) -> (tempfile::TempDir, PathBuf, Vec<u8>) {
     let mut v = Tree::new([0.0f32; 3]);
     v.set([0, 1, 2], [1.0, 2.0, 3.0]);
     let mut f = Tree::new(0.0f32);
@@ -188,15 +190,15 @@ fn sample_file(zip: bool) -> (PathBuf, Vec<u8>) {
         Grid::float("density", f, unit()),
         Grid::vec3("v", v, VectorType::Covariant, unit()),
     ];
-    let path = temp("sample.vdb");
+    let (dir, path) = temp("sample.vdb");
     write_file(&path, &grids, &WriteOptions { zip });
     let bytes = std::fs::read(&path).unwrap();
-    (path, bytes)
+    (dir, path, bytes)
 }
 
 #[test]
 fn several_grids_per_file_with_their_metadata() {
-    let (path, _) = sample_file(true);
+    let (_dir, path, _) = sample_file(true);
     let info = inspect(&path).unwrap();
     assert_eq!(info.file_version, 224);
     let names: Vec<&str> = info.grids.iter().map(|g| g.name.as_str()).collect();
@@ -243,7 +245,7 @@ fn bad_grids_are_refused_and_failed_writes_leave_nothing() {
     .unwrap_err();
     assert!(e.to_string().contains("voxel size"), "{e}");
     // The target is a directory: the rename fails, no temporary remains.
-    let parent = temp("own-dir");
+    let (_dir, parent) = temp("own-dir");
     let dir = parent.join("dir.vdb");
     std::fs::create_dir_all(&dir).unwrap();
     let e = super::write_file(
@@ -267,14 +269,14 @@ fn bad_grids_are_refused_and_failed_writes_leave_nothing() {
 
 #[test]
 fn the_same_grids_give_the_same_bytes() {
-    let (_, a) = sample_file(true);
-    let (_, b) = sample_file(true);
+    let (_, _, a) = sample_file(true);
+    let (_, _, b) = sample_file(true);
     assert_eq!(a, b);
 }
 
 #[test]
 fn bad_files_get_clear_errors() {
-    let (path, bytes) = sample_file(true);
+    let (_dir, path, bytes) = sample_file(true);
     let e = read_float_grid(&path, "v").unwrap_err().to_string();
     assert!(
         e.contains("`v` is a vec3s grid") && e.contains("only float grids"),
@@ -290,7 +292,7 @@ fn bad_files_get_clear_errors() {
         .to_string();
     assert!(e.starts_with("/nonexistent/x.vdb: "), "{e}");
 
-    let cut = temp("cut.vdb");
+    let (_dir, cut) = temp("cut.vdb");
     std::fs::write(&cut, &bytes[..bytes.len() - 10]).unwrap();
     let e = read_float_grid(&cut, "density").unwrap_err().to_string();
     assert!(e.contains("truncated"), "{e}");
@@ -313,7 +315,7 @@ fn every_truncation_and_corruption_is_an_error_not_a_panic() {
             Grid::float("density", f, unit()),
             Grid::vec3("v", v, VectorType::Invariant, unit()),
         ];
-        let path = temp("broken.vdb");
+        let (_dir, path) = temp("broken.vdb");
         let mut bytes = Vec::new();
         write(&mut bytes, &grids, &WriteOptions { zip }).unwrap();
         // Every byte of the header, descriptors, metadata, transform and
@@ -397,7 +399,7 @@ fn what_vdb_rs_cannot_read_is_refused_by_name() {
     }
     tree.extend_from_slice(&3f32.to_le_bytes());
     tree.push(1);
-    let path = temp("tile.vdb");
+    let (_dir, path) = temp("tile.vdb");
     std::fs::write(&path, handmade(&tree, "ScaleTranslateMap")).unwrap();
     let e = read_float_grid(&path, "g").unwrap_err().to_string();
     assert!(e.contains("root-level tile at [0, 4096, 0]"), "{e}");
@@ -440,7 +442,7 @@ fn a_grid_as_a_solid_has_a_conservative_distance_bound() {
         voxel_size: DVec3::splat(h),
         translation: DVec3::new(0.3, 0.0, -0.2),
     };
-    let path = temp("ball.vdb");
+    let (_dir, path) = temp("ball.vdb");
     write_file(
         &path,
         &[Grid::float("density", tree, transform)],
